@@ -1,0 +1,488 @@
+"""Local (Gauss-point) problem of Table 3.1: residual, Jacobian, Newton, substepping.
+
+Unknowns per point (spec section 5, thesis 3.34 in 2D)::
+
+    X = (sig11, sig22, sig33, sig12, sig21, m31, m32, dlam, beta, delta, epsilon, gamma)
+
+with dlam = dt * Lambda, the plastic multiplier increment (Lambda of 2.81 times the
+time step), so that Delta eps_p = dlam dG/dsigma and Delta kappa_p = dlam dG/dm (2.79).
+Residuals (Table 3.1 with the typos of spec section 5 corrected)::
+
+    G1,G2 = S - S^e(E_n - E_p,n-1 - dlam n_G(S, p);  eps_crit(eps_p,n^V))    (2.73), (2.74), (2.70)
+    g3    = sigma_ref (eta dlam / dt)^(1/r) - F(S, p)                          (2.81), r-th root
+    g4..7 = [(p - p_n-1) - s_p (p* - p) dlam (C^V tr n_G + C^D |dev n_G|)] / scale_p      (2.82)
+
+g3 is (2.81) solved for F: Lambda = (1/eta) <F/sigma_ref>^r  <=>  F = sigma_ref (eta Lambda)^(1/r)
+for F > 0; it is well conditioned as eta -> 0 and eta = 0 gives the rate-independent
+consistency condition F = 0 (2.80).  s_p = +1 for the uniform (2.82)/H1 reading,
+s_p = -1 on the delta and epsilon rows for the literal Table 3.1 reading.
+
+Solution strategy (spec section 5 [REC]): elastic predictor; if F > 0, Newton from
+the predictor with a backtracking line search on the scaled residual that rejects
+states beyond the compression point, with negative dlam, or with delta, epsilon,
+gamma outside their ranges; if Newton fails, the strain increment (and dt) is bisected
+into 2, 4, ... substeps (up to 2**max_substep_levels).  Internal units MPa, m, s.
+
+The consistent tangent returned after substepping is the algorithmic tangent of the
+last substep (history of the previous substeps frozen); it is exact without substepping.
+"""
+
+import math
+
+import numpy as np
+from numba import njit
+
+from .elasticity import compression_point, elastic_stress
+from .errors import (STATUS_COMPRESSION_POINT, STATUS_NONFINITE_INPUT, STATUS_NOT_CONVERGED,
+                     STATUS_OK, STATUS_SINGULAR, STATUS_TENSILE)
+from .parameters import (P_BETA_STAR, P_C_BETA_D, P_C_BETA_V, P_C_DELTA_D, P_C_DELTA_V,
+                         P_C_EPS_D, P_C_EPS_V, P_C_GAMMA_D, P_C_GAMMA_V, P_DELTA_STAR,
+                         P_EPS_STAR, P_ETA, P_GAMMA_STAR, P_L_C, P_MAX_ITER, P_MAX_LEVELS,
+                         P_MICROPOLAR, P_R, P_SIGMA_REF, P_SIGN_DELTA, P_SIGN_EPS, P_TOL,
+                         STRESS_UNIT)
+from .tangent import NX, consistent_tangent, solve_inplace
+from .yield_function import plastic_potential_derivatives, yield_function, yield_function_gradient
+
+GAMMA_MAX = 3.0 * math.sqrt(3.0) / 2.0
+
+# ---- layout of the history (state) array, SI units ---------------------------
+S_EPS_P = 0        # 0..4: plastic strain eps_p 11, 22, 33, 12, 21 [-]
+S_KAPPA_P = 5      # 5, 6: plastic curvature kappa_p 31, 32 [1/m]
+S_BETA = 7         # beta [-]
+S_DELTA = 8        # delta [Pa] (thesis form, 2.76)
+S_EPSILON = 9      # epsilon [Pa]
+S_GAMMA = 10       # gamma [-]
+S_LAMBDA = 11      # plastic multiplier Lambda [1/s] of the last step (2.81)
+S_SIG33 = 12       # out-of-plane stress sig33 [Pa]
+S_F = 13           # yield function value F at the end of the step [Pa] (> 0: Perzyna overstress)
+S_STRAIN = 14      # 14..20: total generalised strain of this state (eps11,22,33,12,21,kappa31,32)
+S_EPS_P_DEV = 21   # accumulated deviatoric plastic strain  sum |Delta eps_p^D| [-]
+S_SUBSTEPS = 22    # number of substeps used in the last step (diagnostic)
+S_ITERATIONS = 23  # local Newton iterations in the last step (diagnostic)
+STATE_SIZE = 24
+
+STATE_NAMES = (
+    "eps_p11", "eps_p22", "eps_p33", "eps_p12", "eps_p21", "kappa_p31", "kappa_p32",
+    "beta", "delta", "epsilon", "gamma", "Lambda", "sig33", "yield_function",
+    "eps11", "eps22", "eps33", "eps12", "eps21", "kappa31", "kappa32",
+    "eps_p_dev_accumulated", "substeps", "local_iterations",
+)
+
+# rows of the 2D work array W (72 x 12) and of the vector work array V (24 x 12)
+_J, _JT, _JLU, _Z, _H, _CE, _CT = 0, 12, 24, 36, 48, 55, 62
+_R, _RT, _X, _XT, _N, _DF, _SC, _SE, _EE, _EP, _P, _STR, _ESUB, _EP0, _P0, _DNDP = range(16)
+_SCALE = 19
+
+
+def make_workspace():
+    """Work arrays for one thread of the batch kernel (allocated once per call)."""
+    return np.zeros((72, NX)), np.zeros((24, NX))
+
+
+@njit(cache=True)
+def _hardening_constants(params):
+    """(p*, C^V, C^D, sign) for p = (beta, delta, epsilon, gamma), eq. (2.82)."""
+    pstar = (params[P_BETA_STAR], params[P_DELTA_STAR], params[P_EPS_STAR], params[P_GAMMA_STAR])
+    cv = (params[P_C_BETA_V], params[P_C_DELTA_V], params[P_C_EPS_V], params[P_C_GAMMA_V])
+    cd = (params[P_C_BETA_D], params[P_C_DELTA_D], params[P_C_EPS_D], params[P_C_GAMMA_D])
+    sg = (1.0, params[P_SIGN_DELTA], params[P_SIGN_EPS], 1.0)
+    return pstar, cv, cd, sg
+
+
+@njit(cache=True)
+def residual_jacobian(X, E, Ep0, p0, dt, params, R, J, W, V, want_jac):
+    """Residual R (12) of Table 3.1 at X and, if want_jac, its Jacobian J = dR/dX.
+
+    Ep0 (7): plastic strain/curvature at the start of the (sub)step, p0 (4) hardening.
+    Leaves in the work arrays: n_G (V[_N]), dF (V[_DF]), C_e at the solution (W[_CE:]).
+    Returns (valid, F).  valid is False when X is outside the domain of the model
+    (beyond the compression point, at the stress apex, or delta, epsilon, gamma
+    out of range); the line search then backtracks.
+    """
+    beta = X[8]
+    delta = X[9]
+    eps = X[10]
+    gamma = X[11]
+    if not (delta > 0.0 and eps > 0.0 and gamma > 0.0 and gamma < GAMMA_MAX and X[7] >= 0.0):
+        return False, 0.0
+    S = X[0:7]
+    lam = X[7]
+    n = V[_N, 0:7]
+    H = W[_H:_H + 7, 0:7]
+    dndp = V[_DNDP:_DNDP + 3, 0:7]
+    G, phiG = plastic_potential_derivatives(S, beta, delta, eps, params, n, H, dndp)
+    if not phiG > 0.0:
+        return False, 0.0
+    dF = V[_DF, 0:7]
+    F, dFb, dFd, dFe, dFg, phiF = yield_function_gradient(S, beta, delta, eps, gamma, params, dF)
+    if not phiF > 0.0:
+        return False, 0.0
+    v = n[0] + n[1] + n[2]
+    d0 = n[0] - v / 3.0
+    d1 = n[1] - v / 3.0
+    d2 = n[2] - v / 3.0
+    w = math.sqrt(d0 * d0 + d1 * d1 + d2 * d2 + n[3] * n[3] + n[4] * n[4])
+    Ee = V[_EE, 0:7]
+    for i in range(7):
+        Ee[i] = E[i] - Ep0[i] - lam * n[i]
+    epv = Ep0[0] + Ep0[1] + Ep0[2] + lam * v
+    if not epv < 0.5:
+        return False, 0.0
+    c, dc = compression_point(epv, params)
+    Se = V[_SE, 0:7]
+    Ce = W[_CE:_CE + 7, 0:7]
+    sc = V[_SC, 0:7]
+    if not elastic_stress(Ee, c, params, Se, Ce, sc):
+        return False, 0.0
+    for i in range(7):
+        R[i] = S[i] - Se[i]
+    eta = params[P_ETA]
+    sref = params[P_SIGMA_REF]
+    r = params[P_R]
+    if eta > 0.0 and lam > 0.0:
+        if r == 1.0:
+            R[7] = sref * eta * lam / dt - F
+        else:
+            R[7] = sref * (eta * lam / dt) ** (1.0 / r) - F
+    else:
+        R[7] = -F
+    pstar, cv, cd, sg = _hardening_constants(params)
+    for k in range(4):
+        pk = X[8 + k]
+        A = sg[k] * (pstar[k] - pk)
+        B = lam * (cv[k] * v + cd[k] * w)
+        R[8 + k] = ((pk - p0[k]) - A * B) / V[_SCALE, k]
+    if not want_jac:
+        return True, F
+    # ---------------------------------------------------------------- Jacobian
+    # gradients of v = tr n and w = |dev n| w.r.t. S and p = (beta, delta, epsilon)
+    gv = V[20, 0:7]
+    gw = V[21, 0:7]
+    winv = 1.0 / w if w > 1e-14 else 0.0  # |dev n| has a kink at 0 (hydrostatic flow): subgradient 0
+    for j in range(7):
+        gv[j] = H[0, j] + H[1, j] + H[2, j]
+        gw[j] = winv * (d0 * H[0, j] + d1 * H[1, j] + d2 * H[2, j] + n[3] * H[3, j] + n[4] * H[4, j])
+    dvp = V[22, 0:4]
+    dwp = V[23, 0:4]
+    for m in range(3):
+        dvp[m] = dndp[m, 0] + dndp[m, 1] + dndp[m, 2]
+        vm = dvp[m] / 3.0
+        dwp[m] = winv * (d0 * (dndp[m, 0] - vm) + d1 * (dndp[m, 1] - vm) + d2 * (dndp[m, 2] - vm)
+                         + n[3] * dndp[m, 3] + n[4] * dndp[m, 4])
+    dvp[3] = 0.0
+    dwp[3] = 0.0
+    # G1/G2 rows: R = S - S^e(E - Ep0 - lam n, c(epv0 + lam v))
+    for i in range(7):
+        for j in range(7):
+            s = 0.0
+            for k in range(7):
+                s += Ce[i, k] * H[k, j]
+            J[i, j] = lam * (s - dc * sc[i] * gv[j])
+        J[i, i] += 1.0
+        s = 0.0
+        for k in range(7):
+            s += Ce[i, k] * n[k]
+        J[i, 7] = s - dc * v * sc[i]
+        for m in range(3):
+            s = 0.0
+            for k in range(7):
+                s += Ce[i, k] * dndp[m, k]
+            J[i, 8 + m] = lam * (s - dc * sc[i] * dvp[m])
+        J[i, 11] = 0.0
+    # g3 row
+    for j in range(7):
+        J[7, j] = -dF[j]
+    if eta > 0.0:
+        if r == 1.0:
+            J[7, 7] = sref * eta / dt
+        else:
+            J[7, 7] = sref * (eta / dt) ** (1.0 / r) * (1.0 / r) * max(lam, 1e-300) ** (1.0 / r - 1.0)
+    else:
+        J[7, 7] = 0.0
+    J[7, 8] = -dFb
+    J[7, 9] = -dFd
+    J[7, 10] = -dFe
+    J[7, 11] = -dFg
+    # hardening rows (2.82), implicit Euler
+    for k in range(4):
+        pk = X[8 + k]
+        A = sg[k] * (pstar[k] - pk)
+        B = lam * (cv[k] * v + cd[k] * w)
+        inv = 1.0 / V[_SCALE, k]
+        for j in range(7):
+            J[8 + k, j] = -A * lam * (cv[k] * gv[j] + cd[k] * gw[j]) * inv
+        J[8 + k, 7] = -A * (cv[k] * v + cd[k] * w) * inv
+        for m in range(4):
+            J[8 + k, 8 + m] = -A * lam * (cv[k] * dvp[m] + cd[k] * dwp[m]) * inv
+        J[8 + k, 8 + k] += (1.0 + sg[k] * B) * inv
+    return True, F
+
+
+@njit(cache=True)
+def _merit(R, V, sig_scale, m_scale):
+    s = 0.0
+    for i in range(5):
+        t = R[i] / sig_scale
+        s += t * t
+    for i in range(5, 7):
+        t = R[i] / m_scale
+        s += t * t
+    t = R[7] / sig_scale
+    s += t * t
+    for i in range(8, 12):
+        s += R[i] * R[i]
+    return math.sqrt(s)
+
+
+@njit(cache=True)
+def local_step(E, dt, Ep, p, params, W, V, S_out, C_out, want_tangent):
+    """One implicit Euler step of the local system from history (Ep, p) to total strain E.
+
+    On success Ep (7) and p (4) are overwritten with the new history, S_out with the
+    stress and (if want_tangent) C_out with the consistent tangent.  Returns
+    (status, dlam, F, iterations).
+    """
+    Ep0 = V[_EP0, 0:7]
+    p0 = V[_P0, 0:4]
+    for i in range(7):
+        Ep0[i] = Ep[i]
+    for k in range(4):
+        p0[k] = p[k]
+    # ----- elastic predictor
+    Ee = V[_EE, 0:7]
+    for i in range(7):
+        Ee[i] = E[i] - Ep0[i]
+    c, dc = compression_point(Ep0[0] + Ep0[1] + Ep0[2], params)
+    Str = V[_STR, 0:7]
+    Ce = W[_CE:_CE + 7, 0:7]
+    sc = V[_SC, 0:7]
+    if not elastic_stress(Ee, c, params, Str, Ce, sc):
+        return STATUS_COMPRESSION_POINT, 0.0, 0.0, 0
+    Ftr = yield_function(Str, p0[0], p0[1], p0[2], p0[3], params)
+    smax = 0.0
+    for i in range(5):
+        smax = max(smax, abs(Str[i]))
+    sig_scale = max(smax, 1e-6)  # >= 1 Pa
+    if Ftr <= 1e-14 * sig_scale:
+        for i in range(7):
+            S_out[i] = Str[i]
+        if want_tangent:
+            for i in range(7):
+                for j in range(7):
+                    C_out[i, j] = Ce[i, j]
+        return STATUS_OK, 0.0, Ftr, 0
+    Itr = Str[0] + Str[1] + Str[2]
+    m_scale = sig_scale * max(params[P_L_C], 1e-6)
+    pstar, cv, cd, sg = _hardening_constants(params)
+    for k in range(4):
+        V[_SCALE, k] = abs(p0[k]) + abs(pstar[k])
+    # ----- plastic corrector: Newton from the predictor
+    X = V[_X]
+    Xt = V[_XT]
+    R = V[_R]
+    Rt = V[_RT]
+    J = W[_J:_J + NX]
+    Jt = W[_JT:_JT + NX]
+    Jlu = W[_JLU:_JLU + NX]
+    Z = W[_Z:_Z + NX]
+    for i in range(7):
+        X[i] = Str[i]
+    X[7] = 0.0 if params[P_R] == 1.0 else 1e-12
+    for k in range(4):
+        X[8 + k] = p0[k]
+    tol = params[P_TOL]
+    max_iter = int(params[P_MAX_ITER])
+    valid, F = residual_jacobian(X, E, Ep0, p0, dt, params, R, J, W, V, True)
+    if not valid:
+        return (STATUS_TENSILE if Itr >= 0.0 else STATUS_SINGULAR), 0.0, 0.0, 0
+    merit = _merit(R, V, sig_scale, m_scale)
+    converged = False
+    it = 0
+    while it < max_iter:
+        if merit < tol:
+            converged = True
+            break
+        it += 1
+        for i in range(NX):
+            Z[i, 0] = -R[i]
+            for j in range(NX):
+                Jlu[i, j] = J[i, j]
+        if not solve_inplace(Jlu, Z, 1):
+            break
+        alpha = 1.0
+        accepted = False
+        for ls in range(30):
+            for i in range(NX):
+                Xt[i] = X[i] + alpha * Z[i, 0]
+            if Xt[7] < 0.0:
+                Xt[7] = 0.0
+            ok, Ft = residual_jacobian(Xt, E, Ep0, p0, dt, params, Rt, Jt, W, V, True)
+            if ok:
+                mt = _merit(Rt, V, sig_scale, m_scale)
+                if mt <= (1.0 - 1e-4 * alpha) * merit or mt < tol:
+                    accepted = True
+                    break
+            alpha *= 0.5
+        if not accepted:
+            break
+        for i in range(NX):
+            X[i] = Xt[i]
+            R[i] = Rt[i]
+            for j in range(NX):
+                J[i, j] = Jt[i, j]
+        F = Ft
+        merit = mt
+    if not converged:
+        return (STATUS_TENSILE if Itr >= 0.0 else STATUS_NOT_CONVERGED), 0.0, 0.0, it
+    # converged: re-evaluate at X so that the work arrays (n, C_e) belong to the solution
+    residual_jacobian(X, E, Ep0, p0, dt, params, R, J, W, V, True)
+    n = V[_N, 0:7]
+    lam = X[7]
+    for i in range(7):
+        S_out[i] = X[i]
+        Ep[i] = Ep0[i] + lam * n[i]
+    for k in range(4):
+        p[k] = X[8 + k]
+    if want_tangent:
+        if not consistent_tangent(J, W[_CE:_CE + 7, 0:7], Jlu, Z, C_out):
+            return STATUS_SINGULAR, lam, F, it
+    return STATUS_OK, lam, F, it
+
+
+@njit(cache=True)
+def update_point(E, dt, hist_old, params, S_out, C_out, hist_new, W, V):
+    """Full Gauss-point update with substepping (internal units inside, SI history).
+
+    E (7): total generalised strain at t_n; hist_old/hist_new: rows of the state
+    arrays (layout STATE_NAMES, SI).  Writes S_out (7, MPa / MPa m) and C_out (7x7).
+    Returns the status code (errors.STATUS_*).
+    """
+    su = STRESS_UNIT
+    for i in range(7):
+        if not math.isfinite(E[i]):
+            return STATUS_NONFINITE_INPUT
+    for i in range(hist_old.shape[0]):
+        if not math.isfinite(hist_old[i]):
+            return STATUS_NONFINITE_INPUT
+    Eold = hist_old[S_STRAIN:S_STRAIN + 7]
+    Ep = V[_EP, 0:7]
+    p = V[_P, 0:4]
+    Esub = V[_ESUB, 0:7]
+    max_levels = int(params[P_MAX_LEVELS])
+    status = STATUS_NOT_CONVERGED
+    total_it = 0
+    dlam_sum = 0.0
+    dev_acc = 0.0
+    F = 0.0
+    nsub = 1
+    for level in range(max_levels + 1):
+        nsub = 1 << level
+        for i in range(7):
+            Ep[i] = hist_old[S_EPS_P + i]
+        p[0] = hist_old[S_BETA]
+        p[1] = hist_old[S_DELTA] / su
+        p[2] = hist_old[S_EPSILON] / su
+        p[3] = hist_old[S_GAMMA]
+        dlam_sum = 0.0
+        dev_acc = 0.0
+        total_it = 0
+        status = STATUS_OK
+        for k in range(1, nsub + 1):
+            t = k / nsub
+            for i in range(7):
+                Esub[i] = Eold[i] + t * (E[i] - Eold[i])
+            # plastic strain before the substep, for the accumulated deviatoric measure
+            e0 = Ep[0]
+            e1 = Ep[1]
+            e2 = Ep[2]
+            e3 = Ep[3]
+            e4 = Ep[4]
+            status, dlam, F, it = local_step(Esub, dt / nsub, Ep, p, params, W, V, S_out, C_out,
+                                             k == nsub)
+            total_it += it
+            if status != STATUS_OK:
+                break
+            dlam_sum += dlam
+            a0 = Ep[0] - e0
+            a1 = Ep[1] - e1
+            a2 = Ep[2] - e2
+            tr = (a0 + a1 + a2) / 3.0
+            a3 = Ep[3] - e3
+            a4 = Ep[4] - e4
+            dev_acc += math.sqrt((a0 - tr) ** 2 + (a1 - tr) ** 2 + (a2 - tr) ** 2 + a3 * a3 + a4 * a4)
+        if status == STATUS_OK:
+            break
+        if status == STATUS_NONFINITE_INPUT:
+            break
+    if status != STATUS_OK:
+        return status
+    for i in range(7):
+        hist_new[S_EPS_P + i] = Ep[i]
+        hist_new[S_STRAIN + i] = E[i]
+    hist_new[S_BETA] = p[0]
+    hist_new[S_DELTA] = p[1] * su
+    hist_new[S_EPSILON] = p[2] * su
+    hist_new[S_GAMMA] = p[3]
+    hist_new[S_LAMBDA] = dlam_sum / dt if dt > 0.0 else 0.0
+    hist_new[S_SIG33] = S_out[2] * su
+    hist_new[S_F] = F * su
+    hist_new[S_EPS_P_DEV] = hist_old[S_EPS_P_DEV] + dev_acc
+    hist_new[S_SUBSTEPS] = nsub
+    hist_new[S_ITERATIONS] = total_it
+    for i in range(S_ITERATIONS + 1, hist_new.shape[0]):
+        hist_new[i] = hist_old[i]
+    return STATUS_OK
+
+
+@njit(cache=True)
+def update_batch(grad, dt, state_old, params, flux, tangent, state_new, status):
+    """Batch Gauss-point update: the single compiled entry point used by the FE callback.
+
+    grad (n, k) with k = 6, plane strain [eps11, eps22, eps12, eps21, kappa31, kappa32]
+    (total eps33 = 0, A.4), or k = 7, generalised order [eps11, eps22, eps33, eps12, eps21,
+    kappa31, kappa32] (material-point driver).  flux (n, k) [Pa, N/m], tangent (n, k, k)
+    [Pa, Pa m, Pa m^2], state_old/state_new (n, STATE_SIZE) SI, status (n,) int32.
+    Failed points get zero flux and tangent, the old state and a non-zero status.
+    """
+    npts = grad.shape[0]
+    k = grad.shape[1]
+    su = STRESS_UNIT
+    W = np.zeros((72, NX))
+    V = np.zeros((24, NX))
+    E = np.zeros(7)
+    S = np.zeros(7)
+    C = np.zeros((7, 7))
+    idx = np.empty(k, dtype=np.int64)
+    if k == 6:
+        idx[0] = 0
+        idx[1] = 1
+        idx[2] = 3
+        idx[3] = 4
+        idx[4] = 5
+        idx[5] = 6
+    else:
+        for a in range(k):
+            idx[a] = a
+    polar = params[P_MICROPOLAR] != 0.0
+    for ip in range(npts):
+        for i in range(7):
+            E[i] = 0.0
+        for a in range(k):
+            E[idx[a]] = grad[ip, a]
+        if not polar:
+            E[5] = 0.0  # classical model: curvature ignored
+            E[6] = 0.0
+        code = update_point(E, dt, state_old[ip], params, S, C, state_new[ip], W, V)
+        status[ip] = code
+        if code != STATUS_OK:
+            for a in range(k):
+                flux[ip, a] = 0.0
+                for b in range(k):
+                    tangent[ip, a, b] = 0.0
+            for i in range(state_new.shape[1]):
+                state_new[ip, i] = state_old[ip, i]
+            continue
+        for a in range(k):
+            flux[ip, a] = S[idx[a]] * su
+            for b in range(k):
+                tangent[ip, a, b] = C[idx[a], idx[b]] * su

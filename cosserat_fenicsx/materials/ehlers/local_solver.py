@@ -59,13 +59,15 @@ S_STRAIN = 14      # 14..20: total generalised strain of this state (eps11,22,33
 S_EPS_P_DEV = 21   # accumulated deviatoric plastic strain  sum |Delta eps_p^D| [-]
 S_SUBSTEPS = 22    # number of substeps used in the last step (diagnostic)
 S_ITERATIONS = 23  # local Newton iterations in the last step (diagnostic)
-STATE_SIZE = 24
+S_EPV_OFFSET = 24  # plastic volumetric strain accumulated before the FE reference configuration
+                   # (prestressed start, EhlersMaterial.initial_stress_state); enters eps_crit only
+STATE_SIZE = 25
 
 STATE_NAMES = (
     "eps_p11", "eps_p22", "eps_p33", "eps_p12", "eps_p21", "kappa_p31", "kappa_p32",
     "beta", "delta", "epsilon", "gamma", "Lambda", "sig33", "yield_function",
     "eps11", "eps22", "eps33", "eps12", "eps21", "kappa31", "kappa32",
-    "eps_p_dev_accumulated", "substeps", "local_iterations",
+    "eps_p_dev_accumulated", "substeps", "local_iterations", "eps_p_vol_offset",
 )
 
 # rows of the 2D work array W (72 x 12) and of the vector work array V (24 x 12)
@@ -125,7 +127,7 @@ def residual_jacobian(X, E, Ep0, p0, dt, params, R, J, W, V, want_jac):
     Ee = V[_EE, 0:7]
     for i in range(7):
         Ee[i] = E[i] - Ep0[i] - lam * n[i]
-    epv = Ep0[0] + Ep0[1] + Ep0[2] + lam * v
+    epv = Ep0[0] + Ep0[1] + Ep0[2] + V[_SCALE, 4] + lam * v
     if not epv < 0.5:
         return False, 0.0
     c, dc = compression_point(epv, params)
@@ -252,7 +254,7 @@ def local_step(E, dt, Ep, p, params, W, V, S_out, C_out, want_tangent):
     Ee = V[_EE, 0:7]
     for i in range(7):
         Ee[i] = E[i] - Ep0[i]
-    c, dc = compression_point(Ep0[0] + Ep0[1] + Ep0[2], params)
+    c, dc = compression_point(Ep0[0] + Ep0[1] + Ep0[2] + V[_SCALE, 4], params)
     Str = V[_STR, 0:7]
     Ce = W[_CE:_CE + 7, 0:7]
     sc = V[_SC, 0:7]
@@ -369,6 +371,7 @@ def update_point(E, dt, hist_old, params, S_out, C_out, hist_new, W, V):
     p = V[_P, 0:4]
     Esub = V[_ESUB, 0:7]
     max_levels = int(params[P_MAX_LEVELS])
+    V[_SCALE, 4] = hist_old[S_EPV_OFFSET]
     status = STATUS_NOT_CONVERGED
     total_it = 0
     dlam_sum = 0.0

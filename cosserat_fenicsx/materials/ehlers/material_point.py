@@ -1,0 +1,207 @@
+"""Material-point driver: one Gauss point, no mesh, no dolfinx (issue 3 item 4).
+
+Homogeneous tests of the thesis (A.1, A.2, section 6.1.2) with mixed control.  The
+point is driven through the *generalised* 7-component path of the kernel
+(EhlersMaterial.update_generalised): [eps11, eps22, eps33, eps12, eps21, kappa31,
+kappa32] with the total eps33 free, so that a triaxial test (lateral stress -p on
+both the 2 and the 3 direction, eps33 != 0) and a plane-strain biaxial test
+(eps33 = 0, sig33 from the model) use the very same kernel as the FE.  Each
+component is either strain- or stress-controlled; the unknown strains of the
+stress-controlled components are found by a Newton iteration with the consistent
+tangent (3.37), so its quadratic convergence is visible in ``newton_residuals``.
+
+Axes as in the thesis: e1 axial/vertical, e2 lateral, e3 out-of-plane (spec 0).
+SI units, tension positive: a confining pressure p > 0 means sig22 = -p.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from .errors import MaterialPointError
+from .local_solver import S_EPS_P, S_EPV_OFFSET, S_STRAIN, STATE_SIZE
+
+GENERALISED = ("11", "22", "33", "12", "21", "31", "32")
+
+
+class MaterialPoint:
+    """One Gauss point with committed history, advanced by mixed-control load steps."""
+
+    def __init__(self, material, state=None):
+        self.material = material
+        self.state = material.initial_state(1) if state is None else np.array(state, dtype=float).reshape(1, STATE_SIZE)
+        self.strain = self.state[0, S_STRAIN:S_STRAIN + 7].copy()
+        self.stress = np.zeros(7)
+        self.tangent = None
+        self.newton_residuals = []
+
+    def _evaluate(self, strain, dt):
+        f = np.zeros((1, 7))
+        t = np.zeros((1, 7, 7))
+        s = np.zeros((1, STATE_SIZE))
+        self.material.update_generalised(strain.reshape(1, 7), dt, self.state, f, t, s)
+        return f[0], t[0], s
+
+    def step(self, stress_controlled, target, dt=1.0, tol=1e-7, max_iter=30):
+        """One load step.  stress_controlled: bool (7,); target (7,): stress [Pa] for the
+        stress-controlled components, total strain for the others.  Commits on success,
+        raises MaterialPointError otherwise (the history is then unchanged)."""
+        mask = np.asarray(stress_controlled, dtype=bool)
+        target = np.asarray(target, dtype=float)
+        E = self.strain.copy()
+        E[~mask] = target[~mask]
+        if mask.any() and self.tangent is not None:
+            # predictor with the last tangent: K_uu dE_u = dsig_target - K_uk dE_k
+            K = self.tangent
+            rhs = (target[mask] - self.stress[mask]) - K[np.ix_(mask, ~mask)] @ (E[~mask] - self.strain[~mask])
+            try:
+                E[mask] += np.linalg.solve(K[np.ix_(mask, mask)], rhs)
+            except np.linalg.LinAlgError:
+                pass
+        scale = max(np.abs(target[mask]).max() if mask.any() else 0.0, 1e3)
+        history = []
+        for _ in range(max_iter):
+            S, C, s_new = self._evaluate(E, dt)
+            r = S[mask] - target[mask]
+            res = float(np.abs(r).max()) if mask.any() else 0.0
+            history.append(res)
+            if res <= tol * scale:
+                self.strain, self.stress, self.tangent, self.state = E, S, C, s_new
+                self.newton_residuals.append(history)
+                return S
+            E[mask] -= np.linalg.solve(C[np.ix_(mask, mask)], r)
+        raise MaterialPointError(f"material-point driver: mixed-control Newton did not converge "
+                                 f"(residuals {history[-3:]} Pa)")
+
+    def advance(self, stress_controlled, target, dt=1.0, max_cuts=12):
+        """step() with bisection of the increment (and dt) when the point update fails."""
+        start_target = np.where(stress_controlled, self.stress, self.strain)
+        target = np.asarray(target, dtype=float)
+        done, frac = 0.0, 1.0
+        cuts = 0
+        while done < 1.0 - 1e-12:
+            f = min(frac, 1.0 - done)
+            try:
+                self.step(stress_controlled, start_target + (done + f) * (target - start_target), dt * f)
+                done += f
+            except MaterialPointError:
+                cuts += 1
+                if cuts > max_cuts:
+                    raise
+                frac = f / 2.0
+        return self.stress
+
+
+def _record(pt, out, e_ref):
+    st = pt.state[0]
+    out.append(dict(
+        eps11=pt.strain[0], eps22=pt.strain[1], eps33=pt.strain[2],
+        sig11=pt.stress[0], sig22=pt.stress[1], sig33=pt.stress[2],
+        axial_strain=pt.strain[0] - e_ref[0],
+        volumetric_strain=pt.strain[:3].sum() - e_ref[:3].sum(),
+        axial_stress=pt.stress[0],
+        mean_stress=pt.stress[:3].mean(),
+        beta=st[7], delta=st[8], epsilon=st[9], gamma=st[10],
+        yield_function=st[13], eps_p_vol=st[S_EPS_P:S_EPS_P + 3].sum(),
+        newton_iterations=len(pt.newton_residuals[-1]) if pt.newton_residuals else 0))
+
+
+def _as_arrays(records):
+    return {k: np.array([r[k] for r in records]) for k in records[0]}
+
+
+def consolidate(pt, sigma, n_steps=40, plane_strain=False, dt=1.0):
+    """Stress-controlled proportional loading from the current state to diagonal ``sigma``
+    (sig11, sig22, sig33) [Pa]; with plane_strain the total eps33 stays 0 instead and
+    only sig11, sig22 are prescribed (sig33 follows from the model)."""
+    sigma = np.broadcast_to(np.asarray(sigma, dtype=float), (3,))
+    mask = np.array([True, True, not plane_strain, False, False, False, False])
+    s0 = pt.stress.copy()
+    recs = []
+    for k in range(1, n_steps + 1):
+        tgt = np.zeros(7)
+        tgt[:3] = s0[:3] + k / n_steps * (sigma - s0[:3])
+        if plane_strain:
+            tgt[2] = 0.0
+        pt.advance(mask, tgt, dt)
+        _record(pt, recs, np.zeros(7))
+    return recs
+
+
+def consolidate_state(material, sigma0, n_steps=40):
+    """History row of a point consolidated to diagonal sigma0 and re-referenced to zero strain.
+
+    The total strain of the consolidation is subtracted from the plastic strain (so
+    E - E_p, hence the stress, is unchanged at E = 0) and the volumetric part of that
+    shift is kept in 'eps_p_vol_offset' so that eps_crit(eps_p^V) (2.70) is unchanged.
+    """
+    pt = MaterialPoint(material)
+    consolidate(pt, sigma0, n_steps=n_steps)
+    st = pt.state[0].copy()
+    E = st[S_STRAIN:S_STRAIN + 7].copy()
+    st[S_EPS_P:S_EPS_P + 7] -= E
+    st[S_EPV_OFFSET] += E[:3].sum()
+    st[S_STRAIN:S_STRAIN + 7] = 0.0
+    return st
+
+
+def hydrostatic_test(material, p_max=1.0e6, n_steps=200, dt=1.0):
+    """Hydrostatic compression to mean stress -p_max (A.1): sig11 = sig22 = sig33 = -p."""
+    pt = MaterialPoint(material)
+    recs = consolidate(pt, -p_max, n_steps=n_steps, dt=dt)
+    return _as_arrays(recs)
+
+
+def triaxial_test(material, confining=100e3, axial_strain=0.15, n_steps=600, n_consolidation=40, dt=1.0):
+    """Triaxial compression (A.1): isotropic consolidation to -p, then eps11 decreased by
+    ``axial_strain`` at constant lateral stress sig22 = sig33 = -p (eps22 = eps33 free).
+    Axial and volumetric strains are counted from the start of the deviatoric phase."""
+    pt = MaterialPoint(material)
+    consolidate(pt, -confining, n_steps=n_consolidation, dt=dt)
+    e_ref = pt.strain.copy()
+    recs = []
+    _record(pt, recs, e_ref)
+    mask = np.array([False, True, True, False, False, False, False])
+    for k in range(1, n_steps + 1):
+        tgt = np.zeros(7)
+        tgt[0] = e_ref[0] - axial_strain * k / n_steps
+        tgt[1] = tgt[2] = -confining
+        pt.advance(mask, tgt, dt)
+        _record(pt, recs, e_ref)
+    return _as_arrays(recs)
+
+
+def biaxial_test(material, confining=100e3, axial_strain=0.15, n_steps=600, n_consolidation=40, dt=1.0):
+    """Homogeneous plane-strain biaxial test (A.2): consolidation sig11 = sig22 = -p with
+    eps33 = 0, then eps11 decreased at sig22 = -p, eps33 = 0 (sig33 from the model)."""
+    pt = MaterialPoint(material)
+    consolidate(pt, -confining, n_steps=n_consolidation, plane_strain=True, dt=dt)
+    e_ref = pt.strain.copy()
+    recs = []
+    _record(pt, recs, e_ref)
+    mask = np.array([False, True, False, False, False, False, False])
+    for k in range(1, n_steps + 1):
+        tgt = np.zeros(7)
+        tgt[0] = e_ref[0] - axial_strain * k / n_steps
+        tgt[1] = -confining
+        pt.advance(mask, tgt, dt)
+        _record(pt, recs, e_ref)
+    return _as_arrays(recs)
+
+
+def summarize(h):
+    """Peak (most compressive) axial stress, strain at peak, final volumetric strain, ..."""
+    i = int(np.argmin(h["axial_stress"]))
+    ev = h["volumetric_strain"]
+    j = int(np.argmin(ev))
+    return dict(
+        peak_axial_stress=float(h["axial_stress"][i]),
+        axial_strain_at_peak=float(h["axial_strain"][i]),
+        final_axial_stress=float(h["axial_stress"][-1]),
+        final_axial_strain=float(h["axial_strain"][-1]),
+        final_volumetric_strain=float(ev[-1]),
+        min_volumetric_strain=float(ev[j]),
+        axial_strain_at_min_volumetric_strain=float(h["axial_strain"][j]),
+        max_yield_function=float(np.max(h["yield_function"])),
+        max_newton_iterations=int(np.max(h["newton_iterations"])),
+        n_points=int(len(ev)))

@@ -1,9 +1,12 @@
 """Errors raised by the Ehlers Gauss-point update (no Numba import here)."""
 
+from ...constitutive import ConstitutiveError
 
-class MaterialPointError(RuntimeError):
+
+class MaterialPointError(ConstitutiveError):
     """The local (Gauss-point) problem has no acceptable solution.
 
+    A ConstitutiveError, so the FE load stepper turns it into a cut-back.
     Raised instead of ever returning NaN.  The message names the cause and the
     index of the first failing point; ``codes`` holds the per-point status
     array (0 = ok, see :data:`STATUS_MESSAGES`) so the caller (the FE Newton)

@@ -14,13 +14,14 @@ from __future__ import annotations
 
 import numpy as np
 
+from ...constitutive import Constitutive
 from .errors import STATUS_MESSAGES, MaterialPointError
 from .local_solver import (S_BETA, S_DELTA, S_EPSILON, S_GAMMA, STATE_NAMES, STATE_SIZE,
                            update_batch)
 from .parameters import EhlersParameters
 
 
-class EhlersMaterial:
+class EhlersMaterial(Constitutive):
     """Micropolar Ehlers single-surface elasto-viscoplastic model (Scholz 2007, ch. 2-3).
 
     Elasticity (2.70)-(2.74) with the compression point, yield function (2.76)/(2.77),

@@ -1,0 +1,158 @@
+#!/usr/bin/env python3
+"""Homogeneous material-point tests of the micropolar Ehlers model (one Gauss point, no mesh).
+
+Tests of the thesis (Scholz 2007, A.1, A.2, section 6.1.2), Hostun sand by default
+(Tables 6.1, 6.4 under reading H1, see docs/ehlers.md):
+
+  hydrostatic  sig11 = sig22 = sig33 = -P, P increased to --confining
+  triaxial     isotropic consolidation to -P, then axial strain eps11 decreased at
+               sig22 = sig33 = -P  (thesis: P = 100, 300, 600 kN/m^2)
+  biaxial      plane strain (eps33 = 0): consolidation sig11 = sig22 = -P, then eps11
+               decreased at sig22 = -P (thesis: P = 100 kN/m^2)
+  all          the five thesis tests, and a comparison with the reference values of
+               the spec (section 4.6, reading H1) in h1_comparison.json
+
+Writes to --out: history.csv (axial_strain, axial_stress, volumetric_strain, then
+further columns; SI, tension positive; strains counted from the start of the
+deviatoric phase), summary.json, and material_point.png (axial stress and volumetric
+strain against axial strain).  No dolfinx needed.
+
+Example:  python3 demos/material_point.py --test triaxial --confining 300e3 --out out/tri300
+"""
+import argparse
+import csv
+import json
+import os
+import sys
+import time
+
+import numpy as np
+
+sys.path.insert(0, os.path.join(os.path.dirname(os.path.abspath(__file__)), ".."))
+
+#: reference values of the spec, section 4.6 (reading H1; a reconstruction, not thesis data)
+SPEC_H1 = {
+    "triaxial_100kPa": dict(peak_axial_stress=-0.536e6, axial_strain_at_peak=-0.071, final_volumetric_strain=0.098),
+    "triaxial_300kPa": dict(peak_axial_stress=-1.415e6, axial_strain_at_peak=-0.077, final_volumetric_strain=0.067),
+    "triaxial_600kPa": dict(peak_axial_stress=-2.488e6, axial_strain_at_peak=-0.102, final_volumetric_strain=0.038),
+    "biaxial_100kPa": dict(peak_axial_stress=-0.692e6, axial_strain_at_peak=-0.046, final_axial_stress=-0.523e6),
+    "hydrostatic": {"volumetric_strain_at_0.1MPa": -0.0011, "volumetric_strain_at_0.3MPa": -0.0049,
+                    "volumetric_strain_at_0.6MPa": -0.0100, "volumetric_strain_at_1.0MPa": -0.0166},
+}
+#: Table 6.2 normalisation factors (magnitudes of the measured data)
+TABLE_6_2 = {"triaxial_100kPa": dict(sigma0=500e3, epsV0=0.1), "triaxial_300kPa": dict(sigma0=1500e3, epsV0=0.07),
+             "triaxial_600kPa": dict(sigma0=2500e3, epsV0=0.03), "hydrostatic": dict(epsV0=0.017),
+             "biaxial_100kPa": dict(sigma0=650e3)}
+
+
+def build_parser():
+    p = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter,
+                                allow_abbrev=False)
+    p.add_argument("--test", choices=("hydrostatic", "triaxial", "biaxial", "all"), default="triaxial")
+    p.add_argument("--confining", type=float, default=100e3,
+                   help="confining pressure P > 0 [Pa] (hydrostatic: final pressure) (default %(default)g)")
+    p.add_argument("--out", default="out/material_point", help="output directory (default %(default)s)")
+    g = p.add_argument_group("material (SI units; Hostun defaults, Tables 6.1/6.4)")
+    g.add_argument("--mu", type=float, default=91.0e6, help="shear modulus [Pa] (default %(default)g)")
+    g.add_argument("--lmbda", type=float, default=49.4e6, help="Lame constant lambda [Pa] (default %(default)g)")
+    g.add_argument("--mu-c", type=float, default=None, help="Cosserat modulus [Pa] (default mu_c = mu)")
+    g.add_argument("--l-c", type=float, default=3e-3, help="internal length [m] (default %(default)g)")
+    g.add_argument("--hardening-rows", choices=("uniform", "table3.1"), default="uniform",
+                   help="uniform (2.82), reading H1 (default), or the delta/epsilon signs of Table 3.1")
+    n = p.add_argument_group("numerics")
+    n.add_argument("--steps", type=int, default=600, help="load steps of the deviatoric phase (default %(default)s)")
+    n.add_argument("--consolidation-steps", type=int, default=40, help="steps of the isotropic phase (default %(default)s)")
+    n.add_argument("--axial-strain", type=float, default=0.15, help="axial compression strain (default %(default)g)")
+    n.add_argument("--eta", type=float, default=1e-4, help="Perzyna relaxation time [s] (2.81) (default %(default)g)")
+    n.add_argument("--dt", type=float, default=1.0, help="time per load step [s] (default %(default)g)")
+    return p
+
+
+def run_test(material, test, confining, args):
+    from cosserat_fenicsx.materials.ehlers import material_point as mp
+    if test == "hydrostatic":
+        h = mp.hydrostatic_test(material, confining, n_steps=args.steps, dt=args.dt)
+    elif test == "triaxial":
+        h = mp.triaxial_test(material, confining, args.axial_strain, args.steps, args.consolidation_steps, args.dt)
+    else:
+        h = mp.biaxial_test(material, confining, args.axial_strain, args.steps, args.consolidation_steps, args.dt)
+    s = mp.summarize(h)
+    s.update(test=test, confining_pressure=confining)
+    if test == "hydrostatic":
+        for p in (0.1e6, 0.3e6, 0.6e6, 1.0e6):
+            if confining >= p * (1 - 1e-9):
+                s[f"volumetric_strain_at_{p / 1e6:.1f}MPa"] = float(np.interp(-p, h["mean_stress"][::-1],
+                                                                               h["volumetric_strain"][::-1]))
+    return h, s
+
+
+def write_outputs(h, s, out, title):
+    os.makedirs(out, exist_ok=True)
+    cols = ["axial_strain", "axial_stress", "volumetric_strain", "sig22", "sig33", "mean_stress",
+            "eps22", "eps33", "eps_p_vol", "beta", "delta", "epsilon", "gamma", "yield_function"]
+    with open(os.path.join(out, "history.csv"), "w", newline="") as f:
+        w = csv.writer(f)
+        w.writerow(cols)
+        for i in range(len(h["axial_strain"])):
+            w.writerow([f"{h[c][i]:.10g}" for c in cols])
+    with open(os.path.join(out, "summary.json"), "w") as f:
+        json.dump(s, f, indent=2)
+    import matplotlib
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    fig, ax = plt.subplots(2, 1, figsize=(6, 7), sharex=True)
+    ax[0].plot(h["axial_strain"], h["axial_stress"] / 1e3)
+    ax[0].set_ylabel("axial stress sig11 [kPa] (tension +)")
+    ax[1].plot(h["axial_strain"], h["volumetric_strain"])
+    ax[1].set_ylabel("volumetric strain [-] (dilation +)")
+    ax[1].set_xlabel("axial strain eps11 [-] (tension +)")
+    ax[0].set_title(title)
+    for a in ax:
+        a.grid(True, alpha=0.3)
+    fig.tight_layout()
+    fig.savefig(os.path.join(out, "material_point.png"), dpi=120)
+    plt.close(fig)
+
+
+def main(argv=None):
+    args = build_parser().parse_args(argv)
+    if not args.confining > 0:
+        raise SystemExit(f"--confining must be > 0 (a pressure, Pa), got {args.confining}")
+    if args.steps < 1 or args.consolidation_steps < 1:
+        raise SystemExit("--steps and --consolidation-steps must be >= 1")
+    from cosserat_fenicsx.materials.ehlers import EhlersMaterial
+    try:
+        material = EhlersMaterial.hostun(mu=args.mu, lmbda=args.lmbda, mu_c=args.mu_c, l_c=args.l_c,
+                                         eta=args.eta, hardening_rows=args.hardening_rows)
+    except ValueError as e:
+        raise SystemExit(f"invalid material parameter: {e}")
+    t0 = time.perf_counter()
+    if args.test != "all":
+        h, s = run_test(material, args.test, args.confining, args)
+        s["wall_time_s"] = time.perf_counter() - t0
+        write_outputs(h, s, args.out, f"{args.test}, P = {args.confining / 1e3:g} kPa")
+        print(json.dumps(s, indent=2))
+        return s
+    table = {}
+    for test, p in (("hydrostatic", 1.0e6), ("triaxial", 100e3), ("triaxial", 300e3), ("triaxial", 600e3),
+                    ("biaxial", 100e3)):
+        key = "hydrostatic" if test == "hydrostatic" else f"{test}_{p / 1e3:.0f}kPa"
+        h, s = run_test(material, test, p, args)
+        write_outputs(h, s, os.path.join(args.out, key), key)
+        ref = SPEC_H1[key]
+        table[key] = {k: dict(model=s[k], spec_H1=v, rel_diff=(s[k] - v) / abs(v)) for k, v in ref.items()}
+        table[key]["table_6_2"] = TABLE_6_2[key]
+    table["wall_time_s"] = time.perf_counter() - t0
+    with open(os.path.join(args.out, "h1_comparison.json"), "w") as f:
+        json.dump(table, f, indent=2)
+    for key, rows in table.items():
+        if key == "wall_time_s":
+            continue
+        for k, r in rows.items():
+            if k != "table_6_2":
+                print(f"{key:18s} {k:32s} model {r['model']:+.4g}  spec {r['spec_H1']:+.4g}  ({100 * r['rel_diff']:+.1f} %)")
+    return table
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,27 @@
+"""demcell: a Numba periodic 2D DEM cell answering "what stress for this deformation?".
+
+The micro-scale half of FEM x DEM (papers 000, 001 in ../shared/seeds). No dolfinx import.
+Main entry points:
+
+* ``ContactLaw``                      contact_law.py   (000 eq. 10, 003 Table 1)
+* ``generate_packing``, ``hexagonal_lattice``   packing.py
+* ``save_packing``, ``load_packing``, ``write_vtk_snapshot``   io.py
+* ``MicroCell`` (interface), ``DemCell``, ``create_cells``, ``RelaxationOptions``  interface.py
+* ``homogenize`` / ``Homogenized``    homogenization.py (000 eqs. 14, 16, 38-40; 001 eq. 8)
+* tangents                             tangent.py (001 eqs. 6, 13, 20)
+
+Conventions: tension positive, (Grad u)_ij = du_i/dX_j, t_i = sigma_ij n_j, 2D quantities
+per unit thickness (stress in N/m). See docs/demcell.md.
+"""
+from .contact_law import ContactLaw
+from .errors import DemCellError, InputError, SolveError
+from .homogenization import Homogenized, homogenize
+from .interface import DemCell, MicroCell, RelaxationOptions, SolveResult, create_cells
+from .io import load_packing, save_packing, write_vtk_snapshot
+from .packing import generate_packing, hexagonal_lattice, loose_state
+from .state import CellState
+
+__all__ = ["ContactLaw", "DemCellError", "InputError", "SolveError", "Homogenized", "homogenize",
+           "DemCell", "MicroCell", "RelaxationOptions", "SolveResult", "create_cells",
+           "load_packing", "save_packing", "write_vtk_snapshot", "generate_packing",
+           "hexagonal_lattice", "loose_state", "CellState"]

@@ -1,0 +1,167 @@
+"""Contact law between two discs (2D, per unit out-of-plane thickness).
+
+Linear normal spring ``kn`` and tangential spring ``ks`` with Coulomb sliding
+(paper 000, eq. 10: ``f_n = kn du_n``, ``|f_s| <= mu |f_n|``), optional cohesive
+bonds (paper 001, "frictional-cohesive contacts"), optional rolling resistance
+with its own stiffness ``kr`` and limit (paper 003, Table 1), optional viscous
+normal/tangential dashpots.
+
+Internal sign convention of this module: ``fn > 0`` is a *repulsive*
+(compressive) normal force; the homogenized stresses are reported with tension
+positive (see ``homogenization.py``).
+
+Units (2D, forces per unit thickness): kn, ks in N/m/m = N/m per metre of
+thickness, i.e. the "N/m" of paper 000 Table 3; forces in N (per unit
+thickness); rolling stiffness kr in N m/rad; cohesion in N.
+
+Twisting resistance (rotation about the contact normal) has no meaning for 2D
+discs: their only rotation axis is e3, perpendicular to every contact normal.
+``ContactLaw(twisting_stiffness=...)`` therefore only accepts 0.
+"""
+import math
+from dataclasses import dataclass, fields
+
+import numpy as np
+from numba import njit
+
+from .errors import InputError
+
+# positions in the float64 parameter array handed to the kernels
+KN, KS, MU, KR, ETA_R, XI_N, XI_T, COH_N, COH_T, ROTATIONS, FROZEN = range(11)
+N_LAW = 11
+
+
+@dataclass(frozen=True)
+class ContactLaw:
+    """Parameters of the disc-disc contact law.
+
+    kn : normal stiffness [N/m] (000 Table 3: 1e4)
+    ks : tangential stiffness [N/m] (000 Table 3: 2e3)
+    friction : Coulomb coefficient mu [-]; 0 = frictionless, ``math.inf`` = no sliding
+    rolling_stiffness : kr [N m/rad], 0 = no rolling resistance (003 Table 1 k_omega)
+    rolling_friction : eta_r [-]; rolling moment limit |M_r| <= eta_r * R_eff * f_n with
+        R_eff = R_i R_j / (R_i + R_j). (003 Table 1 gives the limit as a length
+        mu_omega = eta_r * R_eff.)  ``math.inf`` = elastic rolling spring without limit.
+    normal_damping, tangential_damping : viscous damping ratios xi [-] of the dashpots,
+        c = 2 xi sqrt(m_eff k) with m_eff = m_i m_j / (m_i + m_j). The viscous normal force is
+        not clipped at zero (linear spring-dashpot).
+    cohesion_normal : tensile strength of a bond [N]; cohesion_shear : shear strength
+        of a bond [N] added to the Coulomb limit. Bonds exist only on contacts marked with
+        ``DemCell.bond_contacts()`` and break for good when either strength is exceeded.
+    rotations : False locks all particle rotations (000 section 4.3.2).
+    twisting_stiffness : must be 0 in 2D (see module docstring).
+    """
+
+    kn: float = 1.0e4
+    ks: float = 2.0e3
+    friction: float = 0.4
+    rolling_stiffness: float = 0.0
+    rolling_friction: float = math.inf
+    normal_damping: float = 0.0
+    tangential_damping: float = 0.0
+    cohesion_normal: float = 0.0
+    cohesion_shear: float = 0.0
+    rotations: bool = True
+    twisting_stiffness: float = 0.0
+
+    def __post_init__(self):
+        for f in fields(self):
+            val = getattr(self, f.name)
+            if f.name == "rotations":
+                if not isinstance(val, (bool, np.bool_)):
+                    raise InputError(f"ContactLaw.rotations must be True or False, got {val!r}")
+                continue
+            try:
+                val = float(val)
+            except (TypeError, ValueError):
+                raise InputError(f"ContactLaw.{f.name} must be a number, got {val!r}") from None
+            if math.isnan(val) or val < 0.0:
+                raise InputError(f"ContactLaw.{f.name} must be >= 0 (got {val}); "
+                                 "negative stiffness, friction or damping is unphysical")
+        if self.kn <= 0.0 or not math.isfinite(self.kn):
+            raise InputError(f"ContactLaw.kn must be finite and > 0, got {self.kn}")
+        if not math.isfinite(self.ks) or not math.isfinite(self.rolling_stiffness):
+            raise InputError("ContactLaw stiffnesses must be finite")
+        if self.twisting_stiffness != 0.0:
+            raise InputError("twisting resistance does not exist for 2D discs (their only rotation "
+                             "axis e3 is perpendicular to every contact normal); use twisting_stiffness=0")
+
+    def with_(self, **changes):
+        """Copy with some fields changed (validated again)."""
+        d = {f.name: getattr(self, f.name) for f in fields(self)}
+        unknown = set(changes) - set(d)
+        if unknown:
+            raise InputError(f"unknown ContactLaw option(s): {sorted(unknown)}")
+        d.update(changes)
+        return ContactLaw(**d)
+
+    def as_array(self, frozen=False):
+        """Float64 parameter vector read by the Numba kernels (indices KN..FROZEN)."""
+        a = np.zeros(N_LAW)
+        a[KN], a[KS], a[MU] = self.kn, self.ks, self.friction
+        a[KR], a[ETA_R] = self.rolling_stiffness, self.rolling_friction
+        a[XI_N], a[XI_T] = self.normal_damping, self.tangential_damping
+        a[COH_N], a[COH_T] = self.cohesion_normal, self.cohesion_shear
+        a[ROTATIONS] = 1.0 if self.rotations else 0.0
+        a[FROZEN] = 1.0 if frozen else 0.0
+        return a
+
+    def to_dict(self):
+        return {f.name: (getattr(self, f.name) if f.name == "rotations" else float(getattr(self, f.name)))
+                for f in fields(self)}
+
+
+@njit(cache=True)
+def contact_update(overlap, d_overlap, d_ut, d_theta_r, fs_old, mr_old, bonded,
+                   law, m_eff, r_eff, dt):
+    """Advance the force state of one contact by one time step.
+
+    overlap   : current overlap h = R_i + R_j - |d| [m] (001 eq. A.2), may be < 0 for bonds
+    d_overlap : increment of overlap during the step [m]
+    d_ut      : increment of relative tangential displacement of j w.r.t. i at the
+                contact point during the step [m]
+    d_theta_r : increment of relative rotation theta_j - theta_i [rad]
+    fs_old, mr_old : tangential force on j along t [N] and rolling moment on j [N m]
+    bonded    : 1 if a cohesive bond holds the contact
+    Returns (fn, fn_elastic, fs, fs_elastic, mr, sliding, bonded); fn > 0 is repulsive on j
+    along n, fs is the tangential force on j along t (fs_elastic, without the dashpot, is the
+    state to store for the next step).
+    Normal: fn = kn h + cn dh/dt; tangential: elastic predictor fs = fs_old - ks d_ut, then
+    the Coulomb return |fs| <= mu fn_el (+ bond shear strength) (000 eq. 10).
+    """
+    kn = law[KN]
+    fn_el = kn * overlap
+    if bonded == 1 and fn_el < -law[COH_N]:
+        bonded = 0
+    if bonded == 0 and overlap <= 0.0:
+        return 0.0, 0.0, 0.0, 0.0, 0.0, 0, 0
+    fn = fn_el
+    if law[XI_N] > 0.0:
+        fn += 2.0 * law[XI_N] * math.sqrt(m_eff * kn) * d_overlap / dt
+    # tangential spring, Coulomb limit (000 eq. 10)
+    fs = fs_old - law[KS] * d_ut
+    # (inf * 0 is avoided: a contact without normal force carries no friction)
+    limit = law[MU] * fn_el if fn_el > 0.0 else 0.0
+    if bonded == 1:
+        limit += law[COH_T]
+    sliding = 0
+    if abs(fs) > limit:
+        if bonded == 1:
+            bonded = 0
+            limit = law[MU] * fn_el if fn_el > 0.0 else 0.0
+        if abs(fs) > limit:
+            fs = math.copysign(limit, fs)
+            sliding = 1
+    fs_el = fs
+    if law[XI_T] > 0.0 and sliding == 0:
+        fs -= 2.0 * law[XI_T] * math.sqrt(m_eff * law[KS]) * d_ut / dt
+    # rolling resistance (003, Table 1): elastic-perfectly plastic spring on theta_j - theta_i
+    mr = 0.0
+    if law[KR] > 0.0:
+        mr = mr_old - law[KR] * d_theta_r
+        mlim = law[ETA_R] * r_eff * fn_el if fn_el > 0.0 else 0.0
+        if math.isinf(law[ETA_R]) and bonded == 1:
+            mlim = math.inf
+        if abs(mr) > mlim:
+            mr = math.copysign(mlim, mr)
+    return fn, fn_el, fs, fs_el, mr, sliding, bonded

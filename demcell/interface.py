@@ -1,0 +1,338 @@
+"""The plug-in interface a finite-element Gauss-point callback calls (no dolfinx here).
+
+``MicroCell`` is the abstract interface any micro-scale engine can implement; ``DemCell``
+is the Numba DEM implementation. Conventions (same as the FE side):
+
+* tension positive; (Grad u)_ij = du_i/dX_j; F = I + Grad u; traction t_i = sigma_ij n_j;
+* 2D quantities per unit out-of-plane thickness: stresses in N/m;
+* tangents are 4x4 matrices, rows (11, 12, 21, 22) of the stress, columns (11, 12, 21, 22)
+  of F (001 eq. 11): ``tangent(kind, measure="dsigma_dF")`` gives d sigma_ij / d F_kl
+  (= d sigma / d Grad u), ``measure="dP_dF"`` gives d P_ij / d F_kl.
+
+Typical Gauss-point use::
+
+    cells = create_cells(load_packing("pack.npz"), count=n_gauss, law=ContactLaw(...))
+    cell.set_deformation(F)              # each Newton iteration
+    res = cell.solve()                   # -> SolveResult (converged, flags, message)
+    P, C = cell.pk1_stress(), cell.tangent("kruyt", measure="dP_dF")
+    cell.commit()                        # once the macro step converged
+    cell.rollback()                      # to restart a macro iteration from the last commit
+"""
+import abc
+import math
+from dataclasses import asdict, dataclass, fields
+
+import numpy as np
+
+from .contact_law import ContactLaw, MU, COH_N, COH_T, ETA_R
+from .errors import InputError
+from .homogenization import homogenize
+from .periodic_cell import deformation_path
+from .relaxation import (ENERGY_RATIO, NO_CONTACTS, UNBALANCED_FORCE, run, stable_time_step)
+from .state import CellState
+from .tangent import demqo_tangent, dsigma_to_dpk1, kruyt_operator, perturbation_tangent
+
+
+@dataclass(frozen=True)
+class RelaxationOptions:
+    """Options of the quasi-static solve.
+
+    criterion : 'energy' (E_kin/E_pot <= tol, 000 eq. 31) or 'force' (max unbalanced force /
+        mean contact force <= tol, 001 section 2)
+    tol : tolerance of the criterion (000 Table 3: 1e-3)
+    damping : local non-viscous damping alpha = beta (000 Table 3: 0.7)
+    max_steps : steps allowed per sub-step before giving up (result flagged not converged)
+    check_every : steps between convergence tests
+    strain_rate : max |dF| per time step during the loading ramp (001 eq. 7 with
+        tau_1 = |F_f - F_i| / strain_rate / dt)
+    max_increment : largest |dF| of one sub-step; larger increments are split (polar path)
+    dt : time step [s]; None = ``stable_time_step`` (follows the stiffness)
+    dt_safety : safety factor of the automatic time step
+    skin_ratio : neighbour-list skin / R_min
+    stress_tol : relative tolerance on stress-controlled components
+    servo_gain : dF per step = -gain (sigma - target) / kn on stress-controlled components
+    """
+    criterion: str = "energy"
+    tol: float = 1e-3
+    damping: float = 0.7
+    max_steps: int = 200_000
+    check_every: int = 50
+    strain_rate: float = 1e-5
+    max_increment: float = 0.01
+    dt: float = None
+    dt_safety: float = 0.25
+    skin_ratio: float = 0.1
+    stress_tol: float = 1e-3
+    servo_gain: float = 0.05
+
+    def __post_init__(self):
+        if self.criterion not in ("energy", "force"):
+            raise InputError(f"unknown convergence criterion {self.criterion!r}: use 'energy' "
+                             "(000 eq. 31) or 'force' (unbalanced-force ratio, 001)")
+        for f in fields(self):
+            v = getattr(self, f.name)
+            if f.name in ("criterion", "dt"):
+                continue
+            if not (isinstance(v, (int, float)) and v >= 0 and math.isfinite(v)):
+                raise InputError(f"RelaxationOptions.{f.name} must be a finite number >= 0, got {v!r}")
+        if not self.damping < 1.0:
+            raise InputError("local damping must be < 1")
+        if self.strain_rate <= 0 or self.max_increment <= 0 or self.tol <= 0:
+            raise InputError("strain_rate, max_increment and tol must be > 0")
+        if self.dt is not None and not (self.dt > 0 and math.isfinite(self.dt)):
+            raise InputError(f"dt must be > 0, got {self.dt}")
+
+    @classmethod
+    def from_kwargs(cls, **kw):
+        names = {f.name for f in fields(cls)}
+        unknown = set(kw) - names
+        if unknown:
+            raise InputError(f"unknown relaxation option(s) {sorted(unknown)}; known: {sorted(names)}")
+        return cls(**kw)
+
+
+@dataclass
+class SolveResult:
+    """Outcome of ``solve``. converged: every sub-step met the criterion (or the cell has no
+    contact left); no_contacts: the cell lost every contact (stress is exactly zero);
+    steps: time steps used; substeps: number of sub-steps; message: the cause in words."""
+    converged: bool
+    no_contacts: bool
+    steps: int
+    substeps: int
+    message: str
+
+
+class MicroCell(abc.ABC):
+    """What a Gauss point needs from a micro-scale engine (see module docstring)."""
+
+    @abc.abstractmethod
+    def set_deformation(self, F): """Target macroscopic deformation gradient (2x2)."""
+
+    def set_displacement_gradient(self, grad_u):
+        """Target (Grad u)_ij = du_i/dX_j; F = I + Grad u."""
+        self.set_deformation(np.eye(2) + np.asarray(grad_u, dtype=float))
+
+    @abc.abstractmethod
+    def solve(self): """Bring the cell to quasi-static equilibrium at the target; -> SolveResult."""
+
+    @abc.abstractmethod
+    def deformation_gradient(self): """Current F (2x2)."""
+
+    @abc.abstractmethod
+    def cauchy_stress(self): """Cauchy stress [N/m] (2x2), tension positive."""
+
+    def pk1_stress(self):
+        """First Piola-Kirchhoff stress P = J sigma F^-T (000 eq. 16)."""
+        F = self.deformation_gradient()
+        return np.linalg.det(F) * self.cauchy_stress() @ np.linalg.inv(F).T
+
+    @abc.abstractmethod
+    def couple_stress(self): """(mu_31, mu_32) [N]."""
+
+    @abc.abstractmethod
+    def tangent(self, kind="kruyt", measure="dsigma_dF"): """4x4 operator (001 eq. 11 order)."""
+
+    @abc.abstractmethod
+    def commit(self): """Remember the current state as the last converged one."""
+
+    @abc.abstractmethod
+    def rollback(self): """Return to the last committed state."""
+
+    @abc.abstractmethod
+    def copy(self): """Independent deep copy (including the committed state)."""
+
+
+class DemCell(MicroCell):
+    """A periodic DEM cell (see package docs). Create with ``DemCell(state, law, options)`` or
+    ``create_cells``. The reference configuration (F = I) is the state it was created from."""
+
+    def __init__(self, state, law=None, options=None, reset_reference=True):
+        if not isinstance(state, CellState):
+            raise InputError("DemCell needs a CellState (e.g. from load_packing or generate_packing)")
+        law = ContactLaw() if law is None else law
+        if not isinstance(law, ContactLaw):
+            raise InputError("law must be a ContactLaw")
+        options = RelaxationOptions() if options is None else options
+        if isinstance(options, dict):
+            options = RelaxationOptions.from_kwargs(**options)
+        self.state = state
+        if reset_reference:
+            self.state.h_ref = state.h.copy()
+        self.law = law
+        self.options = options
+        self._frozen = False
+        self._law_array = law.as_array()
+        self.dt = options.dt if options.dt is not None else stable_time_step(
+            state.radius, state.mass, state.inertia, law, options.dt_safety)
+        self._target = state.F
+        self._committed = state.copy()
+        self.last_result = None
+
+    # ----- configuration
+    def set_law(self, law):
+        """Change the contact law (e.g. friction after compaction); the time step follows."""
+        if not isinstance(law, ContactLaw):
+            raise InputError("law must be a ContactLaw")
+        self.law = law
+        self._law_array = law.as_array(frozen=self._frozen)
+        if self._frozen:
+            self._set_frozen_array()
+        if self.options.dt is None:
+            self.dt = stable_time_step(self.state.radius, self.state.mass, self.state.inertia,
+                                       law, self.options.dt_safety)
+
+    def freeze_contacts(self):
+        """Quasi-elastic mode of DEMQO (001 section 5.1): existing contacts persist (bilateral),
+        no new contacts, no sliding."""
+        self._frozen = True
+        self._set_frozen_array()
+
+    def _set_frozen_array(self):
+        a = self.law.as_array(frozen=True)
+        a[MU] = math.inf
+        a[COH_N] = math.inf
+        a[COH_T] = math.inf
+        a[ETA_R] = math.inf
+        self._law_array = a
+
+    def bond_contacts(self):
+        """Give every current contact a cohesive bond (strengths from the ContactLaw)."""
+        np_ = self.state.n_pairs
+        self.state.bonded[:np_] = self.state.touching[:np_]
+
+    # ----- MicroCell interface
+    def set_deformation(self, F):
+        F = np.array(F, dtype=float)
+        if F.shape != (2, 2) or not np.all(np.isfinite(F)):
+            raise InputError(f"F must be a finite 2x2 array, got {F!r}")
+        if np.linalg.det(F) <= 0.0:
+            raise InputError(f"det F = {np.linalg.det(F):.3g} <= 0: not an admissible deformation")
+        self._target = F
+
+    def deformation_gradient(self):
+        return self.state.F
+
+    def solve(self, stress_mask=None, stress_target=None, max_steps=None):
+        """Move the cell to the target F and relax (000 section 3.2.1, 001 eq. 7).
+
+        Mixed control: ``stress_mask`` (2x2 bool) marks components of F that are not imposed
+        but adjusted by a servo until the Cauchy stress component equals ``stress_target``
+        (2x2, N/m, tension positive); the other components follow the target F.
+        Large increments are split in sub-steps of at most ``max_increment``.
+        """
+        o = self.options
+        crit = ENERGY_RATIO if o.criterion == "energy" else UNBALANCED_FORCE
+        mask = None
+        if stress_mask is not None:
+            mask = np.asarray(stress_mask, dtype=bool).reshape(2, 2)
+            if stress_target is None:
+                raise InputError("stress_mask given without stress_target")
+            stress_target = np.asarray(stress_target, dtype=float).reshape(2, 2)
+        F0 = self.state.F
+        if mask is None:
+            path = deformation_path(F0, self._target, o.max_increment)
+        else:
+            n = max(1, int(math.ceil(np.abs((self._target - F0)[~mask]).max(initial=0.0) / o.max_increment)))
+            path = [F0 + (k / n) * (self._target - F0) for k in range(1, n + 1)]
+        steps = 0
+        msgs = []
+        no_contacts = False
+        converged = True
+        limit = o.max_steps if max_steps is None else int(max_steps)
+        for Fk in path:
+            Fcur = self.state.F
+            dF = np.abs(Fk - Fcur) if mask is None else np.abs(Fk - Fcur)[~mask]
+            n_ramp = int(math.ceil(dF.max(initial=0.0) / o.strain_rate))
+            rep = run(self.state, self._law_array, self.dt, Fk, n_ramp, n_ramp + limit, criterion=crit,
+                      tol=o.tol, check_every=o.check_every, damping=o.damping,
+                      skin=o.skin_ratio * float(self.state.radius.min()), stress_mask=mask,
+                      stress_target=stress_target, stress_tol=o.stress_tol, servo_gain=o.servo_gain,
+                      max_rate=max(o.strain_rate, 1e-12))
+            steps += rep.steps
+            if rep.status == NO_CONTACTS:
+                no_contacts = True
+            elif not rep.converged:
+                converged = False
+                msgs.append(f"sub-step {len(msgs) + 1}: {rep.message} after {rep.steps} steps "
+                            f"(E_kin/E_pot = {rep.kinetic_energy / max(rep.potential_energy, 1e-300):.2e}, "
+                            f"unbalanced ratio {rep.unbalanced_ratio:.2e})")
+                break
+        if no_contacts and self.contact_count() == 0:
+            msg = "no contact left in the cell: zero stress (flag no_contacts)"
+        elif converged:
+            msg = "converged"
+            no_contacts = False
+        else:
+            msg = "; ".join(msgs)
+        self.last_result = SolveResult(converged=converged, no_contacts=no_contacts, steps=steps,
+                                       substeps=len(path), message=msg)
+        return self.last_result
+
+    def run_dynamics(self, n_steps, damping=0.0):
+        """Plain explicit dynamics for n_steps at fixed F (no convergence test), e.g. for a
+        collision or an energy-conservation check. Returns the RunReport."""
+        from .relaxation import NO_CHECK
+        return run(self.state, self._law_array, self.dt, self.state.F, 0, int(n_steps),
+                   criterion=NO_CHECK, damping=damping,
+                   skin=self.options.skin_ratio * float(self.state.radius.min()))
+
+    def homogenized(self):
+        """All homogenized outputs (``homogenization.Homogenized``)."""
+        return homogenize(self.state, self._law_array)
+
+    def cauchy_stress(self):
+        return self.homogenized().cauchy
+
+    def couple_stress(self):
+        return self.homogenized().couple_stress
+
+    def contact_count(self):
+        n = self.state.n_pairs
+        return int(np.count_nonzero(self.state.touching[:n]))
+
+    def tangent(self, kind="kruyt", measure="dsigma_dF", eps=None):
+        """Tangent operator, 4x4 in the order of 001 eq. 11.
+        kind: 'kruyt' (001 eq. 13, closed form), 'demqo' (001 eq. 20, 4 frozen-contact
+        relaxations), 'perturbation' (CTO, 001 eq. 6, 4 full solves from the last commit).
+        measure: 'dsigma_dF' (d sigma_ij/dF_kl = d sigma/d Grad u) or 'dP_dF'."""
+        if measure not in ("dsigma_dF", "dP_dF"):
+            raise InputError(f"unknown tangent measure {measure!r}: 'dsigma_dF' or 'dP_dF'")
+        if kind == "kruyt":
+            C = kruyt_operator(self.state, self._law_array)
+        elif kind == "demqo":
+            C, _ = demqo_tangent(self, 1e-6 if eps is None else eps)
+        elif kind == "perturbation":
+            C, _ = perturbation_tangent(self, 1e-5 if eps is None else eps)
+        else:
+            raise InputError(f"unknown tangent kind {kind!r}: 'kruyt', 'demqo' or 'perturbation'")
+        if measure == "dP_dF":
+            C = dsigma_to_dpk1(C, self.state.F, self.cauchy_stress())
+        return C
+
+    def commit(self):
+        self._committed = self.state.copy()
+
+    def rollback(self):
+        self.state = self._committed.copy()
+        self._target = self.state.F
+
+    def copy(self):
+        new = DemCell.__new__(DemCell)
+        new.__dict__.update(self.__dict__)
+        new.state = self.state.copy()
+        new._committed = self._committed.copy()
+        new._law_array = self._law_array.copy()
+        new._target = self._target.copy()
+        return new
+
+    def memory_bytes(self):
+        """Bytes held by the current and the committed state arrays."""
+        return self.state.nbytes() + self._committed.nbytes()
+
+
+def create_cells(state, count=1, law=None, options=None):
+    """``count`` independent DemCells starting from the same packing state."""
+    if int(count) < 1:
+        raise InputError("count must be >= 1")
+    return [DemCell(state.copy(), law, options) for _ in range(int(count))]

@@ -1,0 +1,72 @@
+"""Periodic cell kinematics (001 eq. 7 and appendix A.1; 000 eqs. 6, 12).
+
+The cell is spanned by the periodicity vectors Y1, Y2 = columns of ``h`` and follows the
+macroscopic deformation gradient: Y_i = F Y_i^R, i.e. ``h = F h_ref``. Periodicity of
+positions (000 eq. 12) holds by construction because particles are stored in fractional
+coordinates; rotations are periodic because each particle exists once.
+
+Index conventions used throughout demcell: (Grad u)_ij = du_i/dX_j, F = I + Grad u,
+traction t_i = sigma_ij n_j.
+"""
+import math
+
+import numpy as np
+from numba import njit
+
+
+@njit(cache=True)
+def branch_vector(h, s, i, j):
+    """Minimum-image branch vector from centre i to centre j [m] (001 eq. A.1):
+    d = h (s_j - s_i - round(s_j - s_i)); the rounding picks the nearest periodic image."""
+    a = s[j, 0] - s[i, 0]
+    b = s[j, 1] - s[i, 1]
+    a -= math.floor(a + 0.5)
+    b -= math.floor(b + 0.5)
+    return h[0, 0] * a + h[0, 1] * b, h[1, 0] * a + h[1, 1] * b
+
+
+@njit(cache=True)
+def cell_widths(h):
+    """Perpendicular widths of the cell across Y2 and across Y1 [m]: area/|Y2|, area/|Y1|."""
+    area = abs(h[0, 0] * h[1, 1] - h[0, 1] * h[1, 0])
+    l1 = math.sqrt(h[0, 0] ** 2 + h[1, 0] ** 2)
+    l2 = math.sqrt(h[0, 1] ** 2 + h[1, 1] ** 2)
+    return area / l2, area / l1
+
+
+def rotation(angle):
+    """2D rotation matrix R(angle) (counter-clockwise, rad)."""
+    c, s = math.cos(angle), math.sin(angle)
+    return np.array([[c, -s], [s, c]])
+
+
+def polar(F):
+    """Polar decomposition F = R U in 2D; returns (angle of R [rad], U)."""
+    angle = math.atan2(F[1, 0] - F[0, 1], F[0, 0] + F[1, 1])
+    U = rotation(-angle) @ F
+    return angle, 0.5 * (U + U.T)
+
+
+def deformation_path(F0, F1, max_increment):
+    """Intermediate deformation gradients from F0 to F1 (F1 included), each sub-step with
+    max|dF| <= max_increment. The rotation and the stretch of the polar decompositions are
+    interpolated separately, so a rigid rotation stays a rigid rotation on the way (a linear
+    path in F would shrink the cell half-way through a large rotation).
+    """
+    a0, U0 = polar(np.asarray(F0, dtype=float))
+    a1, U1 = polar(np.asarray(F1, dtype=float))
+    da = a1 - a0
+    da -= 2.0 * math.pi * math.floor((da + math.pi) / (2.0 * math.pi))
+    size = max(np.abs(np.asarray(F1) - np.asarray(F0)).max(), abs(da) * max(np.abs(U0).max(), 1.0))
+    n = max(1, int(math.ceil(size / max_increment)))
+    out = []
+    for k in range(1, n + 1):
+        tau = k / n
+        out.append(rotation(a0 + tau * da) @ (U0 + tau * (U1 - U0)))
+    out[-1] = np.array(F1, dtype=float)
+    return out
+
+
+def cauchy_to_pk1(sigma, F):
+    """First Piola-Kirchhoff stress P = J sigma F^-T (inverse of 000 eq. 16)."""
+    return np.linalg.det(F) * sigma @ np.linalg.inv(F).T

@@ -1,0 +1,433 @@
+"""Explicit DEM time stepping of a periodic cell and quasi-static dynamic relaxation.
+
+One Numba kernel (``advance``) runs the whole loop:
+  1. the cell follows the loading ramp F(tau) = F_i + tau/tau_1 (F_f - F_i) (001 eq. 7),
+     with optional stress control of some components of F (mixed control, servo);
+  2. contact forces (``contact_law.contact_update``);
+  3. leapfrog integration of the fluctuating motion with local non-viscous damping
+     f_d = -alpha |f| sign(v), m_d = -beta |m| sign(omega) (000 section 3.2.1, eq. 30);
+  4. after the ramp, the convergence test every ``check_every`` steps: kinetic / potential
+     energy ratio (000 eqs. 31-32) or maximum unbalanced force over mean contact force
+     (001 section 2), plus the stress targets of the stress-controlled components.
+
+The Python function ``run`` wraps the kernel: it grows the pair arrays when needed and
+turns status codes into a ``RunReport``.
+"""
+import math
+from dataclasses import dataclass
+
+import numpy as np
+from numba import njit
+
+from .contact_law import (COH_N, COH_T, ETA_R, FROZEN, KN, KR, KS, MU, ROTATIONS, XI_N, XI_T,
+                          contact_update)
+from .errors import InputError, SolveError
+from .neighbours import build_pairs, merge_history, needs_rebuild
+from .periodic_cell import branch_vector
+
+# status codes of the kernel
+CONVERGED, MAX_STEPS, NEED_CAPACITY, NO_CONTACTS, NONFINITE, CELL_TOO_SMALL = range(6)
+STATUS_TEXT = {
+    CONVERGED: "converged",
+    MAX_STEPS: "maximum number of steps reached before convergence",
+    NEED_CAPACITY: "pair arrays full",
+    NO_CONTACTS: "no contact left in the cell (e.g. pulled apart): the stress is zero",
+    NONFINITE: "non-finite positions or energies (time step too large for the stiffness?)",
+    CELL_TOO_SMALL: "cell too small or too distorted for the minimum-image convention "
+                    "(2 R_max + skin exceeds half a cell width)",
+}
+# criterion codes
+ENERGY_RATIO, UNBALANCED_FORCE, NO_CHECK = 0, 1, -1
+# integer and float control slots
+I_NPAIRS, I_FCUR, I_NRAMP, I_KRAMP, I_MAXSTEPS, I_CHECK, I_CRIT = range(7)
+C_DT, C_ALPHA, C_TOL, C_STOL, C_GAIN, C_MAXRATE, C_SKIN, C_TIME = range(8)
+C_MASK, C_TARGET = 8, 12          # 4 + 4 slots, component order 11, 12, 21, 22
+N_CTRL = 16
+# output slots
+(O_STEPS, O_EKIN, O_EPOT, O_NCONT, O_NSLIDE, O_UNBAL, O_S11, O_S12, O_S21, O_S22,
+ O_REBUILDS, O_MAXOVL, O_BONDLOST, O_FMEAN) = range(14)
+N_OUT = 14
+
+
+@njit(cache=True)
+def compute_forces(radius, mass, s, dtheta, force, moment, h, pair_i, pair_j, fn, fs, mr,
+                   bonded, touching, d_prev, n_pairs, law, dt, out):
+    """Contact forces and resultants at the current positions; the tangential and rolling
+    increments are those of the last step (d - d_prev, dtheta). Also fills the Cauchy
+    stress sigma = (1/|Y|) sum_c f^{j->i} (x) (x_j - x_i) (001 eq. 8, tension positive),
+    the potential energy (000 eq. 32), contact counts and the largest overlap / radius."""
+    n = radius.shape[0]
+    for i in range(n):
+        force[i, 0] = 0.0
+        force[i, 1] = 0.0
+        moment[i] = 0.0
+    area = abs(h[0, 0] * h[1, 1] - h[0, 1] * h[1, 0])
+    frozen = law[FROZEN] > 0.5
+    s11 = 0.0
+    s12 = 0.0
+    s21 = 0.0
+    s22 = 0.0
+    epot = 0.0
+    ncont = 0
+    nslide = 0
+    fsum = 0.0
+    maxovl = 0.0
+    for k in range(n_pairs):
+        i = pair_i[k]
+        j = pair_j[k]
+        dx, dy = branch_vector(h, s, i, j)
+        dist = math.sqrt(dx * dx + dy * dy)
+        overlap = radius[i] + radius[j] - dist
+        if frozen:
+            if touching[k] == 0:
+                continue
+            bond = 1
+        else:
+            bond = bonded[k]
+            if overlap <= 0.0 and bond == 0:
+                touching[k] = 0
+                fn[k] = 0.0
+                fs[k] = 0.0
+                mr[k] = 0.0
+                continue
+        nx = dx / dist
+        ny = dy / dist
+        tx = -ny
+        ty = nx
+        # lever arms to the contact point in the middle of the overlap (001 eqs. A.5-A.6)
+        ai = radius[i] - 0.5 * overlap
+        aj = radius[j] - 0.5 * overlap
+        if touching[k] == 1:
+            ux = dx - d_prev[k, 0]
+            uy = dy - d_prev[k, 1]
+            dprev = math.sqrt(d_prev[k, 0] ** 2 + d_prev[k, 1] ** 2)
+            d_ovl = dprev - dist
+            d_ut = ux * tx + uy * ty - ai * dtheta[i] - aj * dtheta[j]
+            d_thr = dtheta[j] - dtheta[i]
+            fs_old = fs[k]
+            mr_old = mr[k]
+        else:
+            d_ovl = 0.0
+            d_ut = 0.0
+            d_thr = 0.0
+            fs_old = 0.0
+            mr_old = 0.0
+        m_eff = mass[i] * mass[j] / (mass[i] + mass[j])
+        r_eff = radius[i] * radius[j] / (radius[i] + radius[j])
+        fnt, fne, fst, fse, mrk, sl, bond = contact_update(overlap, d_ovl, d_ut, d_thr, fs_old,
+                                                           mr_old, bond, law, m_eff, r_eff, dt)
+        if not frozen:
+            bonded[k] = bond
+            if fne == 0.0 and fst == 0.0 and overlap <= 0.0:
+                touching[k] = 0
+                fn[k] = 0.0
+                fs[k] = 0.0
+                mr[k] = 0.0
+                continue
+        touching[k] = 1
+        d_prev[k, 0] = dx
+        d_prev[k, 1] = dy
+        fn[k] = fnt
+        fs[k] = fse
+        mr[k] = mrk
+        fjx = fnt * nx + fst * tx
+        fjy = fnt * ny + fst * ty
+        force[j, 0] += fjx
+        force[j, 1] += fjy
+        force[i, 0] -= fjx
+        force[i, 1] -= fjy
+        moment[i] += -ai * fst - mrk
+        moment[j] += -aj * fst + mrk
+        s11 -= fjx * dx
+        s12 -= fjx * dy
+        s21 -= fjy * dx
+        s22 -= fjy * dy
+        epot += 0.5 * fne * fne / law[KN]
+        if law[KS] > 0.0:
+            epot += 0.5 * fse * fse / law[KS]
+        if law[KR] > 0.0:
+            epot += 0.5 * mrk * mrk / law[KR]
+        ncont += 1
+        nslide += sl
+        fsum += abs(fnt)
+        r = overlap / min(radius[i], radius[j])
+        if r > maxovl:
+            maxovl = r
+    out[O_S11] = s11 / area
+    out[O_S12] = s12 / area
+    out[O_S21] = s21 / area
+    out[O_S22] = s22 / area
+    out[O_EPOT] = epot
+    out[O_NCONT] = ncont
+    out[O_NSLIDE] = nslide
+    out[O_FMEAN] = fsum / ncont if ncont > 0 else 0.0
+    out[O_MAXOVL] = maxovl
+
+
+@njit(cache=True)
+def _inv2(a):
+    det = a[0, 0] * a[1, 1] - a[0, 1] * a[1, 0]
+    r = np.empty((2, 2))
+    r[0, 0] = a[1, 1] / det
+    r[0, 1] = -a[0, 1] / det
+    r[1, 0] = -a[1, 0] / det
+    r[1, 1] = a[0, 0] / det
+    return r
+
+
+@njit(cache=True)
+def advance(radius, mass, inertia, s, v, theta, omega, dtheta, force, moment, s_build, h,
+            h_build, h_ref, pair_i, pair_j, fn, fs, mr, bonded, touching, d_prev,
+            law, ipar, ctrl, F_start, F_end, out):
+    """Run up to ipar[I_MAXSTEPS] steps of the loading ramp + relaxation (see module doc).
+    All arrays are updated in place; ipar keeps n_pairs, forces_current and the ramp
+    progress so that a call interrupted by NEED_CAPACITY can be resumed. Returns a status."""
+    n = radius.shape[0]
+    dt = ctrl[C_DT]
+    alpha = ctrl[C_ALPHA]
+    skin = ctrl[C_SKIN]
+    rot = law[ROTATIONS] > 0.5
+    rmax = 0.0
+    for i in range(n):
+        rmax = max(rmax, radius[i])
+    r_cut = 2.0 * rmax + skin
+    href_inv = _inv2(h_ref)
+    n_ramp = ipar[I_NRAMP]
+    check_every = max(1, ipar[I_CHECK])
+    crit = ipar[I_CRIT]
+    any_mask = False
+    for c in range(4):
+        if ctrl[C_MASK + c] > 0.5:
+            any_mask = True
+    smax_t = 0.0
+    for c in range(4):
+        if ctrl[C_MASK + c] > 0.5:
+            smax_t = max(smax_t, abs(ctrl[C_TARGET + c]))
+    h_old = np.empty((2, 2))
+    Fm = np.empty((2, 2))
+    out[O_STEPS] = 0
+    status = MAX_STEPS
+    for step in range(ipar[I_MAXSTEPS] + 1):
+        if ipar[I_FCUR] == 0:
+            if needs_rebuild(h, h_build, s, s_build, skin, r_cut):
+                cap = pair_i.shape[0]
+                new_i = np.empty(cap, np.int64)
+                new_j = np.empty(cap, np.int64)
+                m = build_pairs(h, s, radius, skin, new_i, new_j)
+                if m == -1:
+                    return NEED_CAPACITY
+                if m == -2:
+                    return CELL_TOO_SMALL
+                t_fs = np.empty(cap)
+                t_mr = np.empty(cap)
+                t_bd = np.empty(cap, np.uint8)
+                t_to = np.empty(cap, np.uint8)
+                t_dp = np.empty((cap, 2))
+                t_fn = np.empty(cap)
+                out[O_BONDLOST] += merge_history(n, ipar[I_NPAIRS], pair_i, pair_j, m, new_i, new_j,
+                                                 fs, mr, bonded, touching, d_prev, fn,
+                                                 t_fs, t_mr, t_bd, t_to, t_dp, t_fn)
+                pair_i[:] = new_i
+                pair_j[:] = new_j
+                fs[:] = t_fs
+                mr[:] = t_mr
+                bonded[:] = t_bd
+                touching[:] = t_to
+                d_prev[:] = t_dp
+                fn[:] = t_fn
+                ipar[I_NPAIRS] = m
+                s_build[:] = s
+                h_build[:] = h
+                out[O_REBUILDS] += 1
+            compute_forces(radius, mass, s, dtheta, force, moment, h, pair_i, pair_j, fn, fs, mr,
+                           bonded, touching, d_prev, ipar[I_NPAIRS], law, dt, out)
+            ipar[I_FCUR] = 1
+        # convergence test once the ramp is over
+        if crit != NO_CHECK and ipar[I_KRAMP] >= n_ramp and step % check_every == 0:
+            ekin = 0.0
+            fmax2 = 0.0
+            for i in range(n):
+                ekin += 0.5 * mass[i] * (v[i, 0] ** 2 + v[i, 1] ** 2) + 0.5 * inertia[i] * omega[i] ** 2
+                f2 = force[i, 0] ** 2 + force[i, 1] ** 2
+                if f2 > fmax2:
+                    fmax2 = f2
+            out[O_EKIN] = ekin
+            unbal = math.sqrt(fmax2) / out[O_FMEAN] if out[O_FMEAN] > 0.0 else math.inf
+            out[O_UNBAL] = unbal
+            if not (math.isfinite(ekin) and math.isfinite(out[O_EPOT]) and math.isfinite(out[O_S11])):
+                status = NONFINITE
+                break
+            if out[O_NCONT] == 0 and not any_mask:
+                status = NO_CONTACTS
+                break
+            if crit == ENERGY_RATIO:
+                ok = ekin <= ctrl[C_TOL] * out[O_EPOT]
+            else:
+                ok = unbal <= ctrl[C_TOL]
+            if ok and any_mask:
+                for c in range(4):
+                    if ctrl[C_MASK + c] > 0.5:
+                        if abs(out[O_S11 + c] - ctrl[C_TARGET + c]) > ctrl[C_STOL] * max(smax_t, 1e-300):
+                            ok = False
+            if ok:
+                status = CONVERGED
+                break
+        if step == ipar[I_MAXSTEPS]:
+            break
+        # --- new cell: ramp (001 eq. 7) and servo on the stress-controlled components
+        h_old[:] = h
+        if ipar[I_KRAMP] < n_ramp:
+            ipar[I_KRAMP] += 1
+        tau = ipar[I_KRAMP] / n_ramp if n_ramp > 0 else 1.0
+        for a in range(2):
+            for b in range(2):
+                c = 2 * a + b
+                if ctrl[C_MASK + c] > 0.5:
+                    # servo: current F_ab (from h_old) corrected towards the target stress
+                    dF = -ctrl[C_GAIN] * (out[O_S11 + c] - ctrl[C_TARGET + c]) / law[KN]
+                    dF = min(max(dF, -ctrl[C_MAXRATE]), ctrl[C_MAXRATE])
+                    Fm[a, b] = h_old[a, 0] * href_inv[0, b] + h_old[a, 1] * href_inv[1, b] + dF
+                else:
+                    Fm[a, b] = F_start[a, b] + tau * (F_end[a, b] - F_start[a, b])
+        for a in range(2):
+            for b in range(2):
+                h[a, b] = Fm[a, 0] * h_ref[0, b] + Fm[a, 1] * h_ref[1, b]
+        # macroscopic spin increment: skew part of dF F^-1
+        hi = _inv2(h_old)
+        g01 = (h[0, 0] - h_old[0, 0]) * hi[0, 1] + (h[0, 1] - h_old[0, 1]) * hi[1, 1]
+        g10 = (h[1, 0] - h_old[1, 0]) * hi[0, 0] + (h[1, 1] - h_old[1, 1]) * hi[1, 0]
+        spin = 0.5 * (g10 - g01)
+        hinv = _inv2(h)
+        # --- leapfrog with local non-viscous damping (000 section 3.2.1)
+        for i in range(n):
+            for c in range(2):
+                f = force[i, c]
+                if alpha > 0.0 and v[i, c] != 0.0:
+                    f -= alpha * abs(f) * math.copysign(1.0, v[i, c])
+                v[i, c] += dt * f / mass[i]
+            dxs = v[i, 0] * dt
+            dys = v[i, 1] * dt
+            s[i, 0] += hinv[0, 0] * dxs + hinv[0, 1] * dys
+            s[i, 1] += hinv[1, 0] * dxs + hinv[1, 1] * dys
+            s[i, 0] -= math.floor(s[i, 0])
+            s[i, 1] -= math.floor(s[i, 1])
+            if rot:
+                mo = moment[i]
+                if alpha > 0.0 and omega[i] != 0.0:
+                    mo -= alpha * abs(mo) * math.copysign(1.0, omega[i])
+                omega[i] += dt * mo / inertia[i]
+                dtheta[i] = omega[i] * dt + spin
+            else:
+                omega[i] = 0.0
+                dtheta[i] = 0.0
+            theta[i] += dtheta[i]
+        ipar[I_FCUR] = 0
+        ctrl[C_TIME] += dt
+        out[O_STEPS] += 1
+    return status
+
+
+@dataclass
+class RunReport:
+    """What one call of ``run`` did. status: one of the codes above; message: plain text."""
+    status: int
+    message: str
+    steps: int
+    rebuilds: int
+    kinetic_energy: float
+    potential_energy: float
+    n_contacts: int
+    n_sliding: int
+    unbalanced_ratio: float
+    max_overlap_ratio: float
+    bonds_lost: int
+
+    @property
+    def converged(self):
+        return self.status == CONVERGED
+
+
+def stable_time_step(radius, mass, inertia, law, safety=0.25):
+    """Time step [s] from masses and stiffnesses: dt = safety * 2 / omega_max with
+    omega_max^2 = z * max(2 kn/m, 6 ks/m, 2 kr/I)_min over the particles, z = 6 contacts
+    (hexagonal packing), i.e. the highest eigen-frequency of a particle held by its
+    contact springs (translation 1/m_i + 1/m_j <= 2/m; tangential spring through lever R on
+    I = m R^2 / 2 adds 2 R^2 / I = 4/m). A normal dashpot of damping ratio xi reduces the limit
+    by (sqrt(1 + xi^2) - xi). Stiffer contacts give a smaller step automatically."""
+    m = float(np.min(mass))
+    i_min = float(np.min(inertia))
+    w2 = max(2.0 * law.kn / m, 6.0 * law.ks / m, 2.0 * law.rolling_stiffness / i_min)
+    w = math.sqrt(6.0 * w2)
+    xi = max(law.normal_damping, law.tangential_damping)
+    return safety * 2.0 / w * (math.sqrt(1.0 + xi * xi) - xi)
+
+
+def run(state, law_array, dt, F_end, n_ramp, max_steps, criterion=ENERGY_RATIO, tol=1e-3,
+        check_every=100, damping=0.7, skin=None, stress_mask=None, stress_target=None,
+        stress_tol=1e-3, servo_gain=0.05, max_rate=1e-4, kn=None):
+    """Ramp the cell from its current F to ``F_end`` in ``n_ramp`` steps, then relax.
+    Stops at convergence, at ``max_steps`` steps, or on a failure status. ``stress_mask``
+    (2x2 bool) selects the components of F driven by the servo to reach ``stress_target``
+    (2x2 Cauchy stress, tension positive). Returns a RunReport; raises SolveError on
+    non-finite values (the state is then unusable: roll back)."""
+    n = state.n_particles
+    if skin is None:
+        skin = 0.1 * float(np.min(state.radius))
+    ctrl = np.zeros(N_CTRL)
+    ctrl[C_DT], ctrl[C_ALPHA], ctrl[C_TOL], ctrl[C_STOL] = dt, damping, tol, stress_tol
+    ctrl[C_GAIN], ctrl[C_MAXRATE], ctrl[C_SKIN], ctrl[C_TIME] = servo_gain, max_rate, skin, state.time
+    if stress_mask is not None:
+        ctrl[C_MASK:C_MASK + 4] = np.asarray(stress_mask, dtype=float).reshape(4)
+        ctrl[C_TARGET:C_TARGET + 4] = np.asarray(stress_target, dtype=float).reshape(4)
+    ipar = np.zeros(7, np.int64)
+    ipar[I_NPAIRS], ipar[I_FCUR], ipar[I_NRAMP] = state.n_pairs, state.forces_current, n_ramp
+    ipar[I_CHECK], ipar[I_CRIT] = check_every, criterion
+    F_start = state.F
+    F_end = np.array(F_end, dtype=np.float64)
+    out = np.zeros(N_OUT)
+    total = np.zeros(N_OUT)
+    remaining = int(max_steps)
+    if state.n_pairs == 0 and state.forces_current == 0:
+        # force an initial build
+        state.h_build[:] = state.h * 1e3
+    while True:
+        ipar[I_MAXSTEPS] = remaining
+        status = advance(state.radius, state.mass, state.inertia, state.s, state.v, state.theta,
+                         state.omega, state.dtheta, state.force, state.moment, state.s_build,
+                         state.h, state.h_build, state.h_ref, state.pair_i, state.pair_j,
+                         state.fn, state.fs, state.mr, state.bonded, state.touching, state.d_prev,
+                         law_array, ipar, ctrl, F_start, F_end, out)
+        total[O_STEPS] += out[O_STEPS]
+        total[O_REBUILDS] += out[O_REBUILDS]
+        total[O_BONDLOST] += out[O_BONDLOST]
+        out[O_REBUILDS] = 0
+        out[O_BONDLOST] = 0
+        remaining -= int(out[O_STEPS])
+        state.n_pairs = int(ipar[I_NPAIRS])
+        state.forces_current = int(ipar[I_FCUR])
+        if status == NEED_CAPACITY:
+            state.grow_pairs(2 * state.pair_i.shape[0])
+            continue
+        break
+    state.time = float(ctrl[C_TIME])
+    if status == NONFINITE:
+        raise SolveError(STATUS_TEXT[NONFINITE] + f" (dt = {dt:.3e} s)")
+    if status == CELL_TOO_SMALL:
+        raise SolveError(STATUS_TEXT[CELL_TOO_SMALL])
+    return RunReport(status=int(status), message=STATUS_TEXT[int(status)], steps=int(total[O_STEPS]),
+                     rebuilds=int(total[O_REBUILDS]), kinetic_energy=float(out[O_EKIN]),
+                     potential_energy=float(out[O_EPOT]), n_contacts=int(out[O_NCONT]),
+                     n_sliding=int(out[O_NSLIDE]), unbalanced_ratio=float(out[O_UNBAL]),
+                     max_overlap_ratio=float(out[O_MAXOVL]), bonds_lost=int(total[O_BONDLOST]))
+
+
+def check_run_options(**opts):
+    """Validate relaxation options before any work (raises InputError)."""
+    if opts.get("criterion") not in (None, "energy", "force"):
+        raise InputError(f"unknown convergence criterion {opts.get('criterion')!r}: use 'energy' "
+                         "(000 eq. 31) or 'force' (001 unbalanced-force ratio)")
+    for k in ("tol", "damping", "max_rate", "servo_gain"):
+        if k in opts and opts[k] is not None and not (float(opts[k]) >= 0.0):
+            raise InputError(f"{k} must be >= 0, got {opts[k]}")
+    if "damping" in opts and opts["damping"] is not None and float(opts["damping"]) >= 1.0:
+        raise InputError("local damping alpha must be < 1")

@@ -1,0 +1,136 @@
+"""The complete state of one periodic cell, held in plain NumPy arrays.
+
+Everything the kernels need lives here, so commit / rollback / copy are array copies
+(no hidden state anywhere else).
+
+Geometry: the cell is spanned by the periodicity vectors Y1, Y2, the columns of
+``h`` (2x2, metres). ``h = F @ h_ref`` where ``F`` is the macroscopic deformation
+gradient and ``h_ref`` the cell of the reference configuration (001 eq. 7,
+Y_i = F Y_i^R). Particle centres are stored as fractional coordinates ``s`` in
+[0, 1)^2, so the current centre is x = h s (the affine part, 000 eq. 6) and the
+fluctuation w of 000 eq. 6 is carried by how ``s`` changes.
+"""
+from dataclasses import dataclass, fields
+
+import numpy as np
+
+PAIR_FIELDS = ("pair_i", "pair_j", "fn", "fs", "mr", "bonded", "touching", "d_prev")
+
+
+@dataclass
+class CellState:
+    """Arrays of one cell. Shapes: N particles, M pair slots (capacity).
+
+    radius [m], mass [kg per m thickness], inertia [kg m^2 per m] : (N,)
+    s : fractional positions (N, 2); v : fluctuating velocity [m/s] (N, 2)
+    theta : rotation [rad] (N,); omega : fluctuating angular velocity [rad/s] (N,)
+    dtheta : rotation increment of the last step [rad] (N,)
+    force [N], moment [N m] : resultants of the last force evaluation
+    s_build, h_build : positions and cell when the neighbour list was built
+    h, h_ref : current and reference cell matrices (columns = periodicity vectors) [m]
+    pair_i, pair_j : neighbour pairs (i < j), valid in [0, n_pairs)
+    fn [N] (repulsive > 0), fs [N] (on j along t), mr [N m] (rolling moment on j),
+    bonded, touching : uint8 flags; d_prev : branch vector of the last step [m] (M, 2)
+    n_pairs : number of valid pairs; forces_current : 1 if force/fn/fs match the positions
+    time : simulated time [s]
+    """
+
+    radius: np.ndarray
+    mass: np.ndarray
+    inertia: np.ndarray
+    s: np.ndarray
+    v: np.ndarray
+    theta: np.ndarray
+    omega: np.ndarray
+    dtheta: np.ndarray
+    force: np.ndarray
+    moment: np.ndarray
+    s_build: np.ndarray
+    h: np.ndarray
+    h_build: np.ndarray
+    h_ref: np.ndarray
+    pair_i: np.ndarray
+    pair_j: np.ndarray
+    fn: np.ndarray
+    fs: np.ndarray
+    mr: np.ndarray
+    bonded: np.ndarray
+    touching: np.ndarray
+    d_prev: np.ndarray
+    n_pairs: int = 0
+    forces_current: int = 0
+    time: float = 0.0
+
+    @classmethod
+    def new(cls, radius, s, h, density, capacity=None):
+        """Fresh state at rest. density [kg/m^2]: disc mass = density * pi R^2 (000 Table 3),
+        inertia = m R^2 / 2 (000 section 3.2.1)."""
+        radius = np.ascontiguousarray(radius, dtype=np.float64)
+        n = radius.size
+        mass = density * np.pi * radius ** 2
+        cap = capacity if capacity is not None else max(64, 4 * n)
+        s = np.ascontiguousarray(s, dtype=np.float64) % 1.0
+        h = np.array(h, dtype=np.float64)
+        return cls(radius=radius, mass=mass, inertia=0.5 * mass * radius ** 2, s=s.copy(),
+                   v=np.zeros((n, 2)), theta=np.zeros(n), omega=np.zeros(n), dtheta=np.zeros(n),
+                   force=np.zeros((n, 2)), moment=np.zeros(n), s_build=s.copy(),
+                   h=h.copy(), h_build=h.copy(), h_ref=h.copy(),
+                   pair_i=np.zeros(cap, np.int64), pair_j=np.zeros(cap, np.int64),
+                   fn=np.zeros(cap), fs=np.zeros(cap), mr=np.zeros(cap),
+                   bonded=np.zeros(cap, np.uint8), touching=np.zeros(cap, np.uint8),
+                   d_prev=np.zeros((cap, 2)), n_pairs=0, forces_current=0, time=0.0)
+
+    @property
+    def n_particles(self):
+        return self.radius.size
+
+    @property
+    def F(self):
+        """Macroscopic deformation gradient F = h h_ref^-1 (001 eq. 7)."""
+        return self.h @ np.linalg.inv(self.h_ref)
+
+    def positions(self):
+        """Current centres x = h s [m], shape (N, 2)."""
+        return self.s @ self.h.T
+
+    def copy(self):
+        """Deep copy (used for commit / rollback and for perturbations)."""
+        kw = {}
+        for f in fields(self):
+            val = getattr(self, f.name)
+            kw[f.name] = val.copy() if isinstance(val, np.ndarray) else val
+        return CellState(**kw)
+
+    def grow_pairs(self, capacity):
+        """Enlarge the pair arrays to ``capacity`` slots, keeping the content."""
+        for name in PAIR_FIELDS:
+            old = getattr(self, name)
+            new = np.zeros((capacity,) + old.shape[1:], dtype=old.dtype)
+            new[:old.shape[0]] = old
+            setattr(self, name, new)
+
+    def nbytes(self):
+        """Memory held by the arrays of this state [bytes]."""
+        return sum(getattr(self, f.name).nbytes for f in fields(self)
+                   if isinstance(getattr(self, f.name), np.ndarray))
+
+    def to_dict(self):
+        out = {}
+        for f in fields(self):
+            val = getattr(self, f.name)
+            if isinstance(val, np.ndarray) and f.name in PAIR_FIELDS:
+                val = val[:self.n_pairs]
+            out[f.name] = val
+        return out
+
+    @classmethod
+    def from_dict(cls, d):
+        kw = {f.name: d[f.name] for f in fields(cls)}
+        for k in ("n_pairs", "forces_current"):
+            kw[k] = int(kw[k])
+        kw["time"] = float(kw["time"])
+        st = cls(**{k: (np.array(v) if isinstance(v, np.ndarray) else v) for k, v in kw.items()})
+        cap = max(64, 4 * st.n_particles, st.n_pairs)
+        if st.pair_i.shape[0] < cap:
+            st.grow_pairs(cap)
+        return st

@@ -1,0 +1,48 @@
+# Two commands on a fresh Debian 12 (or 13) machine:
+#   make demo   installs the missing Debian packages, runs the default demo on 2 ranks
+#   make test   the test suite, serial then under mpirun -n 2
+PYTHON ?= /usr/bin/python3
+NP ?= 2
+MPIRUN ?= mpirun
+OUT ?= results
+TEST_TIMEOUT ?= 1500
+export OMPI_ALLOW_RUN_AS_ROOT = 1
+export OMPI_ALLOW_RUN_AS_ROOT_CONFIRM = 1
+export OMPI_MCA_rmaps_base_oversubscribe = 1
+export OMP_NUM_THREADS = 1
+export PYTHONDONTWRITEBYTECODE = 1
+
+DEB_PACKAGES = python3-dolfinx-real python3-numba python3-scipy python3-pytest \
+	python3-matplotlib python3-gmsh python3-h5py mpi-default-bin openmpi-bin \
+	xvfb xauth python3-paraview
+SUDO := $(shell [ "$$(id -u)" = 0 ] || echo sudo)
+DEBIAN13 = ../shared/tools/debian13-env.sh
+DEBIAN13_PKGS = python3-matplotlib python3-gmsh python3-h5py
+
+.PHONY: deps demo test test-debian13 benchmark clean
+
+deps:
+	@missing=$$(for p in $(DEB_PACKAGES); do dpkg-query -W -f='$${Status}\n' $$p 2>/dev/null | grep -q "ok installed" || echo $$p; done); \
+	if [ -n "$$missing" ]; then \
+		echo "installing Debian packages: $$missing"; \
+		$(SUDO) apt-get update -q && DEBIAN_FRONTEND=noninteractive $(SUDO) apt-get install -y -q --no-install-recommends $$missing; \
+	fi
+
+demo: deps
+	$(MPIRUN) -n $(NP) $(PYTHON) demos/hole_plate.py --out $(OUT)/hole_plate
+	$(MPIRUN) -n $(NP) $(PYTHON) demos/shear_layer.py --out $(OUT)/shear_layer
+
+test: deps
+	NP=$(NP) TEST_TIMEOUT=$(TEST_TIMEOUT) tests/run_suite.sh $(PYTHON)
+
+# the same suite against dolfinx 0.9 in a Debian 13 chroot (root only; builds it once)
+test-debian13:
+	$(DEBIAN13) --extra-pkgs "$(DEBIAN13_PKGS)" --bind-rw "$(CURDIR)":/srv/project --workdir /srv/project \
+		-- sh tests/run_suite.sh python3
+
+benchmark: deps
+	$(PYTHON) benchmarks/convergence.py --out $(OUT)/benchmarks
+
+clean:
+	rm -rf $(OUT) .pytest_cache
+	find . -name __pycache__ -prune -exec rm -rf {} +

@@ -1,0 +1,131 @@
+"""Every difference between the supported dolfinx generations lives here.
+
+Supported: dolfinx 0.5.2 (Debian 12: ufl 2022.2, basix 0.5, legacy UFL elements)
+and dolfinx 0.9 (Debian 13: ufl 2024.2, basix.ufl elements, ``functionspace``).
+The rest of the package calls these helpers and never tests the version itself.
+"""
+import basix
+import dolfinx
+import dolfinx.fem
+import numpy as np
+import ufl
+
+DOLFINX_VERSION = tuple(int(p) for p in dolfinx.__version__.split(".")[:2])
+LEGACY = DOLFINX_VERSION < (0, 7)
+
+if not LEGACY:
+    import basix.ufl
+
+
+def cell_name(mesh):
+    """'triangle' or 'quadrilateral'."""
+    if LEGACY:
+        return mesh.topology.cell_type.name
+    return mesh.topology.cell_name()
+
+
+def basix_cell(mesh):
+    return getattr(basix.CellType, cell_name(mesh))
+
+
+def lagrange_element(mesh, degree, shape=()):
+    """Continuous Lagrange element of the given value shape (() scalar, (2,) vector)."""
+    if LEGACY:
+        cell = mesh.ufl_cell()
+        if shape == ():
+            return ufl.FiniteElement("Lagrange", cell, degree)
+        if len(shape) == 1:
+            return ufl.VectorElement("Lagrange", cell, degree, dim=shape[0])
+        return ufl.TensorElement("Lagrange", cell, degree, shape=shape)
+    return basix.ufl.element("Lagrange", cell_name(mesh), degree, shape=shape or None)
+
+
+def dg_element(mesh, degree, shape=()):
+    """Discontinuous Lagrange element (output of quadrature data)."""
+    if LEGACY:
+        cell = mesh.ufl_cell()
+        if shape == ():
+            return ufl.FiniteElement("DG", cell, degree)
+        if len(shape) == 1:
+            return ufl.VectorElement("DG", cell, degree, dim=shape[0])
+        return ufl.TensorElement("DG", cell, degree, shape=shape)
+    return basix.ufl.element("DG", cell_name(mesh), degree, shape=shape or None)
+
+
+def mixed_element(elements):
+    if LEGACY:
+        return ufl.MixedElement(elements)
+    return basix.ufl.mixed_element(elements)
+
+
+def quadrature_element(mesh, degree, size):
+    """Vector quadrature element holding `size` values per Gauss point."""
+    if LEGACY:
+        return ufl.VectorElement("Quadrature", mesh.ufl_cell(), degree=degree,
+                                 dim=size, quad_scheme="default")
+    return basix.ufl.quadrature_element(cell_name(mesh), value_shape=(size,),
+                                        scheme="default", degree=degree)
+
+
+def function_space(mesh, element):
+    if LEGACY:
+        return dolfinx.fem.FunctionSpace(mesh, element)
+    return dolfinx.fem.functionspace(mesh, element)
+
+
+def quadrature_points(mesh, degree):
+    """Reference points and weights of the default rule FFCx uses for `degree`."""
+    points, weights = basix.make_quadrature(basix_cell(mesh), degree)
+    return np.asarray(points), np.asarray(weights)
+
+
+def eval_expression(expression, mesh, cells):
+    """Evaluate a dolfinx Expression on `cells`: array (n_cells, n_points * value_size)."""
+    if LEGACY:
+        values = expression.eval(cells)
+    else:
+        values = expression.eval(mesh, cells)
+    return np.asarray(values).reshape(len(cells), -1)
+
+
+def petsc_vector(function):
+    """The PETSc Vec wrapping a Function's values."""
+    if LEGACY:
+        return function.vector
+    return function.x.petsc_vec
+
+
+def gmsh_model_to_mesh(model, comm, rank, gdim):
+    from dolfinx.io import gmshio
+    out = gmshio.model_to_mesh(model, comm, rank, gdim=gdim)
+    return out[0], out[1], out[2]
+
+
+def num_owned_cells(mesh):
+    return mesh.topology.index_map(mesh.topology.dim).size_local
+
+
+def cell_dofs(space, n_cells):
+    """Dof indices of the first n_cells cells, array (n_cells, dofs_per_cell)."""
+    dofmap = space.dofmap.list
+    if LEGACY:
+        per_cell = space.dofmap.dof_layout.num_dofs
+        return dofmap.array.reshape(-1, per_cell)[:n_cells]
+    return np.asarray(dofmap)[:n_cells]
+
+
+def apply_lifting(b, jacobian_form, bcs, x0, scale):
+    """b -= scale-weighted lifting of the Dirichlet values relative to x0."""
+    import dolfinx.fem.petsc
+    if LEGACY:
+        dolfinx.fem.petsc.apply_lifting(b, [jacobian_form], bcs=[bcs], x0=[x0], scale=scale)
+    else:
+        dolfinx.fem.petsc.apply_lifting(b, [jacobian_form], bcs=[bcs], x0=[x0], alpha=scale)
+
+
+def set_bc(b, bcs, x0, scale):
+    import dolfinx.fem.petsc
+    if LEGACY:
+        dolfinx.fem.petsc.set_bc(b, bcs, x0, scale)
+    else:
+        dolfinx.fem.petsc.set_bc(b, bcs, x0, alpha=scale)

@@ -1,0 +1,94 @@
+"""Meshes with named boundaries: {name: tag} dictionaries travel with the facet tags."""
+import math
+import os
+
+import dolfinx.mesh
+import numpy as np
+from mpi4py import MPI
+
+from . import compat
+
+MESH_DIR = os.path.join(os.path.dirname(os.path.dirname(os.path.abspath(__file__))), "meshes")
+RECTANGLE_BOUNDARIES = {"left": 1, "right": 2, "bottom": 3, "top": 4}
+
+
+def rectangle(comm, width, height, cell_size, cell_type="triangle", origin=(0.0, 0.0)):
+    """Structured rectangle [x0, x0 + width] x [y0, y0 + height]; returns
+    (mesh, facet_tags, boundaries) with boundaries left/right/bottom/top."""
+    for name, value in (("width", width), ("height", height), ("cell_size", cell_size)):
+        if not value > 0:
+            raise ValueError(f"{name} must be positive, got {value}")
+    if cell_type not in ("triangle", "quadrilateral"):
+        raise ValueError(f"cell_type must be 'triangle' or 'quadrilateral', got {cell_type!r}")
+    nx = max(1, int(math.ceil(width / cell_size - 1e-9)))
+    ny = max(1, int(math.ceil(height / cell_size - 1e-9)))
+    x0, y0 = origin
+    mesh = dolfinx.mesh.create_rectangle(
+        comm, [np.array([x0, y0]), np.array([x0 + width, y0 + height])], [nx, ny],
+        getattr(dolfinx.mesh.CellType, cell_type))
+    tol = 1e-10 * max(width, height)
+    where = {"left": lambda x: np.isclose(x[0], x0, atol=tol),
+             "right": lambda x: np.isclose(x[0], x0 + width, atol=tol),
+             "bottom": lambda x: np.isclose(x[1], y0, atol=tol),
+             "top": lambda x: np.isclose(x[1], y0 + height, atol=tol)}
+    return mesh, tag_facets(mesh, where, RECTANGLE_BOUNDARIES), dict(RECTANGLE_BOUNDARIES)
+
+
+def tag_facets(mesh, where, tags):
+    """Facet MeshTags from {name: marker(x)} and {name: tag}; later names win on corners."""
+    fdim = mesh.topology.dim - 1
+    mesh.topology.create_connectivity(fdim, mesh.topology.dim)
+    values = {}
+    for name, marker in where.items():
+        for facet in dolfinx.mesh.locate_entities_boundary(mesh, fdim, marker):
+            values[int(facet)] = tags[name]
+    facets = np.array(sorted(values), dtype=np.int32)
+    return dolfinx.mesh.meshtags(mesh, fdim, facets, np.array([values[f] for f in facets], dtype=np.int32))
+
+
+def from_gmsh_geo(comm, geo_path, parameters, gdim=2):
+    """Mesh a gmsh .geo source (ONELAB 'Parameters/NAME' numbers overridden by
+    `parameters`) on rank 0 and distribute it. Returns (mesh, facet_tags, boundaries)
+    with boundaries named after the physical curves."""
+    if not os.path.isfile(geo_path):
+        raise FileNotFoundError(f"gmsh source not found: {geo_path}")
+    import gmsh
+    boundaries = None
+    gmsh.initialize()
+    gmsh.option.setNumber("General.Terminal", 0)
+    try:
+        if comm.rank == 0:
+            gmsh.clear()
+            for name, value in parameters.items():
+                gmsh.onelab.setNumber(f"Parameters/{name}", [float(value)])
+            gmsh.open(geo_path)
+            gmsh.model.mesh.generate(gdim)
+            boundaries = {gmsh.model.getPhysicalName(gdim - 1, tag): tag
+                          for _, tag in gmsh.model.getPhysicalGroups(gdim - 1)}
+        boundaries = comm.bcast(boundaries, root=0)
+        mesh, _, facet_tags = compat.gmsh_model_to_mesh(gmsh.model, comm, 0, gdim)
+    finally:
+        gmsh.finalize()
+    return mesh, facet_tags, boundaries
+
+
+def hole_plate(comm, radius, half_side, cell_size, hole_cell_size=None,
+               geo_path=os.path.join(MESH_DIR, "hole_plate.geo")):
+    """Quarter plate [0, L]^2 minus the disc of `radius` (meshes/hole_plate.geo);
+    boundaries left, bottom (symmetry), right, top, hole."""
+    if not 0 < radius < half_side:
+        raise ValueError(f"need 0 < radius < half_side, got radius={radius}, half_side={half_side}")
+    if not cell_size > 0:
+        raise ValueError(f"cell_size must be positive, got {cell_size}")
+    hole_cell_size = hole_cell_size or cell_size
+    return from_gmsh_geo(comm, geo_path, {"R": radius, "L": half_side, "h": cell_size,
+                                          "h_hole": hole_cell_size})
+
+
+def min_cell_size(mesh):
+    """Smallest cell diameter over all ranks [m]."""
+    tdim = mesh.topology.dim
+    n = compat.num_owned_cells(mesh)
+    h = dolfinx.cpp.mesh.h(mesh._cpp_object if hasattr(mesh, "_cpp_object") else mesh, tdim,
+                           np.arange(n, dtype=np.int32))
+    return mesh.comm.allreduce(float(np.min(h)) if n else math.inf, op=MPI.MIN)

@@ -1,0 +1,139 @@
+"""Results as the run goes: XDMF fields for ParaView, history.csv, summary.json.
+
+XDMF holds P1 and DG0 data only: the P2 displacement is interpolated to P1, stresses
+(UFL expressions or Gauss-point data) become cell values (DG0; for linear stress fields
+on triangles the centroid value equals the cell mean). Each step is written and flushed
+when it converges, so an interrupted run keeps what it computed. Only requested fields
+are written. Rank 0 alone writes the CSV/JSON files and prints.
+"""
+import csv
+import json
+import os
+
+import dolfinx.fem
+import dolfinx.io
+import numpy as np
+import ufl
+
+from . import compat
+
+FIELDS = ("displacement", "rotation", "stress", "couple_stress")
+
+
+def print0(comm, *args):
+    if comm.rank == 0:
+        print(*args, flush=True)
+
+
+def write_json(comm, path, data):
+    if comm.rank == 0:
+        tmp = path + ".tmp"
+        with open(tmp, "w") as f:
+            json.dump(data, f, indent=2, sort_keys=True, default=float)
+        os.replace(tmp, path)
+
+
+class CsvLog:
+    """history.csv: one row per converged step, flushed at once."""
+
+    def __init__(self, comm, path, columns):
+        self.comm, self.columns = comm, list(columns)
+        self.file = None
+        if comm.rank == 0:
+            self.file = open(path, "w", newline="")
+            self.writer = csv.writer(self.file)
+            self.writer.writerow(self.columns)
+            self.file.flush()
+
+    def write(self, row):
+        if self.file is not None:
+            self.writer.writerow([f"{float(row[c]):.10g}" for c in self.columns])
+            self.file.flush()
+
+    def close(self):
+        if self.file is not None:
+            self.file.close()
+            self.file = None
+
+
+class FieldWriter:
+    """XDMF time series of the requested fields of a CosseratProblem."""
+
+    def __init__(self, problem, path, fields=FIELDS):
+        unknown = set(fields) - set(FIELDS)
+        if unknown:
+            raise ValueError(f"unknown output field(s) {sorted(unknown)}; known: {FIELDS}")
+        if not problem.micropolar:
+            fields = [f for f in fields if f not in ("rotation", "couple_stress")]
+        self.problem, self.fields = problem, list(fields)
+        mesh = problem.mesh
+        self.file = dolfinx.io.XDMFFile(mesh.comm, path, "w")
+        self.file.write_mesh(mesh)
+        gdim = mesh.geometry.dim
+        self.outputs = {}
+        if "displacement" in self.fields:
+            V = compat.function_space(mesh, compat.lagrange_element(mesh, 1, (gdim,)))
+            self.outputs["displacement"] = dolfinx.fem.Function(V, name="displacement")
+        if "rotation" in self.fields:
+            V = compat.function_space(mesh, compat.lagrange_element(mesh, 1))
+            self.outputs["rotation"] = dolfinx.fem.Function(V, name="rotation")
+        if "stress" in self.fields:
+            V = compat.function_space(mesh, compat.dg_element(mesh, 0, (gdim, gdim)))
+            self.outputs["stress"] = dolfinx.fem.Function(V, name="stress")
+        if "couple_stress" in self.fields:
+            V = compat.function_space(mesh, compat.dg_element(mesh, 0, (gdim,)))
+            self.outputs["couple_stress"] = dolfinx.fem.Function(V, name="couple_stress")
+        self._expressions = {}
+        self.extra = {}
+
+    def add_cell_field(self, name, shape, values):
+        """An extra DG0 field; `values()` returns an array (n_owned_cells, prod(shape))."""
+        mesh = self.problem.mesh
+        V = compat.function_space(mesh, compat.dg_element(mesh, 0, shape))
+        self.extra[name] = (dolfinx.fem.Function(V, name=name), values)
+
+    def _set_cell_values(self, function, values):
+        n = compat.num_owned_cells(self.problem.mesh)
+        dofs = compat.cell_dofs(function.function_space, n).reshape(-1)
+        bs = function.function_space.dofmap.index_map_bs
+        function.x.array.reshape(-1, bs)[dofs] = np.asarray(values).reshape(n, bs)
+        function.x.scatter_forward()
+
+    def _interpolate_dg0(self, name, expr):
+        function = self.outputs[name]
+        if name not in self._expressions:
+            points = function.function_space.element.interpolation_points
+            points = points() if callable(points) else points
+            self._expressions[name] = dolfinx.fem.Expression(expr, points)
+        function.interpolate(self._expressions[name])
+
+    def write(self, t):
+        problem = self.problem
+        if problem.micropolar:
+            u_sub, phi_sub = problem.w.sub(0), problem.w.sub(1)
+        else:
+            u_sub, phi_sub = problem.w, None
+        if "displacement" in self.outputs:
+            self.outputs["displacement"].interpolate(u_sub)
+        if "rotation" in self.outputs:
+            self.outputs["rotation"].interpolate(phi_sub)
+        callback = problem.callback
+        if "stress" in self.outputs:
+            if callback is not None:
+                flux = callback.cell_average(callback.flux_values)
+                self._set_cell_values(self.outputs["stress"], flux[:, [0, 2, 3, 1]])
+            else:
+                self._interpolate_dg0("stress", problem.stress())
+        if "couple_stress" in self.outputs:
+            if callback is not None:
+                flux = callback.cell_average(callback.flux_values)
+                self._set_cell_values(self.outputs["couple_stress"], flux[:, 4:6])
+            else:
+                self._interpolate_dg0("couple_stress", problem.couple_stress())
+        for function, values in self.extra.values():
+            self._set_cell_values(function, values())
+        for function in list(self.outputs.values()) + [f for f, _ in self.extra.values()]:
+            self.file.write_function(function, t)
+
+    def close(self):
+        self.file.close()

@@ -77,12 +77,13 @@ def loose_state(n_particles, r_min=0.01, radius_ratio=1.5, solid_fraction=0.5, s
 
 def compact(cell, pressure, friction=0.0, deviator=0.0, max_steps=400_000):
     """Compact ``cell`` (a DemCell) under Cauchy stress diag(-p (1 + deviator), -p (1 - deviator))
-    [N/m] with the given preparation friction, shear components of F held fixed. Returns the
-    SolveResult. The law's friction is restored afterwards."""
+    [N/m] with the given preparation friction; F_12 is servo-controlled to zero shear stress,
+    F_21 is held (this fixes the rigid rotation). Returns the SolveResult. The law's friction
+    is restored afterwards."""
     law = cell.law
     cell.set_law(law.with_(friction=friction))
     try:
-        mask = np.array([[True, False], [False, True]])
+        mask = np.array([[True, True], [False, True]])
         target = np.diag([-pressure * (1.0 + deviator), -pressure * (1.0 - deviator)])
         cell.set_deformation(cell.deformation_gradient())
         res = cell.solve(stress_mask=mask, stress_target=target, max_steps=max_steps)

@@ -7,7 +7,7 @@ One Numba kernel (``advance``) runs the whole loop:
   3. leapfrog integration of the fluctuating motion with local non-viscous damping
      f_d = -alpha |f| sign(v), m_d = -beta |m| sign(omega) (000 section 3.2.1, eq. 30);
   4. after the ramp, the convergence test every ``check_every`` steps: kinetic / potential
-     energy ratio (000 eqs. 31-32) or maximum unbalanced force over mean contact force
+     energy ratio (000 eqs. 31-32; rattlers excluded) or maximum unbalanced force over mean contact force
      (001 section 2), plus the stress targets of the stress-controlled components.
 
 The Python function ``run`` wraps the kernel: it grows the pair arrays when needed and
@@ -243,12 +243,18 @@ def advance(radius, mass, inertia, s, v, theta, omega, dtheta, force, moment, s_
                            bonded, touching, d_prev, ipar[I_NPAIRS], law, dt, out)
             ipar[I_FCUR] = 1
         # convergence test once the ramp is over
-        if crit != NO_CHECK and ipar[I_KRAMP] >= n_ramp and step % check_every == 0:
+        if crit != NO_CHECK and ipar[I_KRAMP] >= n_ramp and step % check_every == 0 and step > 0:
             ekin = 0.0
             fmax2 = 0.0
             for i in range(n):
-                ekin += 0.5 * mass[i] * (v[i, 0] ** 2 + v[i, 1] ** 2) + 0.5 * inertia[i] * omega[i] ** 2
+                # particles without any contact force (rattlers) or without moment (frictionless)
+                # keep their velocity forever under local damping and carry no stress: their
+                # kinetic energy is left out of the test
                 f2 = force[i, 0] ** 2 + force[i, 1] ** 2
+                if f2 > 0.0:
+                    ekin += 0.5 * mass[i] * (v[i, 0] ** 2 + v[i, 1] ** 2)
+                if moment[i] != 0.0:
+                    ekin += 0.5 * inertia[i] * omega[i] ** 2
                 if f2 > fmax2:
                     fmax2 = f2
             out[O_EKIN] = ekin

@@ -51,7 +51,7 @@ def elastic_stress(Ee, c, params, S, C, sc):
     d = c - x  # < 0 in the admissible range x > c
     ok = d < 0.0
     if not ok:
-        d = -1e-300
+        d = -1e-150  # keeps d*d representable; the caller rejects this state anyway
     f = lam * c / d
     for i in range(7):
         sc[i] = 0.0

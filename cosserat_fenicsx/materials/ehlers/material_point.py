@@ -205,3 +205,34 @@ def summarize(h):
         max_yield_function=float(np.max(h["yield_function"])),
         max_newton_iterations=int(np.max(h["newton_iterations"])),
         n_points=int(len(ev)))
+
+
+def finite_difference_tangent(material, strain7, state, dt=1.0, h=1e-7):
+    """Consistent tangent (3.37) of the kernel and its central finite-difference estimate.
+
+    strain7: total generalised strain [eps11, eps22, eps33, eps12, eps21, kappa31, kappa32]
+    at t_n; state (state_size,) committed history.  Strain steps are h, curvature steps
+    h / max(l_c, 1e-3 m) so that both perturb the stress by similar amounts.
+    Returns (C, C_fd), both (7, 7) in SI (Pa, Pa m, Pa m^2).
+    """
+    E = np.asarray(strain7, dtype=float).reshape(1, 7)
+    st = np.asarray(state, dtype=float).reshape(1, STATE_SIZE)
+
+    def run(e):
+        f = np.zeros((1, 7))
+        t = np.zeros((1, 7, 7))
+        s = np.zeros((1, STATE_SIZE))
+        material.update_generalised(e, dt, st, f, t, s)
+        return f[0], t[0]
+
+    _, C = run(E)
+    C_fd = np.zeros((7, 7))
+    lc = max(material.parameters.l_c, 1e-3)
+    for j in range(7):
+        hj = h if j < 5 else h / lc
+        ep = E.copy()
+        ep[0, j] += hj
+        em = E.copy()
+        em[0, j] -= hj
+        C_fd[:, j] = (run(ep)[0] - run(em)[0]) / (2.0 * hj)
+    return C, C_fd

@@ -1,0 +1,96 @@
+"""demcell stiff and extreme cases (issue 4, item 11) and bad input (errors before any work)."""
+import math
+
+import numpy as np
+import pytest
+
+import demcell as dc
+from demcell.interface import RelaxationOptions
+
+pytestmark = pytest.mark.serial
+
+
+@pytest.fixture(scope="module")
+def packing60():
+    st, _ = dc.generate_packing(60, pressure=10.0, seed=5)
+    return st
+
+
+def test_stiff_contacts_time_step_follows(packing60):
+    soft = dc.DemCell(packing60.copy(), dc.ContactLaw(kn=1e4, ks=2e3))
+    stiff = dc.DemCell(packing60.copy(), dc.ContactLaw(kn=1e10, ks=2e9))
+    assert stiff.dt == pytest.approx(soft.dt * 1e-3, rel=1e-12)      # dt ~ 1/sqrt(k)
+    # same geometry, springs 1e6 times stiffer: the stress scales by 1e6 and stays finite
+    s_soft = soft.cauchy_stress()
+    F = np.array([[0.99999, 0.0], [0.0, 1.0]])
+    for c in (soft, stiff):
+        c.set_deformation(F)
+        res = c.solve()
+        assert res.converged, res.message
+    s1, s2 = soft.cauchy_stress(), stiff.cauchy_stress()
+    assert np.all(np.isfinite(s2))
+    assert np.abs(s2 / 1e6 - s1).max() < 1e-2 * np.abs(s_soft).max()
+
+
+def test_zero_friction(packing60):
+    cell = dc.DemCell(packing60.copy(), dc.ContactLaw(friction=0.0))
+    cell.set_deformation(np.diag([0.99, 1.0]))
+    res = cell.solve()
+    assert res.converged
+    assert np.all(cell.state.fs[:cell.state.n_pairs] == 0.0)
+    assert np.all(np.isfinite(cell.cauchy_stress()))
+
+
+def test_infinite_friction_never_slides(packing60):
+    cell = dc.DemCell(packing60.copy(), dc.ContactLaw(friction=math.inf))
+    cell.set_deformation(np.diag([0.98, 1.0]))
+    assert cell.solve().converged
+    h = cell.homogenized()
+    assert h.sliding_fraction == 0.0 and np.all(np.isfinite(h.cauchy))
+
+
+def test_pulled_apart_gives_zero_stress_and_flag(packing60):
+    cell = dc.DemCell(packing60.copy(), dc.ContactLaw())
+    cell.set_deformation(np.diag([1.05, 1.05]))
+    res = cell.solve()
+    assert res.no_contacts and "no contact" in res.message
+    h = cell.homogenized()
+    assert h.no_contacts and h.n_contacts == 0
+    assert np.all(h.cauchy == 0.0) and np.all(h.pk1 == 0.0)
+    assert np.all(np.isfinite(cell.tangent("kruyt")))
+
+
+def test_huge_increment_is_substepped(packing60):
+    cell = dc.DemCell(packing60.copy(), dc.ContactLaw(), RelaxationOptions(max_increment=0.01))
+    cell.set_deformation(np.diag([0.9, 1.0]))           # 10 % in one call
+    res = cell.solve(stress_mask=np.array([[False, False], [False, True]]),
+                     stress_target=np.diag([0.0, -10.0]))
+    assert res.substeps == 10 and res.converged, res.message
+    s = cell.cauchy_stress()
+    assert np.all(np.isfinite(s)) and abs(s[1, 1] + 10.0) < 0.02 and s[0, 0] < s[1, 1]
+
+
+def test_bad_input_is_rejected_before_work(tmp_path, packing60):
+    with pytest.raises(dc.InputError, match="kn"):
+        dc.ContactLaw(kn=-1.0)
+    with pytest.raises(dc.InputError, match=">= 0"):
+        dc.ContactLaw(ks=-5.0)
+    with pytest.raises(dc.InputError, match="twisting"):
+        dc.ContactLaw(twisting_stiffness=1.0)
+    with pytest.raises(dc.InputError, match="unknown ContactLaw option"):
+        dc.ContactLaw().with_(frcition=0.3)
+    with pytest.raises(dc.InputError, match="unknown relaxation option"):
+        RelaxationOptions.from_kwargs(tolerance=1e-3)
+    with pytest.raises(dc.InputError, match="criterion"):
+        RelaxationOptions(criterion="magic")
+    with pytest.raises(dc.InputError, match="not found"):
+        dc.load_packing(str(tmp_path / "missing.npz"))
+    bogus = tmp_path / "bogus.npz"
+    np.savez(bogus, a=np.zeros(3))
+    with pytest.raises(dc.InputError, match="not a demcell packing"):
+        dc.load_packing(str(bogus))
+    cell = dc.DemCell(packing60.copy())
+    with pytest.raises(dc.InputError, match="det F"):
+        cell.set_deformation(np.diag([1.0, -1.0]))
+    with pytest.raises(dc.InputError, match="unknown tangent kind"):
+        cell.tangent("secant")

@@ -37,13 +37,17 @@ def load_packing(path):
     return CellState.from_dict(d), info
 
 
-def write_vtk_snapshot(prefix, state):
-    """Write ``prefix_particles.vtk`` (centres with radius, rotation, velocity) and
-    ``prefix_contacts.vtk`` (one line per contact, from centre i to the image of centre j,
-    with normal and tangential force as cell data). Legacy ASCII VTK POLYDATA, z = 0."""
+def write_vtk_snapshot(directory, index, state):
+    """Write ``particles_NNNN.vtk`` (centres with radius, rotation, velocity) and
+    ``contacts_NNNN.vtk`` (one line per contact, from centre i to the image of centre j,
+    with normal and tangential force as cell data) in ``directory``. Legacy ASCII VTK
+    POLYDATA, z = 0; ParaView opens each numbered family as a time series."""
+    os.makedirs(directory, exist_ok=True)
+    p_path = os.path.join(directory, f"particles_{index:04d}.vtk")
+    c_path = os.path.join(directory, f"contacts_{index:04d}.vtk")
     x = state.positions()
     n = state.n_particles
-    with open(prefix + "_particles.vtk", "w") as f:
+    with open(p_path, "w") as f:
         f.write("# vtk DataFile Version 3.0\ndemcell particles\nASCII\nDATASET POLYDATA\n")
         f.write(f"POINTS {n} double\n")
         np.savetxt(f, np.column_stack([x, np.zeros(n)]), fmt="%.9e")
@@ -63,7 +67,7 @@ def write_vtk_snapshot(prefix, state):
         dx, dy = branch_vector(state.h, state.s, i, j)
         pts[2 * q, :2] = x[i]
         pts[2 * q + 1, :2] = x[i] + (dx, dy)
-    with open(prefix + "_contacts.vtk", "w") as f:
+    with open(c_path, "w") as f:
         f.write("# vtk DataFile Version 3.0\ndemcell contact network\nASCII\nDATASET POLYDATA\n")
         f.write(f"POINTS {2 * m} double\n")
         np.savetxt(f, pts, fmt="%.9e")
@@ -73,6 +77,7 @@ def write_vtk_snapshot(prefix, state):
         np.savetxt(f, state.fn[idx], fmt="%.9e")
         f.write("SCALARS tangential_force double 1\nLOOKUP_TABLE default\n")
         np.savetxt(f, state.fs[idx], fmt="%.9e")
+    return p_path, c_path
 
 
 class CsvLog:

@@ -17,7 +17,7 @@ from numba import njit
 from .parameters import P_LMBDA, P_L_C, P_MU, P_MU_C, P_N0, P_NMAX
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def compression_point(eps_p_vol, params):
     """Critical volumetric elastic strain eps_crit and d eps_crit / d eps_p^V.
 
@@ -32,7 +32,7 @@ def compression_point(eps_p_vol, params):
     return c, dc
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def elastic_stress(Ee, c, params, S, C, sc):
     """Stress, couple stress and their derivatives for elastic strain ``Ee``.
 
@@ -79,7 +79,7 @@ def elastic_stress(Ee, c, params, S, C, sc):
     return ok
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def volumetric_energy(x, c, lmbda):
     """Volumetric part of the free energy consistent with (2.73) [MPa].
 

@@ -81,7 +81,7 @@ def make_workspace():
     return np.zeros((72, NX)), np.zeros((24, NX))
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def _hardening_constants(params):
     """(p*, C^V, C^D, sign) for p = (beta, delta, epsilon, gamma), eq. (2.82)."""
     pstar = (params[P_BETA_STAR], params[P_DELTA_STAR], params[P_EPS_STAR], params[P_GAMMA_STAR])
@@ -91,7 +91,7 @@ def _hardening_constants(params):
     return pstar, cv, cd, sg
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def residual_jacobian(X, E, Ep0, p0, dt, params, R, J, W, V, want_jac):
     """Residual R (12) of Table 3.1 at X and, if want_jac, its Jacobian J = dR/dX.
 
@@ -173,21 +173,31 @@ def residual_jacobian(X, E, Ep0, p0, dt, params, R, J, W, V, want_jac):
                          + n[3] * dndp[m, 3] + n[4] * dndp[m, 4])
     dvp[3] = 0.0
     dwp[3] = 0.0
-    # G1/G2 rows: R = S - S^e(E - Ep0 - lam n, c(epv0 + lam v))
+    # G1/G2 rows: R = S - S^e(E - Ep0 - lam n, c(epv0 + lam v)).  C_e is block diagonal
+    # (normal 3x3, shear 2x2, couple 2x diagonal): the products below use only its blocks.
     for i in range(7):
+        if i < 3:
+            k0 = 0
+            k1 = 3
+        elif i < 5:
+            k0 = 3
+            k1 = 5
+        else:
+            k0 = i
+            k1 = i + 1
         for j in range(7):
             s = 0.0
-            for k in range(7):
+            for k in range(k0, k1):
                 s += Ce[i, k] * H[k, j]
             J[i, j] = lam * (s - dc * sc[i] * gv[j])
         J[i, i] += 1.0
         s = 0.0
-        for k in range(7):
+        for k in range(k0, k1):
             s += Ce[i, k] * n[k]
         J[i, 7] = s - dc * v * sc[i]
         for m in range(3):
             s = 0.0
-            for k in range(7):
+            for k in range(k0, k1):
                 s += Ce[i, k] * dndp[m, k]
             J[i, 8 + m] = lam * (s - dc * sc[i] * dvp[m])
         J[i, 11] = 0.0
@@ -220,7 +230,7 @@ def residual_jacobian(X, E, Ep0, p0, dt, params, R, J, W, V, want_jac):
     return True, F
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def _merit(R, V, sig_scale, m_scale):
     s = 0.0
     for i in range(5):
@@ -236,9 +246,13 @@ def _merit(R, V, sig_scale, m_scale):
     return math.sqrt(s)
 
 
-@njit(cache=True)
-def local_step(E, dt, Ep, p, params, W, V, S_out, C_out, want_tangent):
+@njit(cache=True, error_model="numpy")
+def local_step(E, dt, Ep, p, params, W, V, S_out, C_out, want_tangent, lam_rate_guess):
     """One implicit Euler step of the local system from history (Ep, p) to total strain E.
+
+    lam_rate_guess: Lambda of the previous step [1/s]; if > 0 the Newton starts from the
+    corrector dlam = Lambda dt along the predictor's flow direction (fewer iterations
+    in monotonic loading); if that start is outside the model's domain, from the predictor.
 
     On success Ep (7) and p (4) are overwritten with the new history, S_out with the
     stress and (if want_tangent) C_out with the consistent tangent.  Returns
@@ -287,17 +301,43 @@ def local_step(E, dt, Ep, p, params, W, V, S_out, C_out, want_tangent):
     Jt = W[_JT:_JT + NX]
     Jlu = W[_JLU:_JLU + NX]
     Z = W[_Z:_Z + NX]
+    tol = params[P_TOL]
+    max_iter = int(params[P_MAX_ITER])
+    # start 1: the elastic predictor (dlam = 0)
     for i in range(7):
         X[i] = Str[i]
     X[7] = 0.0 if params[P_R] == 1.0 else 1e-12
     for k in range(4):
         X[8 + k] = p0[k]
-    tol = params[P_TOL]
-    max_iter = int(params[P_MAX_ITER])
     valid, F = residual_jacobian(X, E, Ep0, p0, dt, params, R, J, W, V, True)
+    merit = _merit(R, V, sig_scale, m_scale) if valid else np.inf
+    # start 2: dlam = Lambda_old dt along the predictor's flow direction; kept only if its
+    # scaled residual is smaller (monotonic loading), so a poor guess costs one evaluation
+    if lam_rate_guess > 0.0 and valid and merit >= tol:
+        lam0 = lam_rate_guess * dt
+        n = V[_N, 0:7]
+        v = n[0] + n[1] + n[2]
+        for i in range(7):
+            Ee[i] = E[i] - Ep0[i] - lam0 * n[i]
+        c1, dc1 = compression_point(Ep0[0] + Ep0[1] + Ep0[2] + V[_SCALE, 4] + lam0 * v, params)
+        if elastic_stress(Ee, c1, params, Xt[0:7], Ce, sc):
+            Xt[7] = lam0
+            for k in range(4):
+                Xt[8 + k] = p0[k]
+            ok, Ft = residual_jacobian(Xt, E, Ep0, p0, dt, params, Rt, Jt, W, V, True)
+            mt = _merit(Rt, V, sig_scale, m_scale) if ok else np.inf
+            if mt < merit:
+                for i in range(NX):
+                    X[i] = Xt[i]
+                    R[i] = Rt[i]
+                    for j in range(NX):
+                        J[i, j] = Jt[i, j]
+                F = Ft
+                merit = mt
+            # else: keep the predictor's R, J; merit >= tol, so the Newton loop below evaluates
+            # again before anything reads the work arrays
     if not valid:
         return (STATUS_TENSILE if Itr >= 0.0 else STATUS_SINGULAR), 0.0, 0.0, 0
-    merit = _merit(R, V, sig_scale, m_scale)
     converged = False
     it = 0
     while it < max_iter:
@@ -336,8 +376,8 @@ def local_step(E, dt, Ep, p, params, W, V, S_out, C_out, want_tangent):
         merit = mt
     if not converged:
         return (STATUS_TENSILE if Itr >= 0.0 else STATUS_NOT_CONVERGED), 0.0, 0.0, it
-    # converged: re-evaluate at X so that the work arrays (n, C_e) belong to the solution
-    residual_jacobian(X, E, Ep0, p0, dt, params, R, J, W, V, True)
+    # converged: the last residual_jacobian call was at X (predictor or accepted line-search
+    # trial), so the work arrays (n_G, C_e) and J belong to the solution
     n = V[_N, 0:7]
     lam = X[7]
     for i in range(7):
@@ -351,7 +391,7 @@ def local_step(E, dt, Ep, p, params, W, V, S_out, C_out, want_tangent):
     return STATUS_OK, lam, F, it
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def update_point(E, dt, hist_old, params, S_out, C_out, hist_new, W, V):
     """Full Gauss-point update with substepping (internal units inside, SI history).
 
@@ -390,6 +430,7 @@ def update_point(E, dt, hist_old, params, S_out, C_out, hist_new, W, V):
         dev_acc = 0.0
         total_it = 0
         status = STATUS_OK
+        lam_rate = hist_old[S_LAMBDA]
         for k in range(1, nsub + 1):
             t = k / nsub
             for i in range(7):
@@ -401,7 +442,8 @@ def update_point(E, dt, hist_old, params, S_out, C_out, hist_new, W, V):
             e3 = Ep[3]
             e4 = Ep[4]
             status, dlam, F, it = local_step(Esub, dt / nsub, Ep, p, params, W, V, S_out, C_out,
-                                             k == nsub)
+                                             k == nsub, lam_rate)
+            lam_rate = dlam * nsub / dt if dt > 0.0 else 0.0
             total_it += it
             if status != STATUS_OK:
                 break
@@ -437,7 +479,7 @@ def update_point(E, dt, hist_old, params, S_out, C_out, hist_new, W, V):
     return STATUS_OK
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def update_batch(grad, dt, state_old, params, flux, tangent, state_new, status):
     """Batch Gauss-point update: the single compiled entry point used by the FE callback.
 

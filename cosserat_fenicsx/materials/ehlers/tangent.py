@@ -17,7 +17,7 @@ from numba import njit
 NX = 12  # unknowns per point: 7 generalised stresses, plastic increment, 4 hardening variables
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def solve_inplace(A, B, nrhs):
     """Solve A X = B[:, :nrhs] by Gaussian elimination with partial pivoting.
 
@@ -62,7 +62,7 @@ def solve_inplace(A, B, nrhs):
     return True
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def consistent_tangent(J, Ce, Jlu, Z, C_out):
     """C_n = first 7 rows of J^-1 [C_e; 0] (3.36), (3.37), written into C_out (7x7).
 

@@ -30,7 +30,7 @@ THETA_MAX = 2.0 / (3.0 * math.sqrt(3.0))
 SQRT3_3 = math.sqrt(3.0) / 3.0
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def invariants(S):
     """Return (I, s11, s22, s33, s12, a12, II_D, III_D, II_skw, m.m) of generalised stress S."""
     I = S[0] + S[1] + S[2]
@@ -45,7 +45,7 @@ def invariants(S):
     return I, s0, s1, s2, s3, a, II, III, a * a, S[5] * S[5] + S[6] * S[6]
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def lode_factor(II, III, gamma):
     """Gamma = (1 + gamma theta)^m and theta, m, with the II^D -> 0 guard (spec 5, hazards).
 
@@ -66,7 +66,7 @@ def lode_factor(II, III, gamma):
     return base ** m, theta, m, base
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def yield_function(S, beta, delta, eps, gamma, params):
     """F of (2.76) [MPa] at generalised stress S and hardening state (beta, delta, eps, gamma)."""
     I, s0, s1, s2, s3, a, II, III, IIskw, mm = invariants(S)
@@ -78,7 +78,7 @@ def yield_function(S, beta, delta, eps, gamma, params):
     return math.sqrt(phi) + beta * I + I * I / eps - params[P_KAPPA]
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def yield_function_gradient(S, beta, delta, eps, gamma, params, dF):
     """F (2.76) and its first derivatives (spec 4.3).
 
@@ -135,7 +135,7 @@ def yield_function_gradient(S, beta, delta, eps, gamma, params, dF):
     return F, dbeta, ddelta, deps, dgamma, phi
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def plastic_potential_derivatives(S, beta, delta, eps, params, n, H, dndp):
     """Flow direction n = dG/dS (2.78, 2.79), its Hessian H and dn/d(beta, delta, epsilon).
 

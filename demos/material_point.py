@@ -11,6 +11,8 @@ Tests of the thesis (Scholz 2007, A.1, A.2, section 6.1.2), Hostun sand by defau
                decreased at sig22 = -P (thesis: P = 100 kN/m^2)
   all          the five thesis tests, and a comparison with the reference values of
                the spec (section 4.6, reading H1) in h1_comparison.json
+  readings     evidence for the Table 3.1 / Table 6.4 reading: hydrostatic loading in
+               5 kPa steps to 1 MN/m^2 under four readings (readings.json)
 
 Writes to --out: history.csv (axial_strain, axial_stress, volumetric_strain, then
 further columns; SI, tension positive; strains counted from the start of the
@@ -48,7 +50,7 @@ TABLE_6_2 = {"triaxial_100kPa": dict(sigma0=500e3, epsV0=0.1), "triaxial_300kPa"
 def build_parser():
     p = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter,
                                 allow_abbrev=False)
-    p.add_argument("--test", choices=("hydrostatic", "triaxial", "biaxial", "all"), default="triaxial")
+    p.add_argument("--test", choices=("hydrostatic", "triaxial", "biaxial", "all", "readings"), default="triaxial")
     p.add_argument("--confining", type=float, default=100e3,
                    help="confining pressure P > 0 [Pa] (hydrostatic: final pressure) (default %(default)g)")
     p.add_argument("--out", default="out/material_point", help="output directory (default %(default)s)")
@@ -114,6 +116,42 @@ def write_outputs(h, s, out, title):
     plt.close(fig)
 
 
+READINGS = {
+    "H1: T6.4 delta, epsilon as reciprocals (MN/m^2), uniform (2.82)": dict(),
+    "reciprocals, Table 3.1 signs on the delta/epsilon rows": dict(hardening_rows="table3.1"),
+    "T6.4 values used directly as thesis delta, epsilon, Table 3.1 signs":
+        dict(hardening_rows="table3.1", delta0=0.01e6, delta_star=1.59e6, epsilon0=0.486e6, epsilon_star=0.0115e6),
+    "T6.4 values used directly as thesis delta, epsilon, uniform (2.82)":
+        dict(delta0=0.01e6, delta_star=1.59e6, epsilon0=0.486e6, epsilon_star=0.0115e6),
+}
+
+
+def run_readings(args):
+    """Hydrostatic loading in 5 kPa steps to 1 MN/m^2 under each reading; records how far it gets."""
+    from cosserat_fenicsx.materials.ehlers import EhlersMaterial, MaterialPointError
+    from cosserat_fenicsx.materials.ehlers.material_point import MaterialPoint, consolidate
+    out = {}
+    for name, kw in READINGS.items():
+        mat = EhlersMaterial.hostun(eta=args.eta, **kw)
+        pt = MaterialPoint(mat)
+        p_reached, err = 0.0, None
+        try:
+            for k in range(1, 201):
+                consolidate(pt, -5e3 * k, n_steps=1, dt=args.dt)
+                p_reached = 5e3 * k
+        except MaterialPointError as e:
+            err = str(e)
+        st = pt.state[0]
+        out[name] = dict(max_pressure_Pa=p_reached, volumetric_strain=float(pt.strain[:3].sum()),
+                         beta=st[7], delta_Pa=st[8], epsilon_Pa=st[9], failure=err)
+        print(f"{name:72s} reached {p_reached / 1e3:7.1f} kPa, eps_V = {pt.strain[:3].sum():+.4f}"
+              + (f"  | {err[:60]}" if err else ""))
+    os.makedirs(args.out, exist_ok=True)
+    with open(os.path.join(args.out, "readings.json"), "w") as f:
+        json.dump(out, f, indent=2)
+    return out
+
+
 def main(argv=None):
     args = build_parser().parse_args(argv)
     if not args.confining > 0:
@@ -127,6 +165,8 @@ def main(argv=None):
     except ValueError as e:
         raise SystemExit(f"invalid material parameter: {e}")
     t0 = time.perf_counter()
+    if args.test == "readings":
+        return run_readings(args)
     if args.test != "all":
         h, s = run_test(material, args.test, args.confining, args)
         s["wall_time_s"] = time.perf_counter() - t0

@@ -23,8 +23,9 @@ states beyond the compression point, with negative dlam, or with delta, epsilon,
 gamma outside their ranges; if Newton fails, the strain increment (and dt) is bisected
 into 2, 4, ... substeps (up to 2**max_substep_levels).  Internal units MPa, m, s.
 
-The consistent tangent returned after substepping is the algorithmic tangent of the
-last substep (history of the previous substeps frozen); it is exact without substepping.
+The consistent tangent is exact also after substepping: the sensitivity of the history
+(plastic strain, hardening variables) to the final strain is carried through the substeps
+(tangent.consistent_tangent / propagate_history_sensitivity).
 """
 
 import math
@@ -40,7 +41,7 @@ from .parameters import (P_BETA_STAR, P_C_BETA_D, P_C_BETA_V, P_C_DELTA_D, P_C_D
                          P_EPS_STAR, P_ETA, P_GAMMA_STAR, P_L_C, P_MAX_ITER, P_MAX_LEVELS,
                          P_MICROPOLAR, P_R, P_SIGMA_REF, P_SIGN_DELTA, P_SIGN_EPS, P_TOL,
                          STRESS_UNIT)
-from .tangent import NX, consistent_tangent, solve_inplace
+from .tangent import NX, consistent_tangent, propagate_history_sensitivity, solve_inplace
 from .yield_function import plastic_potential_derivatives, yield_function, yield_function_gradient
 
 GAMMA_MAX = 3.0 * math.sqrt(3.0) / 2.0
@@ -70,15 +71,15 @@ STATE_NAMES = (
     "eps_p_dev_accumulated", "substeps", "local_iterations", "eps_p_vol_offset",
 )
 
-# rows of the 2D work array W (72 x 12) and of the vector work array V (24 x 12)
-_J, _JT, _JLU, _Z, _H, _CE, _CT = 0, 12, 24, 36, 48, 55, 62
+# rows of the 2D work array W (73 x 12) and of the vector work array V (24 x 12)
+_J, _JT, _JLU, _Z, _H, _CE, _DEP, _DP = 0, 12, 24, 36, 48, 55, 62, 69
 _R, _RT, _X, _XT, _N, _DF, _SC, _SE, _EE, _EP, _P, _STR, _ESUB, _EP0, _P0, _DNDP = range(16)
 _SCALE = 19
 
 
 def make_workspace():
     """Work arrays for one thread of the batch kernel (allocated once per call)."""
-    return np.zeros((72, NX)), np.zeros((24, NX))
+    return np.zeros((73, NX)), np.zeros((24, NX))
 
 
 @njit(cache=True, error_model="numpy")
@@ -247,7 +248,7 @@ def _merit(R, V, sig_scale, m_scale):
 
 
 @njit(cache=True, error_model="numpy")
-def local_step(E, dt, Ep, p, params, W, V, S_out, C_out, want_tangent, lam_rate_guess):
+def local_step(E, dt, Ep, p, params, W, V, S_out, C_out, t, with_history, lam_rate_guess):
     """One implicit Euler step of the local system from history (Ep, p) to total strain E.
 
     lam_rate_guess: Lambda of the previous step [1/s]; if > 0 the Newton starts from the
@@ -255,7 +256,11 @@ def local_step(E, dt, Ep, p, params, W, V, S_out, C_out, want_tangent, lam_rate_
     in monotonic loading); if that start is outside the model's domain, from the predictor.
 
     On success Ep (7) and p (4) are overwritten with the new history, S_out with the
-    stress and (if want_tangent) C_out with the consistent tangent.  Returns
+    stress and C_out with the consistent tangent dS/dE_final.  t: fraction of the full
+    increment reached at the end of this substep (E = E_old + t (E_final - E_old));
+    with_history: the start history depends on E_final through W[_DEP], W[_DP] (earlier
+    substeps), which are then updated for the next substep (exact tangent under substepping).
+    Returns
     (status, dlam, F, iterations).
     """
     Ep0 = V[_EP0, 0:7]
@@ -279,19 +284,21 @@ def local_step(E, dt, Ep, p, params, W, V, S_out, C_out, want_tangent, lam_rate_
     for i in range(5):
         smax = max(smax, abs(Str[i]))
     sig_scale = max(smax, 1e-6)  # >= 1 Pa
-    if Ftr <= 1e-14 * sig_scale:
-        for i in range(7):
-            S_out[i] = Str[i]
-        if want_tangent:
-            for i in range(7):
-                for j in range(7):
-                    C_out[i, j] = Ce[i, j]
-        return STATUS_OK, 0.0, Ftr, 0
-    Itr = Str[0] + Str[1] + Str[2]
-    m_scale = sig_scale * max(params[P_L_C], 1e-6)
     pstar, cv, cd, sg = _hardening_constants(params)
     for k in range(4):
         V[_SCALE, k] = abs(p0[k]) + abs(pstar[k])
+    DEp = W[_DEP:_DEP + 7, 0:7]
+    Dp = W[_DP:_DP + 4, 0:7]
+    if Ftr <= 1e-14 * sig_scale:
+        for i in range(7):
+            S_out[i] = Str[i]
+        # elastic (sub)step: dS/dE = C_e t - (C_e - sc (x) dc 1_tr) dE_p/dE, history unchanged
+        if not consistent_tangent(W[_J:_J + NX], Ce, sc, dc, t, DEp, Dp, V[_SCALE, 0:4], with_history,
+                                  W[_JLU:_JLU + NX], W[_Z:_Z + NX], C_out, True):
+            return STATUS_SINGULAR, 0.0, Ftr, 0
+        return STATUS_OK, 0.0, Ftr, 0
+    Itr = Str[0] + Str[1] + Str[2]
+    m_scale = sig_scale * max(params[P_L_C], 1e-6)
     # ----- plastic corrector: Newton from the predictor
     X = V[_X]
     Xt = V[_XT]
@@ -385,9 +392,13 @@ def local_step(E, dt, Ep, p, params, W, V, S_out, C_out, want_tangent, lam_rate_
         Ep[i] = Ep0[i] + lam * n[i]
     for k in range(4):
         p[k] = X[8 + k]
-    if want_tangent:
-        if not consistent_tangent(J, W[_CE:_CE + 7, 0:7], Jlu, Z, C_out):
-            return STATUS_SINGULAR, lam, F, it
+    v = n[0] + n[1] + n[2]
+    c, dc = compression_point(Ep0[0] + Ep0[1] + Ep0[2] + V[_SCALE, 4] + lam * v, params)
+    if not consistent_tangent(J, W[_CE:_CE + 7, 0:7], V[_SC, 0:7], dc, t, DEp, Dp, V[_SCALE, 0:4],
+                              with_history, Jlu, Z, C_out, False):
+        return STATUS_SINGULAR, lam, F, it
+    if with_history:
+        propagate_history_sensitivity(Z, n, W[_H:_H + 7, 0:7], V[_DNDP:_DNDP + 3, 0:7], lam, DEp, Dp)
     return STATUS_OK, lam, F, it
 
 
@@ -431,6 +442,9 @@ def update_point(E, dt, hist_old, params, S_out, C_out, hist_new, W, V):
         total_it = 0
         status = STATUS_OK
         lam_rate = hist_old[S_LAMBDA]
+        for i in range(11):  # d(history)/dE_final = 0 at the start of the increment
+            for j in range(7):
+                W[_DEP + i, j] = 0.0
         for k in range(1, nsub + 1):
             t = k / nsub
             for i in range(7):
@@ -442,7 +456,7 @@ def update_point(E, dt, hist_old, params, S_out, C_out, hist_new, W, V):
             e3 = Ep[3]
             e4 = Ep[4]
             status, dlam, F, it = local_step(Esub, dt / nsub, Ep, p, params, W, V, S_out, C_out,
-                                             k == nsub, lam_rate)
+                                             t, nsub > 1, lam_rate)
             lam_rate = dlam * nsub / dt if dt > 0.0 else 0.0
             total_it += it
             if status != STATUS_OK:
@@ -492,7 +506,7 @@ def update_batch(grad, dt, state_old, params, flux, tangent, state_new, status):
     npts = grad.shape[0]
     k = grad.shape[1]
     su = STRESS_UNIT
-    W = np.zeros((72, NX))
+    W = np.zeros((73, NX))
     V = np.zeros((24, NX))
     E = np.zeros(7)
     S = np.zeros(7)

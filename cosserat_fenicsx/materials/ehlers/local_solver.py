@@ -248,12 +248,8 @@ def _merit(R, V, sig_scale, m_scale):
 
 
 @njit(cache=True, error_model="numpy")
-def local_step(E, dt, Ep, p, params, W, V, S_out, C_out, t, with_history, lam_rate_guess):
+def local_step(E, dt, Ep, p, params, W, V, S_out, C_out, t, with_history):
     """One implicit Euler step of the local system from history (Ep, p) to total strain E.
-
-    lam_rate_guess: Lambda of the previous step [1/s]; if > 0 the Newton starts from the
-    corrector dlam = Lambda dt along the predictor's flow direction (fewer iterations
-    in monotonic loading); if that start is outside the model's domain, from the predictor.
 
     On success Ep (7) and p (4) are overwritten with the new history, S_out with the
     stress and C_out with the consistent tangent dS/dE_final.  t: fraction of the full
@@ -310,7 +306,8 @@ def local_step(E, dt, Ep, p, params, W, V, S_out, C_out, t, with_history, lam_ra
     Z = W[_Z:_Z + NX]
     tol = params[P_TOL]
     max_iter = int(params[P_MAX_ITER])
-    # start 1: the elastic predictor (dlam = 0)
+    # Newton starts from the elastic predictor (dlam = 0).  (Starting from dlam = Lambda_old dt
+    # was tried: it saves < 1 iteration in steady loading, less than its extra evaluation costs.)
     for i in range(7):
         X[i] = Str[i]
     X[7] = 0.0 if params[P_R] == 1.0 else 1e-12
@@ -318,31 +315,6 @@ def local_step(E, dt, Ep, p, params, W, V, S_out, C_out, t, with_history, lam_ra
         X[8 + k] = p0[k]
     valid, F = residual_jacobian(X, E, Ep0, p0, dt, params, R, J, W, V, True)
     merit = _merit(R, V, sig_scale, m_scale) if valid else np.inf
-    # start 2: dlam = Lambda_old dt along the predictor's flow direction; kept only if its
-    # scaled residual is smaller (monotonic loading), so a poor guess costs one evaluation
-    if lam_rate_guess > 0.0 and valid and merit >= tol:
-        lam0 = lam_rate_guess * dt
-        n = V[_N, 0:7]
-        v = n[0] + n[1] + n[2]
-        for i in range(7):
-            Ee[i] = E[i] - Ep0[i] - lam0 * n[i]
-        c1, dc1 = compression_point(Ep0[0] + Ep0[1] + Ep0[2] + V[_SCALE, 4] + lam0 * v, params)
-        if elastic_stress(Ee, c1, params, Xt[0:7], Ce, sc):
-            Xt[7] = lam0
-            for k in range(4):
-                Xt[8 + k] = p0[k]
-            ok, Ft = residual_jacobian(Xt, E, Ep0, p0, dt, params, Rt, Jt, W, V, True)
-            mt = _merit(Rt, V, sig_scale, m_scale) if ok else np.inf
-            if mt < merit:
-                for i in range(NX):
-                    X[i] = Xt[i]
-                    R[i] = Rt[i]
-                    for j in range(NX):
-                        J[i, j] = Jt[i, j]
-                F = Ft
-                merit = mt
-            # else: keep the predictor's R, J; merit >= tol, so the Newton loop below evaluates
-            # again before anything reads the work arrays
     if not valid:
         return (STATUS_TENSILE if Itr >= 0.0 else STATUS_SINGULAR), 0.0, 0.0, 0
     converged = False
@@ -441,7 +413,6 @@ def update_point(E, dt, hist_old, params, S_out, C_out, hist_new, W, V):
         dev_acc = 0.0
         total_it = 0
         status = STATUS_OK
-        lam_rate = hist_old[S_LAMBDA]
         for i in range(11):  # d(history)/dE_final = 0 at the start of the increment
             for j in range(7):
                 W[_DEP + i, j] = 0.0
@@ -456,8 +427,7 @@ def update_point(E, dt, hist_old, params, S_out, C_out, hist_new, W, V):
             e3 = Ep[3]
             e4 = Ep[4]
             status, dlam, F, it = local_step(Esub, dt / nsub, Ep, p, params, W, V, S_out, C_out,
-                                             t, nsub > 1, lam_rate)
-            lam_rate = dlam * nsub / dt if dt > 0.0 else 0.0
+                                             t, nsub > 1)
             total_it += it
             if status != STATUS_OK:
                 break

@@ -99,8 +99,8 @@ def residual_jacobian(X, E, Ep0, p0, dt, params, R, J, W, V, want_jac):
     Ep0 (7): plastic strain/curvature at the start of the (sub)step, p0 (4) hardening.
     Leaves in the work arrays: n_G (V[_N]), dF (V[_DF]), C_e at the solution (W[_CE:]).
     Returns (valid, F).  valid is False when X is outside the domain of the model
-    (beyond the compression point, at the stress apex, or delta, epsilon, gamma
-    out of range); the line search then backtracks.
+    (beyond the compression point, then F = inf; at the stress apex, or delta, epsilon,
+    gamma out of range, then F = 0); the line search then backtracks.
     """
     beta = X[8]
     delta = X[9]
@@ -136,7 +136,7 @@ def residual_jacobian(X, E, Ep0, p0, dt, params, R, J, W, V, want_jac):
     Ce = W[_CE:_CE + 7, 0:7]
     sc = V[_SC, 0:7]
     if not elastic_stress(Ee, c, params, Se, Ce, sc):
-        return False, 0.0
+        return False, np.inf  # beyond the compression point (inf tags the cause)
     for i in range(7):
         R[i] = S[i] - Se[i]
     eta = params[P_ETA]
@@ -318,6 +318,7 @@ def local_step(E, dt, Ep, p, params, W, V, S_out, C_out, t, with_history):
     if not valid:
         return (STATUS_TENSILE if Itr >= 0.0 else STATUS_SINGULAR), 0.0, 0.0, 0
     converged = False
+    hit_crit = False  # a Newton trial was rejected beyond the compression point
     it = 0
     while it < max_iter:
         if merit < tol:
@@ -338,6 +339,8 @@ def local_step(E, dt, Ep, p, params, W, V, S_out, C_out, t, with_history):
             if Xt[7] < 0.0:
                 Xt[7] = 0.0
             ok, Ft = residual_jacobian(Xt, E, Ep0, p0, dt, params, Rt, Jt, W, V, True)
+            if not ok and Ft == np.inf:
+                hit_crit = True
             if ok:
                 mt = _merit(Rt, V, sig_scale, m_scale)
                 if mt <= (1.0 - 1e-4 * alpha) * merit or mt < tol:
@@ -354,7 +357,9 @@ def local_step(E, dt, Ep, p, params, W, V, S_out, C_out, t, with_history):
         F = Ft
         merit = mt
     if not converged:
-        return (STATUS_TENSILE if Itr >= 0.0 else STATUS_NOT_CONVERGED), 0.0, 0.0, it
+        if Itr >= 0.0:
+            return STATUS_TENSILE, 0.0, 0.0, it
+        return (STATUS_COMPRESSION_POINT if hit_crit else STATUS_NOT_CONVERGED), 0.0, 0.0, it
     # converged: the last residual_jacobian call was at X (predictor or accepted line-search
     # trial), so the work arrays (n_G, C_e) and J belong to the solution
     n = V[_N, 0:7]

@@ -114,7 +114,7 @@ class EhlersMaterial(Constitutive):
                                  ("state_new", state_new, (n, STATE_SIZE))):
             if not isinstance(arr, np.ndarray) or arr.shape != shape or arr.dtype != np.float64:
                 raise ValueError(f"{name} must be a float64 array of shape {shape}")
-        if state_new is state_old or np.shares_memory(state_new, state_old):
+        if state_new is state_old or np.may_share_memory(state_new, state_old):
             raise ValueError("state_new must not share memory with state_old (the update is pure)")
         outs = [flux_out, tangent_out, state_new]
         work = [a if a.flags.c_contiguous else np.empty(a.shape) for a in outs]

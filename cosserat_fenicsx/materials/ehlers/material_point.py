@@ -106,8 +106,11 @@ def _record(pt, out, e_ref):
         newton_iterations=len(pt.newton_residuals[-1]) if pt.newton_residuals else 0))
 
 
-def _as_arrays(records):
-    return {k: np.array([r[k] for r in records]) for k in records[0]}
+def _as_arrays(records, pt=None):
+    h = {k: np.array([r[k] for r in records]) for k in records[0]}
+    if pt is not None:
+        h["newton_residuals"] = pt.newton_residuals  # per step, max |stress residual| [Pa]
+    return h
 
 
 def consolidate(pt, sigma, n_steps=40, plane_strain=False, dt=1.0):
@@ -149,7 +152,7 @@ def hydrostatic_test(material, p_max=1.0e6, n_steps=200, dt=1.0):
     """Hydrostatic compression to mean stress -p_max (A.1): sig11 = sig22 = sig33 = -p."""
     pt = MaterialPoint(material)
     recs = consolidate(pt, -p_max, n_steps=n_steps, dt=dt)
-    return _as_arrays(recs)
+    return _as_arrays(recs, pt)
 
 
 def triaxial_test(material, confining=100e3, axial_strain=0.15, n_steps=600, n_consolidation=40, dt=1.0):
@@ -168,7 +171,7 @@ def triaxial_test(material, confining=100e3, axial_strain=0.15, n_steps=600, n_c
         tgt[1] = tgt[2] = -confining
         pt.advance(mask, tgt, dt)
         _record(pt, recs, e_ref)
-    return _as_arrays(recs)
+    return _as_arrays(recs, pt)
 
 
 def biaxial_test(material, confining=100e3, axial_strain=0.15, n_steps=600, n_consolidation=40, dt=1.0):
@@ -186,7 +189,7 @@ def biaxial_test(material, confining=100e3, axial_strain=0.15, n_steps=600, n_co
         tgt[1] = -confining
         pt.advance(mask, tgt, dt)
         _record(pt, recs, e_ref)
-    return _as_arrays(recs)
+    return _as_arrays(recs, pt)
 
 
 def summarize(h):
@@ -194,7 +197,13 @@ def summarize(h):
     i = int(np.argmin(h["axial_stress"]))
     ev = h["volumetric_strain"]
     j = int(np.argmin(ev))
-    return dict(
+    extra = {}
+    res = h.get("newton_residuals")
+    if res:
+        # the longest Newton history of a step: shows the convergence rate of the mixed-control
+        # Newton that uses the consistent tangent (3.37)
+        extra["newton_residuals_longest_step_Pa"] = [float(r) for r in max(res, key=len)]
+    return dict(**extra,
         peak_axial_stress=float(h["axial_stress"][i]),
         axial_strain_at_peak=float(h["axial_strain"][i]),
         final_axial_stress=float(h["axial_stress"][-1]),

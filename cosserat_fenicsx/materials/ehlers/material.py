@@ -39,6 +39,8 @@ class EhlersMaterial(Constitutive):
     flux_size = 6
     state_size = STATE_SIZE
     state_names = STATE_NAMES
+    #: column of each history variable, e.g. state[:, EhlersMaterial.state_index["yield_function"]]
+    state_index = {name: i for i, name in enumerate(STATE_NAMES)}
 
     def __init__(self, **params):
         self.parameters = EhlersParameters.from_kwargs(**params)

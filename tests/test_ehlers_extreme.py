@@ -210,7 +210,8 @@ def test_materials_package_import_is_light():
     code = ("import sys, cosserat_fenicsx; before = set(sys.modules); import cosserat_fenicsx.materials; "
             "new = sorted(m for m in set(sys.modules) - before if m.split('.')[0] == 'numba'); "
             "assert not new, new")
-    r = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120)
+    root = __file__.rsplit("/tests/", 1)[0]
+    r = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120, cwd=root)
     assert r.returncode == 0, r.stderr
 
 

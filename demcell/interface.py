@@ -30,7 +30,8 @@ from .homogenization import homogenize
 from .periodic_cell import deformation_path
 from .relaxation import (ENERGY_RATIO, NO_CONTACTS, UNBALANCED_FORCE, run, stable_time_step)
 from .state import CellState
-from .tangent import demqo_tangent, dsigma_to_dpk1, kruyt_operator, perturbation_tangent
+from .tangent import (demqo_tangent, dsigma_to_dpk1, kruyt_operator, perturbation_tangent,
+                      pstlo_operator)
 
 
 @dataclass(frozen=True)
@@ -294,7 +295,8 @@ class DemCell(MicroCell):
     def tangent(self, kind="kruyt", measure="dsigma_dF", eps=None):
         """Tangent operator, 4x4 in the order of 001 eq. 11.
         kind: 'kruyt' (001 eq. 13, closed form), 'demqo' (001 eq. 20, 4 frozen-contact
-        relaxations), 'perturbation' (CTO, 001 eq. 6, 4 full solves from the last commit).
+        relaxations), 'pstlo' (001 appendix B, one sparse solve of the same linearized
+        problem), 'perturbation' (CTO, 001 eq. 6, 4 full solves from the last commit).
         measure: 'dsigma_dF' (d sigma_ij/dF_kl = d sigma/d Grad u) or 'dP_dF'."""
         if measure not in ("dsigma_dF", "dP_dF"):
             raise InputError(f"unknown tangent measure {measure!r}: 'dsigma_dF' or 'dP_dF'")
@@ -304,8 +306,10 @@ class DemCell(MicroCell):
             C, _ = demqo_tangent(self, 1e-6 if eps is None else eps)
         elif kind == "perturbation":
             C, _ = perturbation_tangent(self, 1e-5 if eps is None else eps)
+        elif kind == "pstlo":
+            C = pstlo_operator(self.state, self._law_array)
         else:
-            raise InputError(f"unknown tangent kind {kind!r}: 'kruyt', 'demqo' or 'perturbation'")
+            raise InputError(f"unknown tangent kind {kind!r}: 'kruyt', 'demqo', 'pstlo' or 'perturbation'")
         if measure == "dP_dF":
             C = dsigma_to_dpk1(C, self.state.F, self.cauchy_stress())
         return C

@@ -7,6 +7,7 @@
   restitution exp(-xi pi / sqrt(1 - xi^2)), w0 = sqrt(kn / m_eff);
 * energy conservation with all damping off;
 * Kruyt operator (001 eq. 13) vs perturbation tangent (001 eq. 6) in the elastic regime;
+  PSTLO (001 appendix B) vs DEMQO (001 eq. 20);
 * invariance of the stress under a rigid rotation of F; symmetry of the Cauchy stress.
 """
 import math
@@ -142,6 +143,21 @@ def test_kruyt_is_an_upper_bound_of_the_elastic_tangent(packing60):
         wk, wp, wq = e @ C_k @ e, e @ C_p @ e, e @ C_q @ e
         assert wk >= wp > 0.0 and wk >= wq > 0.0
         assert abs(wp - wq) < 0.05 * wp      # elastic regime: CTO ~ DEMQO
+
+
+@pytest.mark.parametrize("rolling", [0.0, 0.5])
+def test_pstlo_linearization_equals_demqo(packing60, rolling):
+    """001 appendix B (analytic linearization with pre-stress terms, one sparse solve) against
+    001 eq. 20 (four frozen-contact dynamic relaxations): two independent routes."""
+    law = dc.ContactLaw(kn=KN, ks=KS, friction=math.inf, rolling_stiffness=rolling)
+    cell = dc.DemCell(packing60.copy(), law, RelaxationOptions(tol=1e-10, check_every=20))
+    cell.set_deformation(np.array([[0.998, 0.001], [0.0, 1.001]]))
+    assert cell.solve().converged
+    C_s = cell.tangent("pstlo")
+    C_q = cell.tangent("demqo", eps=1e-7)
+    assert np.abs(C_s - C_q).max() < 1e-4 * np.abs(C_q).max()
+    # rows 12 and 21 agree: the increment of the Cauchy stress stays symmetric
+    assert np.abs(C_s[1] - C_s[2]).max() < 1e-6 * np.abs(C_s).max()
 
 
 def test_stress_invariant_under_rigid_rotation(packing60):

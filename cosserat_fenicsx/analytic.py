@@ -7,51 +7,64 @@ import math
 import numpy as np
 
 
+def _cosh_ratio(z, big):
+    """cosh(z) / cosh(big) without overflow (|z| <= big)."""
+    z = np.abs(z)
+    return np.exp(z - big) * (1.0 + np.exp(-2.0 * z)) / (1.0 + np.exp(-2.0 * big))
+
+
+def _sinh_ratio(z, big):
+    """sinh(z) / cosh(big) without overflow (|z| <= big)."""
+    a = np.abs(z)
+    return np.sign(z) * np.exp(a - big) * (1.0 - np.exp(-2.0 * a)) / (1.0 + np.exp(-2.0 * big))
+
+
 def shear_layer(x2, height, shift, mu, mu_c, l_c, top_rotation="fixed"):
     """Sheared micropolar layer 0 <= x2 <= height, infinite in x1, plane strain.
 
     Bottom: u = 0, phi = 0. Top: u1 = shift, u2 = 0 and phi = 0 ('fixed') or zero
-    surface couple ('free'). Linear elasticity of eqs 2.73/2.74 (no volume change).
-    Returns (u1, phi, tau): displacement [m], rotation [rad] at x2, and the uniform shear
-    stress sigma12 [Pa].
+    surface couple m32 = 0 ('free'). Linear elasticity of eqs 2.73/2.74 (no volume
+    change, so lambda plays no role). Returns (u1, phi, tau): displacement [m] and
+    rotation [rad] at x2, and the uniform shear stress sigma12 [Pa].
 
-    Balance: sigma12 = tau is constant; with u1' = (tau - 2 mu_c phi) / (mu + mu_c) the
-    moment balance sigma21 - sigma12 + m32' = 0 becomes
-        phi'' - phi / ell^2 = tau / (l_c^2 (mu + mu_c)),   ell = l_c sqrt((mu + mu_c) / (2 mu)),
-    so phi = -tau/(2 mu) + A cosh(x2/ell) + B sinh(x2/ell), A = tau/(2 mu) from phi(0) = 0,
-    B from phi(h) = 0 or phi'(h) = 0, and u1 = (tau x2 - 2 mu_c int_0^x2 phi) / (mu + mu_c);
-    tau follows from u1(h) = shift.
+    Derivation: sigma12 = (mu + mu_c) u1' + 2 mu_c phi = tau is constant (momentum), and
+    sigma21 - sigma12 = -2 mu_c u1' - 4 mu_c phi, so the moment balance
+    sigma21 - sigma12 + m32' = 0 with m32 = 2 mu_c l_c^2 phi' becomes
+        phi'' - phi / ell^2 = tau / (l_c^2 (mu + mu_c)),   ell = l_c sqrt((mu + mu_c)/(2 mu)).
+    With phi(0) = 0:
+        fixed: phi = -tau/(2 mu) [1 - cosh((x2 - h/2)/ell) / cosh(h/(2 ell))]
+        free:  phi = -tau/(2 mu) [1 - cosh((h - x2)/ell) / cosh(h/ell)]      (phi'(h) = 0)
+    and u1 = (tau x2 - 2 mu_c int_0^x2 phi) / (mu + mu_c); tau follows from u1(h) = shift.
+    Far from the faces phi = -tau/(2 mu) equals the macro-rotation -u1'/2: the
+    classical simple shear, which is also the l_c -> 0 limit.
     """
     if top_rotation not in ("fixed", "free"):
         raise ValueError("top_rotation must be 'fixed' or 'free'")
     x2 = np.asarray(x2, dtype=float)
     h = float(height)
-    if mu_c == 0.0 or l_c == 0.0:
-        # no coupling or no length: phi equals the macro-rotation, classical simple shear
-        tau = mu * shift / h
-        phi = np.full_like(x2, -0.5 * shift / h) if mu_c > 0 else np.zeros_like(x2)
-        return shift * x2 / h, phi, tau
-    ell = l_c * math.sqrt((mu + mu_c) / (2.0 * mu))
-    s = h / ell
-    # shape functions for tau = 1; big arguments: use exp-scaled forms through ratios
+    if mu_c == 0.0:
+        return shift * x2 / h, np.zeros_like(x2), mu * shift / h
     a = 1.0 / (2.0 * mu)
-    if top_rotation == "fixed":
-        b = a * (1.0 - math.cosh(s)) / math.sinh(s) if s < 700 else -a
+    if l_c == 0.0:
+        phi_unit = lambda y: -a * np.ones_like(y)  # noqa: E731
+        int_phi_unit = lambda y: -a * y  # noqa: E731
     else:
-        b = -a * math.tanh(s)
-
-    def phi_unit(y):
-        return -a + a * np.cosh(y / ell) + b * np.sinh(y / ell)
-
-    def int_phi_unit(y):
-        return -a * y + a * ell * np.sinh(y / ell) + b * ell * (np.cosh(y / ell) - 1.0)
+        ell = l_c * math.sqrt((mu + mu_c) / (2.0 * mu))
+        if top_rotation == "fixed":
+            half = 0.5 * h / ell
+            phi_unit = lambda y: -a * (1.0 - _cosh_ratio((y - 0.5 * h) / ell, half))  # noqa: E731
+            int_phi_unit = lambda y: -a * y + a * ell * (  # noqa: E731
+                _sinh_ratio((y - 0.5 * h) / ell, half) + math.tanh(half))
+        else:
+            full = h / ell
+            phi_unit = lambda y: -a * (1.0 - _cosh_ratio((h - y) / ell, full))  # noqa: E731
+            int_phi_unit = lambda y: -a * y + a * ell * (  # noqa: E731
+                math.tanh(full) - _sinh_ratio((h - y) / ell, full))
 
     def u1_unit(y):
         return (y - 2.0 * mu_c * int_phi_unit(y)) / (mu + mu_c)
 
-    if s > 600:  # the cosh terms overflow; they only matter within ell of the faces
-        raise ValueError("height / ell > 600: use the l_c -> 0 limit instead")
-    tau = shift / u1_unit(h)
+    tau = shift / float(u1_unit(np.array(h)))
     return tau * u1_unit(x2), tau * phi_unit(x2), tau
 
 

@@ -3,8 +3,9 @@
 Defaults: newtonls with backtracking line search, a direct LU solve (MUMPS). Anything
 given on the command line as -snes_*, -ksp_*, -pc_*, -mat_* overrides them (see
 cli.forward_petsc_options). A Gauss-point failure (ConstitutiveError) on any rank turns
-the residual into NaN on that rank, which makes the norm NaN on every rank: SNES stops
-with DIVERGED_FNORM_NAN on all ranks together (no hang) and the cause is reported.
+the residual into NaN on every rank (the decision is reduced over the ranks before the
+collective assembly steps, so nobody waits forever): SNES stops with DIVERGED_FNORM_NAN
+on all ranks together and the cause is reported.
 """
 from dataclasses import dataclass, field
 import time
@@ -46,6 +47,8 @@ class SolveInfo:
 class NewtonSolver:
     """Newton solver of `problem` (a CosseratProblem); options override the defaults."""
 
+    _count = 0
+
     def __init__(self, problem, options=None, prefix="cosserat_"):
         self.problem = problem
         self.residual_form, self.jacobian_form = problem.forms()
@@ -53,24 +56,27 @@ class NewtonSolver:
         self.b = dolfinx.fem.petsc.create_vector(self.residual_form)
         self.A = dolfinx.fem.petsc.create_matrix(self.jacobian_form)
         self.snes = PETSc.SNES().create(problem.mesh.comm)
+        # precedence: defaults < `options` < command line (-snes_* etc., stored unprefixed
+        # by cli.forward_petsc_options); a unique prefix keeps solvers independent
+        NewtonSolver._count += 1
+        prefix = f"{prefix}{NewtonSolver._count}_"
         self.snes.setOptionsPrefix(prefix)
-        self._failure = ""
-        # user (command-line) options win over our defaults and over `options`
+        self._failure, self._fatal = "", False
         opts = PETSc.Options()
         merged = dict(DEFAULT_OPTIONS)
         merged.update(options or {})
+        for key in opts.getAll():
+            if key.split("_")[0] in ("snes", "ksp", "pc", "mat"):
+                merged[key] = opts[key]
         for key, value in merged.items():
-            if not opts.hasName(key) and not opts.hasName(prefix + key):
-                opts[prefix + key] = value
-        for key in list(opts.getAll()):
-            # unprefixed command-line options (-snes_rtol ...) apply to this solver
-            if not key.startswith(prefix) and key.split("_")[0] in ("snes", "ksp", "pc", "mat"):
-                opts[prefix + key] = opts[key]
+            opts[prefix + key] = value
         self.snes.setFunction(self._residual, self.b)
         self.snes.setJacobian(self._jacobian, self.A)
         self.snes.setFromOptions()
         self.snes.getKSP().setFromOptions()
         self.snes.setConvergenceHistory()
+        for key in merged:
+            opts.delValue(prefix + key)
 
     def _residual(self, snes, x, b):
         x.ghostUpdate(addv=PETSc.InsertMode.INSERT, mode=PETSc.ScatterMode.FORWARD)
@@ -78,10 +84,18 @@ class NewtonSolver:
         if x.handle != w.handle:
             x.copy(w)
         self.problem.w.x.scatter_forward()
+        failure, fatal = "", 0
         try:
             self.problem.before_residual()
         except ConstitutiveError as error:
-            self._failure = str(error)
+            failure = str(error)
+        except Exception as error:  # a bug on one rank must not leave the others waiting
+            failure, fatal = f"{type(error).__name__}: {error}", 1
+        # the decision must be collective: assembly below has collective steps
+        comm = self.problem.mesh.comm
+        if comm.allreduce(1 if failure else 0) > 0:
+            self._fatal = comm.allreduce(fatal) > 0
+            self._failure = next(f for f in comm.allgather(failure) if f)
             with b.localForm() as local:
                 local.set(np.nan)
             return
@@ -99,21 +113,21 @@ class NewtonSolver:
 
     def solve(self):
         """One nonlinear solve at the problem's current load. Collective."""
-        comm = self.problem.mesh.comm
-        self._failure = ""
+        self._failure, self._fatal = "", False
         start = time.perf_counter()
         self.snes.solve(None, self.x)
+        if self._fatal:
+            raise RuntimeError(f"material update failed: {self._failure}")
         self.problem.w.x.scatter_forward()
         reason = self.snes.getConvergedReason()
         history = list(self.snes.getConvergenceHistory()[0])
-        failures = [f for f in comm.allgather(self._failure) if f]
-        converged = reason > 0 and not failures
+        converged = reason > 0 and not self._failure
         residual = self.snes.getFunctionNorm()
         if converged and not np.isfinite(residual):
             converged = False
         return SolveInfo(converged=converged, iterations=self.snes.getIterationNumber(),
                          residual=residual, reason=REASONS.get(reason, str(reason)),
-                         residual_history=history, failure=failures[0] if failures else "",
+                         residual_history=history, failure=self._failure,
                          wall_time=time.perf_counter() - start)
 
     def destroy(self):

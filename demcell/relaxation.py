@@ -63,6 +63,7 @@ def compute_forces(radius, mass, s, dtheta, force, moment, h, pair_i, pair_j, fn
         moment[i] = 0.0
     area = abs(h[0, 0] * h[1, 1] - h[0, 1] * h[1, 0])
     frozen = law[FROZEN] > 0.5
+    viscous = law[XI_N] > 0.0
     s11 = 0.0
     s12 = 0.0
     s21 = 0.0
@@ -100,8 +101,9 @@ def compute_forces(radius, mass, s, dtheta, force, moment, h, pair_i, pair_j, fn
         if touching[k] == 1:
             ux = dx - d_prev[k, 0]
             uy = dy - d_prev[k, 1]
-            dprev = math.sqrt(d_prev[k, 0] ** 2 + d_prev[k, 1] ** 2)
-            d_ovl = dprev - dist
+            d_ovl = 0.0
+            if viscous:       # the overlap rate is only needed by the normal dashpot
+                d_ovl = math.sqrt(d_prev[k, 0] ** 2 + d_prev[k, 1] ** 2) - dist
             d_ut = ux * tx + uy * ty - ai * dtheta[i] - aj * dtheta[j]
             d_thr = dtheta[j] - dtheta[i]
             fs_old = fs[k]

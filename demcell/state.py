@@ -68,7 +68,7 @@ class CellState:
         radius = np.ascontiguousarray(radius, dtype=np.float64)
         n = radius.size
         mass = density * np.pi * radius ** 2
-        cap = capacity if capacity is not None else max(64, 4 * n)
+        cap = capacity if capacity is not None else max(64, 3 * n)
         s = np.ascontiguousarray(s, dtype=np.float64) % 1.0
         h = np.array(h, dtype=np.float64)
         return cls(radius=radius, mass=mass, inertia=0.5 * mass * radius ** 2, s=s.copy(),
@@ -94,11 +94,16 @@ class CellState:
         return self.s @ self.h.T
 
     def copy(self):
-        """Deep copy (used for commit / rollback and for perturbations)."""
+        """Deep copy (used for commit / rollback and for perturbations). The pair arrays of the
+        copy are trimmed to 1.25 n_pairs + 16 slots (they grow again when needed), which
+        keeps committed copies small."""
+        cap = min(self.pair_i.shape[0], max(64, int(1.25 * self.n_pairs) + 16))
         kw = {}
         for f in fields(self):
             val = getattr(self, f.name)
-            kw[f.name] = val.copy() if isinstance(val, np.ndarray) else val
+            if isinstance(val, np.ndarray):
+                val = val[:cap].copy() if f.name in PAIR_FIELDS else val.copy()
+            kw[f.name] = val
         return CellState(**kw)
 
     def grow_pairs(self, capacity):
@@ -130,7 +135,7 @@ class CellState:
             kw[k] = int(kw[k])
         kw["time"] = float(kw["time"])
         st = cls(**{k: (np.array(v) if isinstance(v, np.ndarray) else v) for k, v in kw.items()})
-        cap = max(64, 4 * st.n_particles, st.n_pairs)
+        cap = max(64, 3 * st.n_particles, st.n_pairs)
         if st.pair_i.shape[0] < cap:
             st.grow_pairs(cap)
         return st

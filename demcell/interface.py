@@ -20,7 +20,7 @@ Typical Gauss-point use::
 """
 import abc
 import math
-from dataclasses import asdict, dataclass, fields
+from dataclasses import dataclass, fields
 
 import numpy as np
 

@@ -15,10 +15,8 @@ from .periodic_cell import branch_vector, cell_widths
 
 
 @njit(cache=True)
-def needs_rebuild(h, h_build, s, s_build, skin, r_cut):
-    """True if some pair that was farther apart than R_i + R_j + skin at the last build may
-    now overlap. Bound: 2 max_i |h (s_i - s_i^build)| + ||h h_build^-1 - I||_F * r_cut,
-    with r_cut = 2 R_max + skin the largest distance that matters [m]."""
+def cell_strain_norm(h, h_build):
+    """||h h_build^-1 - I||_F: how much the cell deformed since the last build [-]."""
     det = h_build[0, 0] * h_build[1, 1] - h_build[0, 1] * h_build[1, 0]
     inv00 = h_build[1, 1] / det
     inv01 = -h_build[0, 1] / det
@@ -28,7 +26,12 @@ def needs_rebuild(h, h_build, s, s_build, skin, r_cut):
     g01 = h[0, 0] * inv01 + h[0, 1] * inv11
     g10 = h[1, 0] * inv00 + h[1, 1] * inv10
     g11 = h[1, 0] * inv01 + h[1, 1] * inv11 - 1.0
-    gnorm = math.sqrt(g00 * g00 + g01 * g01 + g10 * g10 + g11 * g11)
+    return math.sqrt(g00 * g00 + g01 * g01 + g10 * g10 + g11 * g11)
+
+
+@njit(cache=True)
+def max_displacement(h, s, s_build):
+    """max_i |h (s_i - s_i^build)| [m]: largest fluctuating displacement since the last build."""
     umax2 = 0.0
     for i in range(s.shape[0]):
         a = s[i, 0] - s_build[i, 0]
@@ -40,7 +43,14 @@ def needs_rebuild(h, h_build, s, s_build, skin, r_cut):
         u2 = ux * ux + uy * uy
         if u2 > umax2:
             umax2 = u2
-    return 2.0 * math.sqrt(umax2) + gnorm * r_cut > skin
+    return math.sqrt(umax2)
+
+
+def needs_rebuild(h, h_build, s, s_build, skin, r_cut):
+    """True if some pair farther apart than R_i + R_j + skin at the last build may now
+    overlap: 2 max_i |u_i| + ||h h_build^-1 - I||_F r_cut > skin, with r_cut = 2 R_max + skin.
+    (The kernel evaluates the same bound with an incrementally updated max |u_i|.)"""
+    return 2.0 * max_displacement(h, s, s_build) + cell_strain_norm(h, h_build) * r_cut > skin
 
 
 @njit(cache=True)

@@ -1,15 +1,31 @@
 """Micropolar (Cosserat) continuum on FEniCSx with Gauss-point materials.
 
-Importing the package is light: no Numba, no DEM. Materials that need them
-(`cosserat_fenicsx.materials.ehlers`, `demcell`) are imported only by scenes that use them.
+Importing the package is light: names are loaded on first use (PEP 562), so the
+dolfinx-free parts (`cosserat_fenicsx.materials`, the material-point driver) do not
+pull in dolfinx or PETSc, and no scene imports Numba or demcell unless it uses them.
 """
-from .elasticity import MicropolarElasticity
-from .constitutive import Constitutive, ConstitutiveError, LinearElasticMaterial
-from .problem import CosseratProblem
-from .snes import NewtonSolver
-from .stepping import LoadStepper, LoadSteppingError
-from . import analytic, cli, meshes
+import importlib
 
-__all__ = ["MicropolarElasticity", "Constitutive", "ConstitutiveError", "LinearElasticMaterial",
-           "CosseratProblem", "NewtonSolver", "LoadStepper", "LoadSteppingError"]
+_EXPORTS = {
+    "MicropolarElasticity": "elasticity",
+    "Constitutive": "constitutive",
+    "ConstitutiveError": "constitutive",
+    "LinearElasticMaterial": "constitutive",
+    "CosseratProblem": "problem",
+    "NewtonSolver": "snes",
+    "LoadStepper": "stepping",
+    "LoadSteppingError": "stepping",
+}
+_SUBMODULES = ("analytic", "cli", "compat", "kinematics", "manufactured", "meshes", "output",
+               "probes", "quadrature")
+
+__all__ = sorted(_EXPORTS) + list(_SUBMODULES)
 __version__ = "0.1.0"
+
+
+def __getattr__(name):
+    if name in _EXPORTS:
+        return getattr(importlib.import_module(f".{_EXPORTS[name]}", __name__), name)
+    if name in _SUBMODULES:
+        return importlib.import_module(f".{name}", __name__)
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")

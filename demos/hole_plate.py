@@ -9,7 +9,7 @@ large compared with the internal length; the published closed form for the infin
 micropolar plate (analytic.micropolar_hole_scf) is plotted against the computed values.
 
 Outputs in --out: summary.json ('scf' for --radius, closed form, Kirsch), scf.csv,
-scf.png (SCF against a / l_c), fields.xdmf. In ParaView: open fields.xdmf, colour by
+scf.png (SCF against a / l_c), fields.xdmf. In ParaView: open fields.xdmf (reader "Xdmf3 Reader T"), colour by
 'stress' component 3 (sigma22, the XX/YY 'Tensor' layout: pick component '3' or 'YY'),
 and by 'rotation': it is largest near the hole where the couple stress relieves the
 concentration.

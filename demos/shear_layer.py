@@ -9,7 +9,7 @@ ell = l_c sqrt((mu + mu_c)/(2 mu)) form where the rotation is fixed.
 
 Outputs in --out: profile.csv (x2, u1, phi along the mid-line, and the closed form),
 profile.png, history.csv (shift and reaction of the top per step), summary.json (max
-errors, shear stress from the reaction and exact), fields.xdmf. In ParaView: open fields.xdmf,
+errors, shear stress from the reaction and exact), fields.xdmf. In ParaView: open fields.xdmf (reader "Xdmf3 Reader T"),
 colour by 'rotation' to see the boundary layers, by 'stress' component 1 (sigma12) to see
 the uniform shear, and 'couple_stress' for m32.
 

@@ -1,0 +1,82 @@
+"""Bad input gets a clear error before any assembly (API and command line)."""
+import pytest
+from mpi4py import MPI
+
+from cosserat_fenicsx import CosseratProblem, MicropolarElasticity, NewtonSolver, meshes
+
+
+@pytest.mark.parametrize("kwargs, message", [
+    (dict(mu=-1.0, lmbda=1.0), "shear modulus mu must be positive"),
+    (dict(mu=1.0, lmbda=-1.0), "bulk modulus"),
+    (dict(mu=1.0, lmbda=1.0, mu_c=-1.0), "mu_c must be >= 0"),
+    (dict(mu=1.0, lmbda=1.0, l_c=-0.1), "l_c must be >= 0"),
+    (dict(mu=float("nan"), lmbda=1.0), "finite number"),
+])
+def test_bad_moduli(kwargs, message):
+    with pytest.raises(ValueError, match=message):
+        MicropolarElasticity(**kwargs)
+
+
+@pytest.fixture(scope="module")
+def square():
+    return meshes.rectangle(MPI.COMM_WORLD, 1.0, 1.0, 0.5)
+
+
+def test_zero_coupling_in_a_micropolar_scene(square):
+    with pytest.raises(ValueError, match="mu_c = 0 .* undetermined"):
+        CosseratProblem(*square, elasticity=MicropolarElasticity(1.0, 1.0, mu_c=0.0, l_c=0.1))
+
+
+def test_unknown_boundary_and_component(square):
+    p = CosseratProblem(*square, elasticity=MicropolarElasticity(1.0, 1.0, l_c=0.1))
+    with pytest.raises(ValueError, match="unknown boundary 'botom'"):
+        p.add_dirichlet("botom", "u1", 0.0)
+    with pytest.raises(ValueError, match="unknown component 'u3'"):
+        p.add_dirichlet("bottom", "u3", 0.0)
+    with pytest.raises(ValueError, match="boundary tags not found"):
+        CosseratProblem(*square[:2], {"hole": 99}, elasticity=MicropolarElasticity(1.0, 1.0, l_c=0.1))
+
+
+def test_inconsistent_boundary_conditions(square):
+    p = CosseratProblem(*square, elasticity=MicropolarElasticity(1.0, 1.0, l_c=0.1))
+    p.add_dirichlet("top", "u2", 0.0)
+    with pytest.raises(ValueError, match="inconsistent boundary conditions: u2 on 'top'"):
+        p.add_traction("top", (0.0, 1.0))
+    p.add_surface_couple("left", 1.0)
+    with pytest.raises(ValueError, match="inconsistent boundary conditions: phi on 'left'"):
+        p.add_dirichlet("left", "phi", 0.0)
+    with pytest.raises(ValueError, match="two Dirichlet conditions"):
+        p.add_dirichlet("top", "u2", 1.0)
+
+
+def test_no_dirichlet_condition_before_assembly(square):
+    p = CosseratProblem(*square, elasticity=MicropolarElasticity(1.0, 1.0, l_c=0.1))
+    p.add_traction("top", (0.0, 1.0))
+    with pytest.raises(ValueError, match="rigid-body motion is undetermined"):
+        NewtonSolver(p)
+
+
+def test_missing_mesh_file():
+    with pytest.raises(FileNotFoundError, match="gmsh source not found"):
+        meshes.from_gmsh_geo(MPI.COMM_WORLD, "/nonexistent/plate.geo", {})
+
+
+def test_both_or_neither_material(square):
+    with pytest.raises(ValueError, match="exactly one"):
+        CosseratProblem(*square)
+
+
+@pytest.mark.serial
+@pytest.mark.parametrize("demo_name, args, message", [
+    ("shear_layer", ["--mu", "-5"], "shear modulus mu must be positive"),
+    ("shear_layer", ["--cell-size", "0"], "--cell-size must be positive"),
+    ("shear_layer", ["--mu-c", "0"], "mu_c = 0"),
+    ("shear_layer", ["--no-such-option"], "unrecognized argument"),
+    ("shear_layer", ["--height", "-1"], "--height must be positive"),
+    ("hole_plate", ["--radius", "0.1", "--half-side", "0.05"], "--half-side > --radius"),
+])
+def test_demo_rejects_bad_options_before_work(demo, tmp_path, demo_name, args, message):
+    proc = demo(demo_name, *args, "--out", tmp_path / "out", check=False, timeout=60)
+    assert proc.returncode == 2
+    assert message in proc.stderr
+    assert not (tmp_path / "out" / "fields.h5").exists()

@@ -18,6 +18,8 @@ fewer, e.g. 383 and 3801):
    time step; contacts are re-detected, their tangential history starts from zero) and does
    the same two things.
 
+Rounds of (YADE, demcell) alternate so that load changes on the shared machine hit both;
+the median ratio and its range over the rounds are reported.
 Reported per size: steps/s and contact updates/s (steps/s x contacts per step) per wall
 second and per CPU second (the machine is shared, so the CPU-second figures are the fairer
 ones), their ratios demcell / YADE, the quasi-static solve (steps, seconds), and the memory
@@ -143,7 +145,8 @@ def main(argv=None):
     p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     p.add_argument("--sizes", type=int, nargs="+", default=[228, 400, 4000])
     p.add_argument("--steps", type=int, default=20000, help="timed steps at 400 discs (scaled ~1/N)")
-    p.add_argument("--repeat", type=int, default=3, help="demcell timing repeats (median)")
+    p.add_argument("--repeat", type=int, default=3, help="demcell timing repeats per round (median)")
+    p.add_argument("--rounds", type=int, default=3, help="alternating YADE/demcell rounds (median ratio)")
     p.add_argument("--kn", type=float, default=3e6, help="contact normal stiffness [N/m] for both codes")
     p.add_argument("--ks-ratio", type=float, default=0.8, help="ks / kn (YADE poisson=0.8 of prep_bench)")
     p.add_argument("--tol", type=float, default=1e-3, help="unbalanced-force ratio of the quasi-static solve")
@@ -167,23 +170,36 @@ def main(argv=None):
             yade_side(a.yade, n, a.out, 1, a.kn, ks, a.tol, 1, a.timeout)   # export only
         st, _ = demcell_state(os.path.join(a.out, f"pack_{n}.json"))
         dt = stable_time_step(st.radius, st.mass, st.inertia, ContactLaw(kn=a.kn, ks=ks), a.dt_safety)
-        y, export = yade_side(a.yade, n, a.out, nsteps, a.kn, ks, a.tol, a.max_solve, a.timeout, dt)
-        d = demcell_side(export, nsteps, a.kn, ks, a.tol, a.max_solve, a.repeat)
-        row = dict(requested=n, yade=y, demcell=d,
-                   ratio_contact_updates_wall=d["contact_updates_per_s"] / y["contact_updates_per_s"],
-                   ratio_contact_updates_cpu=d["contact_updates_per_cpu_s"] / y["contact_updates_per_cpu_s"],
-                   ratio_solve_cpu=(y["solve_cpu"] / d["solve_cpu"]) if d["solve_cpu"] > 0 else None,
-                   load1=open("/proc/loadavg").read().split()[0])
+        rounds = []
+        for _ in range(a.rounds):      # YADE and demcell alternate: load changes hit both
+            y, export = yade_side(a.yade, n, a.out, nsteps, a.kn, ks, a.tol, a.max_solve, a.timeout, dt)
+            d = demcell_side(export, nsteps, a.kn, ks, a.tol, a.max_solve, a.repeat)
+            rounds.append(dict(yade=y, demcell=d,
+                               ratio_cu_cpu=d["contact_updates_per_cpu_s"] / y["contact_updates_per_cpu_s"],
+                               ratio_cu_wall=d["contact_updates_per_s"] / y["contact_updates_per_s"],
+                               ratio_solve_cpu=y["solve_cpu"] / max(d["solve_cpu"], 1e-9),
+                               load1=float(open("/proc/loadavg").read().split()[0])))
+        med = lambda key: float(np.median([r[key] for r in rounds]))  # noqa: E731
+        row = dict(requested=n, n=d["n"], dt=dt, steps=nsteps, rounds=rounds,
+                   median_ratio_contact_updates_cpu=med("ratio_cu_cpu"),
+                   median_ratio_contact_updates_wall=med("ratio_cu_wall"),
+                   median_ratio_solve_cpu=med("ratio_solve_cpu"),
+                   range_ratio_contact_updates_cpu=[min(r["ratio_cu_cpu"] for r in rounds),
+                                                    max(r["ratio_cu_cpu"] for r in rounds)],
+                   memory_per_cell_bytes=d["memory_per_cell_bytes"])
         rows.append(row)
         with open(path, "w") as f:         # written as the run goes
             json.dump(rows, f, indent=2)
-        print(f"N={d['n']:5d} contacts/step demcell {d['contacts_per_step']:.0f} yade {y['contacts_per_step']:.0f} | "
-              f"contact updates/cpu-s demcell {d['contact_updates_per_cpu_s']:.3e} yade "
-              f"{y['contact_updates_per_cpu_s']:.3e} ratio {row['ratio_contact_updates_cpu']:.2f} "
-              f"(wall ratio {row['ratio_contact_updates_wall']:.2f}) | solve: demcell {d['solve_steps']} steps "
-              f"{d['solve_cpu']:.3f} cpu-s conv={d['solve_converged']}, yade {y.get('solve_steps')} steps "
-              f"{y.get('solve_cpu', float('nan')):.3f} cpu-s conv={y.get('solve_converged')} | memory/cell "
-              f"{d['memory_per_cell_bytes'] / 1024:.0f} KiB | load {row['load1']}", flush=True)
+        print(f"N={d['n']:5d} dt={dt:.3e} contacts/step demcell {d['contacts_per_step']:.0f} yade "
+              f"{y['contacts_per_step']:.0f} | contact updates/cpu-s demcell "
+              + "/".join(f"{r['demcell']['contact_updates_per_cpu_s']:.2e}" for r in rounds)
+              + " yade " + "/".join(f"{r['yade']['contact_updates_per_cpu_s']:.2e}" for r in rounds)
+              + f" | ratio median {row['median_ratio_contact_updates_cpu']:.2f} range "
+              f"{row['range_ratio_contact_updates_cpu'][0]:.2f}-{row['range_ratio_contact_updates_cpu'][1]:.2f}"
+              f" (wall {row['median_ratio_contact_updates_wall']:.2f}) | solve: demcell {d['solve_steps']} steps "
+              f"{d['solve_cpu']:.3f} cpu-s, yade {y['solve_steps']} steps {y['solve_cpu']:.3f} cpu-s, ratio median "
+              f"{row['median_ratio_solve_cpu']:.1f} | memory/cell {d['memory_per_cell_bytes'] / 1024:.0f} KiB "
+              f"({d['memory_per_cell_bytes_per_particle']:.0f} B/particle)", flush=True)
     print(f"results: {path}")
 
 

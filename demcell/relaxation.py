@@ -64,6 +64,10 @@ def compute_forces(radius, mass, s, dtheta, force, moment, h, pair_i, pair_j, fn
     frozen = law[FROZEN] > 0.5
     viscous = law[XI_N] > 0.0
     need_eff = viscous or law[XI_T] > 0.0 or law[KR] > 0.0
+    # spring energies f^2 / (2 k) (000 eq. 32); a zero stiffness carries no force
+    half_inv_kn = 0.5 / law[KN]
+    half_inv_ks = 0.5 / law[KS] if law[KS] > 0.0 else 0.0
+    half_inv_kr = 0.5 / law[KR] if law[KR] > 0.0 else 0.0
     s11 = 0.0
     s12 = 0.0
     s21 = 0.0
@@ -148,11 +152,7 @@ def compute_forces(radius, mass, s, dtheta, force, moment, h, pair_i, pair_j, fn
         s12 -= fjx * dy
         s21 -= fjy * dx
         s22 -= fjy * dy
-        epot += 0.5 * fne * fne / law[KN]
-        if law[KS] > 0.0:
-            epot += 0.5 * fse * fse / law[KS]
-        if law[KR] > 0.0:
-            epot += 0.5 * mrk * mrk / law[KR]
+        epot += half_inv_kn * fne * fne + half_inv_ks * fse * fse + half_inv_kr * mrk * mrk
         ncont += 1
         nslide += sl
         fsum += abs(fnt)

@@ -6,17 +6,22 @@ from mpi4py import MPI
 from . import compat
 
 
+def _colliding_cells(mesh, points):
+    """AdjacencyList: local cells containing each point."""
+    if compat.LEGACY:
+        tree = dolfinx.geometry.BoundingBoxTree(mesh, mesh.topology.dim)
+        candidates = dolfinx.geometry.compute_collisions(tree, points)
+    else:
+        tree = dolfinx.geometry.bb_tree(mesh, mesh.topology.dim)
+        candidates = dolfinx.geometry.compute_collisions_points(tree, points)
+    return dolfinx.geometry.compute_colliding_cells(mesh, candidates, points)
+
+
 def sample_line(function, points):
     """Values of a scalar (sub-)Function at points (n, 3), the same array on every rank.
     Points outside the mesh give NaN."""
     mesh = function.function_space.mesh
-    if compat.LEGACY:
-        tree = dolfinx.geometry.BoundingBoxTree(mesh, mesh.topology.dim)
-    else:
-        tree = dolfinx.geometry.bb_tree(mesh, mesh.topology.dim)
-    candidates = dolfinx.geometry.compute_collisions(tree, points) if compat.LEGACY \
-        else dolfinx.geometry.compute_collisions_points(tree, points)
-    colliding = dolfinx.geometry.compute_colliding_cells(mesh, candidates, points)
+    colliding = _colliding_cells(mesh, points)
     n_owned = compat.num_owned_cells(mesh)
     local = np.full(len(points), np.nan)
     for i in range(len(points)):
@@ -33,7 +38,9 @@ def sample_line(function, points):
 
 
 def stress_component_at(problem, index, point):
-    """Finite-element value of stress component `index` (i, j) at one point [Pa].
+    """Finite-element value of stress component `index` (i, j) at one point [Pa],
+    averaged over every cell that contains the point (a mesh vertex on a boundary, such
+    as the edge of a hole, belongs to several cells whose stresses differ).
 
     The stress of the pure-UFL path is interpolated into discontinuous Lagrange of
     degree max(degree_u - 1, 0); on affine triangles that holds the FE stress exactly."""
@@ -45,4 +52,14 @@ def stress_component_at(problem, index, point):
     points = V.element.interpolation_points
     points = points() if callable(points) else points
     f.interpolate(dolfinx.fem.Expression(problem.stress()[index], points))
-    return float(sample_line(f, np.asarray(point, dtype=float).reshape(1, 3))[0])
+    x = np.asarray(point, dtype=float).reshape(1, 3)
+    n_owned = compat.num_owned_cells(mesh)
+    total, count = 0.0, 0
+    for cell in _colliding_cells(mesh, x).links(0):
+        if cell < n_owned:
+            total += float(f.eval(x[0], np.array([cell], dtype=np.int32))[0])
+            count += 1
+    total, count = mesh.comm.allreduce(total), mesh.comm.allreduce(count)
+    if count == 0:
+        raise ValueError(f"point {point} is outside the mesh")
+    return total / count

@@ -9,10 +9,10 @@ large compared with the internal length; the published closed form for the infin
 micropolar plate (analytic.micropolar_hole_scf) is plotted against the computed values.
 
 Outputs in --out: summary.json ('scf' for --radius, closed form, Kirsch), scf.csv,
-scf.png (SCF against a / l_c), fields.xdmf. In ParaView: open fields.xdmf (reader "Xdmf3 Reader T"), colour by
-'stress' component 3 (sigma22, the XX/YY 'Tensor' layout: pick component '3' or 'YY'),
-and by 'rotation': it is largest near the hole where the couple stress relieves the
-concentration.
+scf.png (SCF against a / l_c), fields.xdmf. In ParaView: open fields.xdmf (reader
+"Xdmf3 Reader T"), colour by 'stress' component YY (sigma22; the 2x2 tensor is padded to
+3x3) to see the concentration at (a, 0), and by 'rotation', largest at the hole where the
+couple stress relieves the concentration.
 
     mpirun -n 2 python3 demos/hole_plate.py --radius 0.01 --l-c 0.01
     mpirun -n 2 python3 demos/hole_plate.py --sweep       # several a / l_c

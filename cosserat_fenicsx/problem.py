@@ -76,6 +76,27 @@ class _Dirichlet:
         self.function.x.array[:] = self.scale(t) * self.base
 
 
+class _PointDirichlet(_Dirichlet):
+    """A Dirichlet value at the nodes of one component that lie at a point (a pin)."""
+
+    def __init__(self, problem, point, component, value, scale):
+        self.boundary, self.component = f"point {tuple(point)}", component
+        self.scale = scale or linear_ramp
+        space, _ = problem.component_space(component)
+        x0 = np.array([float(point[0]), float(point[1]), 0.0])
+        tol = 1e-10 * max(1.0, float(np.abs(x0).max()))
+        dofs = dolfinx.fem.locate_dofs_geometrical(
+            (problem.W_component(component), space),
+            lambda x: np.linalg.norm(x[:2] - x0[:2, None], axis=0) < tol)
+        if problem.mesh.comm.allreduce(len(dofs[0])) == 0:
+            raise ValueError(f"no {component} node at the point {tuple(point)}: "
+                             "a point condition needs a mesh node there")
+        self.function = dolfinx.fem.Function(space)
+        self.base = np.full_like(self.function.x.array, float(value))
+        self.bc = dolfinx.fem.dirichletbc(self.function, dofs, problem.W_component(component))
+        self.dofs = dofs[0]
+
+
 class CosseratProblem:
     """Fields, boundary conditions and forms of one scene.
 
@@ -186,6 +207,13 @@ class CosseratProblem:
                 raise ValueError(f"inconsistent boundary conditions: {component} on '{boundary}' "
                                  f"has both a Dirichlet value and a {kind}")
         self._dirichlet.append(_Dirichlet(self, boundary, component, value, scale))
+        self._compiled = None
+
+    def add_point_dirichlet(self, point, component, value=0.0, scale=None):
+        """Prescribe u1, u2 or phi (a number) at the node(s) located at `point` (x, y):
+        a pin that removes a rigid-body mode without constraining a whole boundary."""
+        self._check_component(component)
+        self._dirichlet.append(_PointDirichlet(self, point, component, value, scale))
         self._compiled = None
 
     def add_traction(self, boundary, traction, scale=None):

@@ -68,6 +68,9 @@ class NewtonSolver:
         for key in opts.getAll():
             if key.split("_")[0] in ("snes", "ksp", "pc", "mat"):
                 merged[key] = opts[key]
+        user = dict(options or {}, **{k: opts[k] for k in opts.getAll()})
+        if merged["pc_type"] not in ("lu", "cholesky") and "pc_factor_mat_solver_type" not in user:
+            del merged["pc_factor_mat_solver_type"]  # MUMPS is our default for LU only
         for key, value in merged.items():
             opts[prefix + key] = value
         self.snes.setFunction(self._residual, self.b)

@@ -3,7 +3,7 @@
 ``generate_packing``: radii uniform in [R_min, ratio R_min] (000 section 4.1: ratio 1.5),
 non-overlapping random placement in a loose periodic square cell (seeded), then isotropic
 compaction of the cell by the stress servo to a target pressure with a preparation friction
-coefficient (low friction = dense). The initial fabric anisotropy can be raised towards a
+coefficient (low friction = dense), or on to a target solid fraction. The initial fabric anisotropy can be raised towards a
 target A0 (000 section 4.3.3: 0.02, 0.05, 0.08) by compacting first under a deviatoric
 stress (axis 1 more loaded), then isotropically; the achieved A0 is returned, not assumed.
 
@@ -92,11 +92,31 @@ def compact(cell, pressure, friction=0.0, deviator=0.0, max_steps=400_000):
     return res
 
 
+def compact_to_fraction(cell, solid_fraction, friction=0.0, max_steps=400_000):
+    """Isotropic strain-controlled compression (or expansion) of ``cell`` to the solid
+    fraction sum(pi R^2) / area, then relaxation, with the given preparation friction."""
+    st = cell.state
+    phi = float(np.sum(np.pi * st.radius ** 2)) / abs(np.linalg.det(st.h))
+    law = cell.law
+    cell.set_law(law.with_(friction=friction))
+    try:
+        cell.set_deformation(cell.deformation_gradient() * math.sqrt(phi / solid_fraction))
+        res = cell.solve(max_steps=max_steps)
+    finally:
+        cell.set_law(law)
+    return res
+
+
 def generate_packing(n_particles=228, pressure=10.0, law=None, r_min=0.01, radius_ratio=1.5,
-                     seed=0, density=2.0e3, prep_friction=0.0, anisotropy=None, options=None):
+                     seed=0, density=2.0e3, prep_friction=0.0, anisotropy=None, options=None,
+                     solid_fraction=None):
     """Reproducible compacted packing. Returns (state, info) where state is a CellState at
     equilibrium under the isotropic pressure [N/m] (compression) and info a dict with the
     achieved solid fraction, coordination number, anisotropy A0 and R_min/L.
+
+    solid_fraction: if given, the packing is brought to this solid fraction instead (after
+    the compaction to ``pressure``, an isotropic strain-controlled step and relaxation); the
+    resulting pressure is in info["pressure_achieved"] (0 below jamming).
 
     anisotropy: None (whatever the random compaction gives) or a target A0: the packing is
     first compacted under a deviatoric stress (friction 0.3 unless prep_friction is given),
@@ -110,6 +130,8 @@ def generate_packing(n_particles=228, pressure=10.0, law=None, r_min=0.01, radiu
         raise InputError(f"compaction pressure must be > 0 N/m, got {pressure}")
     if anisotropy is not None and not (0.0 <= anisotropy < 1.0):
         raise InputError(f"target anisotropy must be in [0, 1), got {anisotropy}")
+    if solid_fraction is not None and not (0.3 < solid_fraction < 0.95):
+        raise InputError(f"target solid fraction must be in (0.3, 0.95), got {solid_fraction}")
     opts = options or RelaxationOptions(strain_rate=1e-4, max_increment=1.0, servo_gain=0.1,
                                         stress_tol=1e-2)
     base = loose_state(n_particles, r_min, radius_ratio, 0.45, seed, density)
@@ -127,6 +149,10 @@ def generate_packing(n_particles=228, pressure=10.0, law=None, r_min=0.01, radiu
         r = compact(cell, pressure, mu_prep)
         if not r.converged:
             raise InputError(f"compaction did not converge: {r.message}")
+        if solid_fraction is not None:
+            r = compact_to_fraction(cell, solid_fraction, mu_prep)
+            if not (r.converged or r.no_contacts):
+                raise InputError(f"compaction to solid fraction {solid_fraction} did not converge: {r.message}")
         return cell
 
     cell = make(0.0)
@@ -153,6 +179,7 @@ def generate_packing(n_particles=228, pressure=10.0, law=None, r_min=0.01, radiu
     st.v[:] = 0.0
     st.omega[:] = 0.0
     info = dict(n_particles=int(st.n_particles), seed=int(seed), pressure=float(pressure),
+                pressure_achieved=hom.pressure, target_solid_fraction=solid_fraction,
                 solid_fraction=hom.solid_fraction, coordination_number=hom.coordination_number,
                 anisotropy=hom.anisotropy, anisotropy_trials=trials,
                 r_min_over_L=float(st.radius.min() / math.sqrt(abs(np.linalg.det(st.h)))),

@@ -124,3 +124,12 @@ def test_rotations_off(packing):
 def test_interface_is_abstract():
     with pytest.raises(TypeError):
         dc.MicroCell()
+
+
+def test_packing_to_target_solid_fraction():
+    st, info = dc.generate_packing(60, pressure=10.0, seed=7, solid_fraction=0.85)
+    h = dc.DemCell(st).homogenized()
+    assert h.solid_fraction == pytest.approx(0.85, abs=1e-9)
+    assert info["pressure_achieved"] == pytest.approx(h.pressure) and h.pressure > 10.0
+    with pytest.raises(dc.InputError, match="solid fraction"):
+        dc.generate_packing(60, solid_fraction=1.2)

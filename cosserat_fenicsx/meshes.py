@@ -4,7 +4,6 @@ import os
 
 import dolfinx.mesh
 import numpy as np
-from mpi4py import MPI
 
 from . import compat
 
@@ -84,11 +83,3 @@ def hole_plate(comm, radius, half_side, cell_size, hole_cell_size=None,
     return from_gmsh_geo(comm, geo_path, {"R": radius, "L": half_side, "h": cell_size,
                                           "h_hole": hole_cell_size})
 
-
-def min_cell_size(mesh):
-    """Smallest cell diameter over all ranks [m]."""
-    tdim = mesh.topology.dim
-    n = compat.num_owned_cells(mesh)
-    h = dolfinx.cpp.mesh.h(mesh._cpp_object if hasattr(mesh, "_cpp_object") else mesh, tdim,
-                           np.arange(n, dtype=np.int32))
-    return mesh.comm.allreduce(float(np.min(h)) if n else math.inf, op=MPI.MIN)

@@ -28,28 +28,25 @@ def basix_cell(mesh):
     return getattr(basix.CellType, cell_name(mesh))
 
 
-def lagrange_element(mesh, degree, shape=()):
-    """Continuous Lagrange element of the given value shape (() scalar, (2,) vector)."""
+def _element(family, mesh, degree, shape):
     if LEGACY:
         cell = mesh.ufl_cell()
         if shape == ():
-            return ufl.FiniteElement("Lagrange", cell, degree)
+            return ufl.FiniteElement(family, cell, degree)
         if len(shape) == 1:
-            return ufl.VectorElement("Lagrange", cell, degree, dim=shape[0])
-        return ufl.TensorElement("Lagrange", cell, degree, shape=shape)
-    return basix.ufl.element("Lagrange", cell_name(mesh), degree, shape=shape or None)
+            return ufl.VectorElement(family, cell, degree, dim=shape[0])
+        return ufl.TensorElement(family, cell, degree, shape=shape)
+    return basix.ufl.element(family, cell_name(mesh), degree, shape=shape or None)
+
+
+def lagrange_element(mesh, degree, shape=()):
+    """Continuous Lagrange element of the given value shape (() scalar, (2,) vector)."""
+    return _element("Lagrange", mesh, degree, shape)
 
 
 def dg_element(mesh, degree, shape=()):
     """Discontinuous Lagrange element (output of quadrature data)."""
-    if LEGACY:
-        cell = mesh.ufl_cell()
-        if shape == ():
-            return ufl.FiniteElement("DG", cell, degree)
-        if len(shape) == 1:
-            return ufl.VectorElement("DG", cell, degree, dim=shape[0])
-        return ufl.TensorElement("DG", cell, degree, shape=shape)
-    return basix.ufl.element("DG", cell_name(mesh), degree, shape=shape or None)
+    return _element("DG", mesh, degree, shape)
 
 
 def mixed_element(elements):

@@ -27,7 +27,7 @@ import numpy as np
 from .contact_law import ContactLaw, MU, COH_N, COH_T, ETA_R
 from .errors import InputError
 from .homogenization import homogenize
-from .periodic_cell import deformation_path
+from .periodic_cell import deformation_path, reduce_cell
 from .relaxation import (ENERGY_RATIO, NO_CONTACTS, UNBALANCED_FORCE, run, stable_time_step)
 from .state import CellState
 from .tangent import (demqo_tangent, dsigma_to_dpk1, kruyt_operator, perturbation_tangent,
@@ -242,6 +242,7 @@ class DemCell(MicroCell):
         converged = True
         limit = o.max_steps if max_steps is None else int(max_steps)
         for Fk in path:
+            reduce_cell(self.state)          # large shears: keep a compact base cell
             Fcur = self.state.F
             dF = np.abs(Fk - Fcur) if mask is None else np.abs(Fk - Fcur)[~mask]
             n_ramp = int(math.ceil(dF.max(initial=0.0) / o.strain_rate))

@@ -70,3 +70,30 @@ def deformation_path(F0, F1, max_increment):
 def cauchy_to_pk1(sigma, F):
     """First Piola-Kirchhoff stress P = J sigma F^-T (inverse of 000 eq. 16)."""
     return np.linalg.det(F) * sigma @ np.linalg.inv(F).T
+
+
+def reduce_cell(state):
+    """Lattice reduction of a sheared cell (Lees-Edwards-like remapping): replace Y2 by
+    Y2 - k Y1 (or Y1 by Y1 - k Y2) with integer k while that shortens the vectors. The
+    periodic medium, F = h h_ref^-1, every particle and every contact are unchanged; only
+    the choice of the base cell changes (h -> h M, h_ref -> h_ref M, s -> M^-1 s with M
+    unimodular). Keeps the minimum-image convention valid under large shears.
+    Returns the number of reductions applied."""
+    count = 0
+    for _ in range(20):
+        y1, y2 = state.h[:, 0], state.h[:, 1]
+        k2 = round(float(y1 @ y2) / float(y1 @ y1))
+        k1 = round(float(y1 @ y2) / float(y2 @ y2))
+        if k2 != 0 and float(y2 @ y2) > float(y1 @ y1):
+            M = np.array([[1.0, -k2], [0.0, 1.0]])
+        elif k1 != 0 and float(y1 @ y1) > float(y2 @ y2):
+            M = np.array([[1.0, 0.0], [-k1, 1.0]])
+        else:
+            break
+        Minv = np.linalg.inv(M)
+        for name in ("h", "h_ref", "h_build"):
+            setattr(state, name, getattr(state, name) @ M)
+        state.s = (state.s @ Minv.T) % 1.0
+        state.s_build = (state.s_build @ Minv.T) % 1.0
+        count += 1
+    return count

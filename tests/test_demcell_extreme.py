@@ -94,3 +94,19 @@ def test_bad_input_is_rejected_before_work(tmp_path, packing60):
         cell.set_deformation(np.diag([1.0, -1.0]))
     with pytest.raises(dc.InputError, match="unknown tangent kind"):
         cell.tangent("secant")
+
+
+def test_large_simple_shear_remaps_the_cell(packing60):
+    """gamma = 3: without remapping the sheared cell would become too thin for the
+    minimum-image convention; the base cell is reduced on the way (F unchanged)."""
+    cell = dc.DemCell(packing60.copy(), dc.ContactLaw(friction=0.4),
+                      RelaxationOptions(max_increment=0.05, strain_rate=1e-4))
+    F = np.array([[1.0, 3.0], [0.0, 1.0]])
+    cell.set_deformation(F)
+    res = cell.solve(stress_mask=[[False, False], [False, True]], stress_target=np.diag([0.0, -10.0]))
+    assert res.converged, res.message
+    assert np.allclose(cell.deformation_gradient()[0], F[0])
+    h = cell.state.h
+    assert abs(h[0, 1]) <= 0.5 * abs(h[0, 0]) + 1e-12           # compact base cell
+    s = cell.cauchy_stress()
+    assert np.all(np.isfinite(s)) and 0.05 < s[0, 1] / 10.0 < 0.6  # steady shear strength

@@ -10,7 +10,8 @@ mu = 0.4, kn = 1e4 N/m, ks = 2e3 N/m, density 2e3 kg/m^2, local damping alpha = 
 energy tolerance E_kin/E_pot <= 1e-3 (000 eq. 31).
 
 1. Packing: random gas compacted without friction to the isotropic pressure p0 (seeded, saved
-   as ``packing.npz``).
+   as ``packing.npz``; ``--packing`` reuses one, ``--anisotropy`` asks for an initial fabric
+   anisotropy A0 through a frictional deviatoric pre-compaction).
 2. Isotropic compression stage: friction switched on, the cell relaxed under
    sigma = -p0 I (stress control on F_11, F_22 and F_12).
 3. Biaxial stage: axial direction e1 shortened in increments of the axial strain
@@ -68,6 +69,9 @@ def parse(argv=None):
     p.add_argument("--kn", type=float, default=1e4, help="normal stiffness [N/m] (default 1e4)")
     p.add_argument("--ks", type=float, default=2e3, help="tangential stiffness [N/m] (default 2e3)")
     p.add_argument("--snapshot-every", type=int, default=10, help="increments between VTK snapshots")
+    p.add_argument("--anisotropy", type=float, default=None,
+                   help="target initial fabric anisotropy A0 (000 section 4.3.3: 0.02, 0.05, 0.08)")
+    p.add_argument("--packing", default=None, help="start from a packing file (.npz from a previous run)")
     p.add_argument("--out", default="results/dem_cell", help="output directory")
     a = p.parse_args(argv)
     if a.particles < 10:
@@ -78,6 +82,10 @@ def parse(argv=None):
         p.error("--increment must be in (0, axial strain]")
     if a.friction < 0 or a.pressure <= 0 or a.kn <= 0 or a.ks < 0 or a.snapshot_every < 1:
         p.error("friction >= 0, pressure > 0, kn > 0, ks >= 0, snapshot-every >= 1 required")
+    if a.anisotropy is not None and not (0.0 <= a.anisotropy < 1.0):
+        p.error("--anisotropy must be in [0, 1)")
+    if a.packing is not None and not os.path.isfile(a.packing):
+        p.error(f"packing file not found: {a.packing}")
     return a
 
 
@@ -107,8 +115,13 @@ def main(argv=None):
     os.makedirs(a.out, exist_ok=True)
     t0 = time.time()
     law = dc.ContactLaw(kn=a.kn, ks=a.ks, friction=a.friction, rotations=not a.no_rotation)
-    print(f"[demcell] packing: {a.particles} discs, seed {a.seed}, frictionless compaction to {a.pressure} N/m")
-    state, info = dc.generate_packing(a.particles, pressure=a.pressure, law=law, seed=a.seed)
+    if a.packing:
+        print(f"[demcell] packing from {a.packing}")
+        state, info = dc.load_packing(a.packing)
+    else:
+        print(f"[demcell] packing: {a.particles} discs, seed {a.seed}, compaction to {a.pressure} N/m")
+        state, info = dc.generate_packing(a.particles, pressure=a.pressure, law=law, seed=a.seed,
+                                          anisotropy=a.anisotropy)
     dc.save_packing(os.path.join(a.out, "packing.npz"), state, info)
     print(f"[demcell]   solid fraction {info['solid_fraction']:.3f}, coordination {info['coordination_number']:.2f}, "
           f"A0 {info['anisotropy']:.3f}, R_min/L {info['r_min_over_L']:.4f}")

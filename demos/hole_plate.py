@@ -108,4 +108,4 @@ if comm.rank == 0:
                 label="finite elements")
     ax.set_xlabel("hole radius / l_c"); ax.set_ylabel("stress concentration factor")
     ax.set_title(f"mu_c/mu = {e.mu_c / e.mu:g}, nu = {e.poisson_ratio:.3g}")
-    ax.legend(); fig.tight_layout(); fig.savefig(os.path.join(args.out, "scf.png"), dpi=120)
+    ax.legend(loc="lower right"); fig.tight_layout(); fig.savefig(os.path.join(args.out, "scf.png"), dpi=120)

@@ -28,7 +28,8 @@ from .contact_law import ContactLaw, MU, COH_N, COH_T, ETA_R
 from .errors import InputError
 from .homogenization import homogenize
 from .periodic_cell import deformation_path, reduce_cell
-from .relaxation import (ENERGY_RATIO, NO_CONTACTS, UNBALANCED_FORCE, run, stable_time_step)
+from .relaxation import (ENERGY_RATIO, FIRE, LOCAL_DAMPING, NO_CONTACTS, UNBALANCED_FORCE, run,
+                         stable_time_step)
 from .state import CellState
 from .tangent import (demqo_tangent, dsigma_to_dpk1, kruyt_operator, perturbation_tangent,
                       pstlo_operator)
@@ -52,6 +53,9 @@ class RelaxationOptions:
     skin_ratio : neighbour-list skin / R_min
     stress_tol : relative tolerance on stress-controlled components
     servo_gain : dF per step = -gain (sigma - target) / kn on stress-controlled components
+    method : 'local' (local non-viscous damping, 000 section 3.2.1) or 'fire' (FIRE, Bitzek
+        et al. 2006, adaptive step up to fire_dt_max x dt; see benchmarks/DEM.md for speed)
+    fire_dt_max : largest FIRE time step / dt
     """
     criterion: str = "energy"
     tol: float = 1e-3
@@ -65,14 +69,18 @@ class RelaxationOptions:
     skin_ratio: float = 0.1
     stress_tol: float = 1e-3
     servo_gain: float = 0.05
+    method: str = "local"
+    fire_dt_max: float = 2.0
 
     def __post_init__(self):
+        if self.method not in ("local", "fire"):
+            raise InputError(f"unknown relaxation method {self.method!r}: 'local' or 'fire'")
         if self.criterion not in ("energy", "force"):
             raise InputError(f"unknown convergence criterion {self.criterion!r}: use 'energy' "
                              "(000 eq. 31) or 'force' (unbalanced-force ratio, 001)")
         for f in fields(self):
             v = getattr(self, f.name)
-            if f.name in ("criterion", "dt"):
+            if f.name in ("criterion", "dt", "method"):
                 continue
             if not (isinstance(v, (int, float)) and v >= 0 and math.isfinite(v)):
                 raise InputError(f"RelaxationOptions.{f.name} must be a finite number >= 0, got {v!r}")
@@ -250,7 +258,8 @@ class DemCell(MicroCell):
                       tol=o.tol, check_every=o.check_every, damping=o.damping,
                       skin=o.skin_ratio * float(self.state.radius.min()), stress_mask=mask,
                       stress_target=stress_target, stress_tol=o.stress_tol, servo_gain=o.servo_gain,
-                      max_rate=max(o.strain_rate, 1e-12))
+                      max_rate=max(o.strain_rate, 1e-12), method=FIRE if o.method == "fire" else LOCAL_DAMPING,
+                      fire_dt_max=o.fire_dt_max)
             steps += rep.steps
             if rep.status == NO_CONTACTS:
                 no_contacts = True

@@ -5,7 +5,10 @@ One Numba kernel (``advance``) runs the whole loop:
      with optional stress control of some components of F (mixed control, servo);
   2. contact forces (``contact_law.contact_update``);
   3. leapfrog integration of the fluctuating motion with local non-viscous damping
-     f_d = -alpha |f| sign(v), m_d = -beta |m| sign(omega) (000 section 3.2.1, eq. 30);
+     f_d = -alpha |f| sign(v), m_d = -beta |m| sign(omega) (000 section 3.2.1, eq. 30),
+     or, as an alternative relaxation method, FIRE (Bitzek et al. 2006: velocity mixing
+     towards the force, adaptive time step up to ``fire_dt_max`` x dt, stop when the power
+     F.v turns negative);
   4. after the ramp, the convergence test every ``check_every`` steps: kinetic / potential
      energy ratio (000 eqs. 31-32; rattlers excluded) or maximum unbalanced force over mean contact force
      (001 section 2), plus the stress targets of the stress-controlled components.
@@ -41,7 +44,9 @@ ENERGY_RATIO, UNBALANCED_FORCE, NO_CHECK = 0, 1, -1
 I_NPAIRS, I_FCUR, I_NRAMP, I_KRAMP, I_MAXSTEPS, I_CHECK, I_CRIT = range(7)
 C_DT, C_ALPHA, C_TOL, C_STOL, C_GAIN, C_MAXRATE, C_SKIN, C_TIME = range(8)
 C_MASK, C_TARGET = 8, 12          # 4 + 4 slots, component order 11, 12, 21, 22
-N_CTRL = 16
+C_METHOD, C_DTMAX = 16, 17        # 0 = local damping (000), 1 = FIRE; FIRE's dt_max / dt
+N_CTRL = 18
+LOCAL_DAMPING, FIRE = 0, 1
 # output slots
 (O_STEPS, O_EKIN, O_EPOT, O_NCONT, O_NSLIDE, O_UNBAL, O_S11, O_S12, O_S21, O_S22,
  O_REBUILDS, O_MAXOVL, O_BONDLOST, O_FMEAN) = range(14)
@@ -211,8 +216,14 @@ def advance(radius, mass, inertia, s, v, theta, omega, dtheta, force, moment, s_
             smax_t = max(smax_t, abs(ctrl[C_TARGET + c]))
     h_old = np.empty((2, 2))
     Fm = np.empty((2, 2))
-    dt_m = dt / mass
-    dt_i = dt / inertia
+    inv_m = 1.0 / mass
+    inv_i = 1.0 / inertia
+    # FIRE (Bitzek et al., PRL 97, 170201, 2006): N_min 5, f_inc 1.1, f_dec 0.5,
+    # alpha_start 0.1, f_alpha 0.99; time step between dt/2^k and dt_max = C_DTMAX dt
+    fire = ctrl[C_METHOD] > 0.5
+    dt_max = dt * max(ctrl[C_DTMAX], 1.0)
+    fire_a = 0.1
+    fire_npos = 0
     # bound on the fluctuating displacement since the last neighbour build, updated with
     # max |v| dt each step (5 % margin for the change of h during the accumulation)
     disp = max_displacement(h, s, s_build)
@@ -316,14 +327,47 @@ def advance(radius, mass, inertia, s, v, theta, omega, dtheta, force, moment, s_
         g10 = (h[1, 0] - h_old[1, 0]) * hi[0, 0] + (h[1, 1] - h_old[1, 1]) * hi[1, 0]
         spin = 0.5 * (g10 - g01)
         hinv = _inv2(h)
+        damp = alpha
+        if fire:
+            damp = 0.0
+            power = 0.0
+            vn2 = 0.0
+            fn2 = 0.0
+            wn2 = 0.0
+            mn2 = 0.0
+            for i in range(n):
+                power += force[i, 0] * v[i, 0] + force[i, 1] * v[i, 1]
+                vn2 += v[i, 0] * v[i, 0] + v[i, 1] * v[i, 1]
+                fn2 += force[i, 0] * force[i, 0] + force[i, 1] * force[i, 1]
+                if rot:
+                    power += moment[i] * omega[i]
+                    wn2 += omega[i] * omega[i]
+                    mn2 += moment[i] * moment[i]
+            if power > 0.0:
+                cv = fire_a * math.sqrt(vn2 / fn2) if fn2 > 0.0 else 0.0
+                cw = fire_a * math.sqrt(wn2 / mn2) if mn2 > 0.0 else 0.0
+                for i in range(n):
+                    v[i, 0] = (1.0 - fire_a) * v[i, 0] + cv * force[i, 0]
+                    v[i, 1] = (1.0 - fire_a) * v[i, 1] + cv * force[i, 1]
+                    omega[i] = (1.0 - fire_a) * omega[i] + cw * moment[i]
+                fire_npos += 1
+                if fire_npos > 5:
+                    dt = min(dt * 1.1, dt_max)
+                    fire_a *= 0.99
+            else:
+                dt = max(dt * 0.5, ctrl[C_DT] / 64.0)
+                fire_a = 0.1
+                fire_npos = 0
+                v[:] = 0.0
+                omega[:] = 0.0
         # --- leapfrog with local non-viscous damping (000 section 3.2.1)
         vmax2 = 0.0
         for i in range(n):
             for c in range(2):
                 f = force[i, c]
-                if alpha > 0.0 and v[i, c] != 0.0:
-                    f -= alpha * abs(f) * math.copysign(1.0, v[i, c])
-                v[i, c] += dt_m[i] * f
+                if damp > 0.0 and v[i, c] != 0.0:
+                    f -= damp * abs(f) * math.copysign(1.0, v[i, c])
+                v[i, c] += dt * inv_m[i] * f
             v2 = v[i, 0] * v[i, 0] + v[i, 1] * v[i, 1]
             if v2 > vmax2:
                 vmax2 = v2
@@ -337,9 +381,9 @@ def advance(radius, mass, inertia, s, v, theta, omega, dtheta, force, moment, s_
                 s[i, 1] -= math.floor(s[i, 1])
             if rot:
                 mo = moment[i]
-                if alpha > 0.0 and omega[i] != 0.0:
-                    mo -= alpha * abs(mo) * math.copysign(1.0, omega[i])
-                omega[i] += dt_i[i] * mo
+                if damp > 0.0 and omega[i] != 0.0:
+                    mo -= damp * abs(mo) * math.copysign(1.0, omega[i])
+                omega[i] += dt * inv_i[i] * mo
                 dtheta[i] = omega[i] * dt + spin
             else:
                 omega[i] = 0.0
@@ -389,7 +433,7 @@ def stable_time_step(radius, mass, inertia, law, safety=0.25):
 
 def run(state, law_array, dt, F_end, n_ramp, max_steps, criterion=ENERGY_RATIO, tol=1e-3,
         check_every=100, damping=0.7, skin=None, stress_mask=None, stress_target=None,
-        stress_tol=1e-3, servo_gain=0.05, max_rate=1e-4, kn=None):
+        stress_tol=1e-3, servo_gain=0.05, max_rate=1e-4, method=LOCAL_DAMPING, fire_dt_max=2.0):
     """Ramp the cell from its current F to ``F_end`` in ``n_ramp`` steps, then relax.
     Stops at convergence, at ``max_steps`` steps, or on a failure status. ``stress_mask``
     (2x2 bool) selects the components of F driven by the servo to reach ``stress_target``
@@ -401,6 +445,7 @@ def run(state, law_array, dt, F_end, n_ramp, max_steps, criterion=ENERGY_RATIO, 
     ctrl = np.zeros(N_CTRL)
     ctrl[C_DT], ctrl[C_ALPHA], ctrl[C_TOL], ctrl[C_STOL] = dt, damping, tol, stress_tol
     ctrl[C_GAIN], ctrl[C_MAXRATE], ctrl[C_SKIN], ctrl[C_TIME] = servo_gain, max_rate, skin, state.time
+    ctrl[C_METHOD], ctrl[C_DTMAX] = method, fire_dt_max
     if stress_mask is not None:
         ctrl[C_MASK:C_MASK + 4] = np.asarray(stress_mask, dtype=float).reshape(4)
         ctrl[C_TARGET:C_TARGET + 4] = np.asarray(stress_target, dtype=float).reshape(4)

@@ -71,6 +71,8 @@ def parse(argv=None):
     p.add_argument("--snapshot-every", type=int, default=10, help="increments between VTK snapshots")
     p.add_argument("--anisotropy", type=float, default=None,
                    help="target initial fabric anisotropy A0 (000 section 4.3.3: 0.02, 0.05, 0.08)")
+    p.add_argument("--relaxation", choices=["local", "fire"], default="local",
+                   help="dynamic relaxation: local damping 0.7 (000, default) or FIRE")
     p.add_argument("--packing", default=None, help="start from a packing file (.npz from a previous run)")
     p.add_argument("--out", default="results/dem_cell", help="output directory")
     a = p.parse_args(argv)
@@ -125,7 +127,7 @@ def main(argv=None):
     dc.save_packing(os.path.join(a.out, "packing.npz"), state, info)
     print(f"[demcell]   solid fraction {info['solid_fraction']:.3f}, coordination {info['coordination_number']:.2f}, "
           f"A0 {info['anisotropy']:.3f}, R_min/L {info['r_min_over_L']:.4f}")
-    opts = RelaxationOptions(tol=1e-3, damping=0.7, criterion="energy")
+    opts = RelaxationOptions(tol=1e-3, damping=0.7, criterion="energy", method=a.relaxation)
     cell = dc.DemCell(state, law, opts)
     # isotropic compression stage with friction on
     iso = cell.solve(stress_mask=[[True, True], [False, True]], stress_target=-a.pressure * np.eye(2))

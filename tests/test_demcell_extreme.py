@@ -110,3 +110,19 @@ def test_large_simple_shear_remaps_the_cell(packing60):
     assert abs(h[0, 1]) <= 0.5 * abs(h[0, 0]) + 1e-12           # compact base cell
     s = cell.cauchy_stress()
     assert np.all(np.isfinite(s)) and 0.05 < s[0, 1] / 10.0 < 0.6  # steady shear strength
+
+
+def test_fire_relaxation_reaches_the_same_equilibrium(packing60):
+    """Frictionless (no path dependence through the tangential springs): both relaxation
+    methods must find the same equilibrium."""
+    law = dc.ContactLaw(friction=0.0)
+    F = np.array([[0.998, 0.0005], [0.0, 1.001]])
+    sig = []
+    for method in ("local", "fire"):
+        cell = dc.DemCell(packing60.copy(), law, RelaxationOptions(method=method, tol=1e-9, check_every=20))
+        cell.set_deformation(F)
+        assert cell.solve().converged
+        sig.append(cell.cauchy_stress())
+    assert np.abs(sig[0] - sig[1]).max() < 1e-3 * np.abs(sig[0]).max()
+    with pytest.raises(dc.InputError, match="relaxation method"):
+        RelaxationOptions(method="verlet")

@@ -8,7 +8,8 @@ SCF = sigma22(a, 0) / T is 3 in a classical solid (Kirsch) and drops when the ho
 large compared with the internal length; the published closed form for the infinite
 micropolar plate (analytic.micropolar_hole_scf) is plotted against the computed values.
 
-Outputs in --out: summary.json ('scf' for --radius, closed form, Kirsch), scf.csv,
+Outputs in --out: summary.json ('scf' for --radius, closed form, Kirsch, 'wall_time' of
+meshing + solving + output), scf.csv,
 scf.png (SCF against a / l_c), fields.xdmf. In ParaView: open fields.xdmf (reader
 "Xdmf3 Reader T"), colour by 'stress' component YY (sigma22; the 2x2 tensor is padded to
 3x3) to see the concentration at (a, 0), and by 'rotation', largest at the hole where the
@@ -19,6 +20,8 @@ couple stress relieves the concentration.
 """
 import sys, os  # noqa: E401
 sys.path.insert(0, os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
+
+import time
 
 import numpy as np
 from mpi4py import MPI
@@ -47,6 +50,7 @@ micropolar = not args.cauchy
 
 
 def solve(radius, write_fields):
+    start = time.perf_counter()
     half_side = args.half_side or 20.0 * radius
     h_hole = args.hole_cell_size or (args.cell_size / 4 if args.cell_size else radius / 16)
     h = args.cell_size or half_side / 12
@@ -67,19 +71,19 @@ def solve(radius, write_fields):
         writer.close()
     sigma22 = stress_component_at(problem, (1, 1), np.array([radius, 0.0, 0.0]))
     dofs = problem.W.dofmap.index_map.size_global * problem.W.dofmap.index_map_bs
-    return sigma22 / args.traction, dofs
+    return sigma22 / args.traction, dofs, time.perf_counter() - start
 
 
 radii = [args.radius]
 if args.sweep:
     radii += [f * e.l_c for f in (0.25, 0.5, 1.0, 2.0, 4.0, 8.0)]
-log = CsvLog(comm, os.path.join(args.out, "scf.csv"), ["radius", "radius_over_l_c", "scf", "scf_closed_form", "dofs"])
+log = CsvLog(comm, os.path.join(args.out, "scf.csv"), ["radius", "radius_over_l_c", "scf", "scf_closed_form", "dofs", "wall_time"])
 results = []
 for i, radius in enumerate(radii):
-    scf, dofs = solve(radius, write_fields=(i == 0))
+    scf, dofs, wall = solve(radius, write_fields=(i == 0))
     exact = analytic.micropolar_hole_scf(radius, e.mu, e.lmbda, e.mu_c, e.l_c) if micropolar else 3.0
     row = {"radius": radius, "radius_over_l_c": radius / e.l_c if e.l_c > 0 else np.inf,
-           "scf": scf, "scf_closed_form": exact, "dofs": dofs}
+           "scf": scf, "scf_closed_form": exact, "dofs": dofs, "wall_time": wall}
     log.write(row)
     results.append(row)
     print0(comm, f"a = {radius:.4g} m, a/l_c = {row['radius_over_l_c']:.3g}: SCF = {scf:.4f} "
@@ -92,6 +96,7 @@ write_json(comm, os.path.join(args.out, "summary.json"), {
     "relative_error": abs(first["scf"] - first["scf_closed_form"]) / first["scf_closed_form"],
     "radius": args.radius, "l_c": e.l_c, "mu": e.mu, "lmbda": e.lmbda, "mu_c": e.mu_c,
     "micropolar": micropolar, "dofs": first["dofs"], "ranks": comm.size,
+    "wall_time": first["wall_time"],
     "sweep": results[1:]})
 
 if comm.rank == 0:

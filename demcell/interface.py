@@ -104,12 +104,15 @@ class RelaxationOptions:
 class SolveResult:
     """Outcome of ``solve``. converged: every sub-step met the criterion (or the cell has no
     contact left); no_contacts: the cell lost every contact (stress is exactly zero);
-    steps: time steps used; substeps: number of sub-steps; message: the cause in words."""
+    steps: time steps used; substeps: number of sub-steps; message: the cause in words
+    (with a warning when overlaps exceed 10 % of a radius); max_overlap_ratio: largest
+    overlap / smaller radius met."""
     converged: bool
     no_contacts: bool
     steps: int
     substeps: int
     message: str
+    max_overlap_ratio: float = 0.0
 
 
 class MicroCell(abc.ABC):
@@ -174,11 +177,20 @@ class DemCell(MicroCell):
         self._law_array = law.as_array()
         self.dt = options.dt if options.dt is not None else stable_time_step(
             state.radius, state.mass, state.inertia, law, options.dt_safety)
+        self._check_dt()
         self._target = state.F
         self._committed = state.copy()
         self.last_result = None
 
     # ----- configuration
+    def _check_dt(self):
+        """A user time step above the stability estimate (safety 1) is refused before work."""
+        limit = stable_time_step(self.state.radius, self.state.mass, self.state.inertia, self.law, 1.0)
+        if self.dt > limit * (1.0 + 1e-12):
+            raise InputError(f"time step dt = {self.dt:.3e} s exceeds the stability estimate "
+                             f"{limit:.3e} s of this law and packing (2/omega_max, relaxation.stable_time_step); "
+                             "use dt=None (automatic) or a smaller dt")
+
     def set_law(self, law):
         """Change the contact law (e.g. friction after compaction); the time step follows."""
         if not isinstance(law, ContactLaw):
@@ -190,6 +202,7 @@ class DemCell(MicroCell):
         if self.options.dt is None:
             self.dt = stable_time_step(self.state.radius, self.state.mass, self.state.inertia,
                                        law, self.options.dt_safety)
+        self._check_dt()
 
     def freeze_contacts(self):
         """Quasi-elastic mode of DEMQO (001 section 5.1): existing contacts persist (bilateral),
@@ -245,6 +258,7 @@ class DemCell(MicroCell):
             n = max(1, int(math.ceil(np.abs((self._target - F0)[~mask]).max(initial=0.0) / o.max_increment)))
             path = [F0 + (k / n) * (self._target - F0) for k in range(1, n + 1)]
         steps = 0
+        max_ovl = 0.0
         msgs = []
         no_contacts = False
         converged = True
@@ -265,10 +279,13 @@ class DemCell(MicroCell):
                 no_contacts = True
             elif not rep.converged:
                 converged = False
+                ratio = rep.kinetic_energy / max(rep.potential_energy, 1e-300)
+                hint = (": the kinetic energy exceeds the elastic energy, the cell is not settling "
+                        "(loading too fast for the damping, or an unstable state)") if ratio > 1.0 else ""
                 msgs.append(f"sub-step {len(msgs) + 1}: {rep.message} after {rep.steps} steps "
-                            f"(E_kin/E_pot = {rep.kinetic_energy / max(rep.potential_energy, 1e-300):.2e}, "
-                            f"unbalanced ratio {rep.unbalanced_ratio:.2e})")
+                            f"(E_kin/E_pot = {ratio:.2e}, unbalanced ratio {rep.unbalanced_ratio:.2e}){hint}")
                 break
+            max_ovl = max(max_ovl, rep.max_overlap_ratio)
         if no_contacts and self.contact_count() == 0:
             msg = "no contact left in the cell: zero stress (flag no_contacts)"
         elif converged:
@@ -276,8 +293,11 @@ class DemCell(MicroCell):
             no_contacts = False
         else:
             msg = "; ".join(msgs)
+        if max_ovl > 0.1:
+            msg += (f"; warning: overlaps reach {max_ovl:.2f} of a radius (contacts too soft for this "
+                    "stress level, the linear contact law is stretched)")
         self.last_result = SolveResult(converged=converged, no_contacts=no_contacts, steps=steps,
-                                       substeps=len(path), message=msg)
+                                       substeps=len(path), message=msg, max_overlap_ratio=max_ovl)
         return self.last_result
 
     def run_dynamics(self, n_steps, damping=0.0):

@@ -70,6 +70,21 @@ def test_huge_increment_is_substepped(packing60):
     assert np.all(np.isfinite(s)) and abs(s[1, 1] + 10.0) < 0.02 and s[0, 0] < s[1, 1]
 
 
+def test_too_large_time_step_is_refused(packing60):
+    auto = dc.DemCell(packing60.copy())
+    with pytest.raises(dc.InputError, match="stability estimate"):
+        dc.DemCell(packing60.copy(), dc.ContactLaw(), RelaxationOptions(dt=auto.dt * 30))
+    with pytest.raises(dc.InputError, match="stability estimate"):      # stiffer law, same dt
+        dc.DemCell(packing60.copy(), dc.ContactLaw(), RelaxationOptions(dt=auto.dt * 2)).set_law(
+            dc.ContactLaw(kn=1e6, ks=2e5))
+
+
+def test_soft_contacts_are_flagged(packing60):
+    cell = dc.DemCell(packing60.copy(), dc.ContactLaw(kn=50.0, ks=10.0))   # p / kn = 0.2
+    res = cell.solve(stress_mask=[[True, True], [False, True]], stress_target=-10.0 * np.eye(2))
+    assert res.max_overlap_ratio > 0.1 and "too soft" in res.message
+
+
 def test_bad_input_is_rejected_before_work(tmp_path, packing60):
     with pytest.raises(dc.InputError, match="kn"):
         dc.ContactLaw(kn=-1.0)

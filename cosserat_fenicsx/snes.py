@@ -77,7 +77,7 @@ class NewtonSolver:
         self.snes.setJacobian(self._jacobian, self.A)
         self.snes.setFromOptions()
         self.snes.getKSP().setFromOptions()
-        self.snes.setConvergenceHistory()
+        self.snes.setConvergenceHistory(reset=True)   # one history per solve, not cumulative
         for key in merged:
             opts.delValue(prefix + key)
 

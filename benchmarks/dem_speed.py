@@ -10,7 +10,8 @@ fewer, e.g. 383 and 3801):
    packing (radii, positions, masses, cell), times NSTEPS steps under the velocity
    gradient of ``peer-yade/run_bench.py`` (1e-5 strain per step, damping 0.7), then one
    quasi-static solve (1e-4 strain in 10 steps, relaxation until max unbalanced force / mean
-   contact force <= tol).
+   contact force <= tol) from the exported state with zero shear forces, whose final
+   stress is compared between the codes (a cross-code check of the physics).
    The time step, the same for both codes, is demcell's stable estimate (``--dt-safety``):
    prep_bench's own O.dt is above the stability limit of this law (ks = 0.8 kn) and neither
    code then reaches a quasi-static state.
@@ -134,7 +135,7 @@ def demcell_side(export, nsteps, kn, ks, tol, maxsolve, repeat=3):
               damping=0.7, skin=skin)
     res.update(solve_steps=rep.steps, solve_wall=time.perf_counter() - t0, solve_cpu=time.process_time() - c0,
                solve_converged=rep.converged, solve_unbalanced=rep.unbalanced_ratio,
-               solve_contacts=rep.n_contacts)
+               solve_contacts=rep.n_contacts, solve_stress=dc.homogenize(st, la).cauchy.tolist())
     cell = dc.DemCell(st, law)
     res["memory_per_cell_bytes"] = cell.memory_bytes()
     res["memory_per_cell_bytes_per_particle"] = cell.memory_bytes() / st.n_particles
@@ -178,6 +179,8 @@ def main(argv=None):
                                ratio_cu_cpu=d["contact_updates_per_cpu_s"] / y["contact_updates_per_cpu_s"],
                                ratio_cu_wall=d["contact_updates_per_s"] / y["contact_updates_per_s"],
                                ratio_solve_cpu=y["solve_cpu"] / max(d["solve_cpu"], 1e-9),
+                               stress_rel_diff=float(np.abs(np.array(d["solve_stress"]) - np.array(y["solve_stress"])).max()
+                                                     / np.abs(np.array(y["solve_stress"])).max()),
                                load1=float(open("/proc/loadavg").read().split()[0])))
         med = lambda key: float(np.median([r[key] for r in rounds]))  # noqa: E731
         row = dict(requested=n, n=d["n"], dt=dt, steps=nsteps, rounds=rounds,
@@ -198,7 +201,9 @@ def main(argv=None):
               f"{row['range_ratio_contact_updates_cpu'][0]:.2f}-{row['range_ratio_contact_updates_cpu'][1]:.2f}"
               f" (wall {row['median_ratio_contact_updates_wall']:.2f}) | solve: demcell {d['solve_steps']} steps "
               f"{d['solve_cpu']:.3f} cpu-s, yade {y['solve_steps']} steps {y['solve_cpu']:.3f} cpu-s, ratio median "
-              f"{row['median_ratio_solve_cpu']:.1f} | memory/cell {d['memory_per_cell_bytes'] / 1024:.0f} KiB "
+              f"{row['median_ratio_solve_cpu']:.1f} | stress after the solve: demcell "
+              f"{np.array(d['solve_stress']).round(1).tolist()} yade {np.array(y['solve_stress']).round(1).tolist()} "
+              f"(max rel. diff {rounds[-1]['stress_rel_diff']:.2e}) | memory/cell {d['memory_per_cell_bytes'] / 1024:.0f} KiB "
               f"({d['memory_per_cell_bytes_per_particle']:.0f} B/particle)", flush=True)
     print(f"results: {path}")
 

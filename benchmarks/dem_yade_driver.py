@@ -6,9 +6,10 @@
 # exports the packing (radii, positions, cell, masses, dt, friction) for demcell, then
 # 1. times NSTEPS steps under the velocity gradient of peer-yade/run_bench.py
 #    (1e-5 strain per step, xx extension + yy compression, NewtonIntegrator damping 0.7);
-# 2. times one quasi-static solve: the same strain rate for 10 steps (1e-4 strain), then
-#    relaxation at fixed cell until max unbalanced force / mean contact force <= TOL
-#    (unbalancedForce(useMaxForce=True)), checked every 50 steps.
+# 2. times one quasi-static solve from the exported state with the shear forces zeroed (as
+#    demcell starts): the same strain rate for 10 steps (1e-4 strain), then relaxation at
+#    fixed cell until max unbalanced force / mean contact force <= TOL
+#    (unbalancedForce(useMaxForce=True)), checked every 50 steps; prints the stress (N/m).
 # Prints one line "YADE_RESULT {json}".
 import json
 import os
@@ -77,6 +78,7 @@ for i in O.interactions:
     if i.isReal:
         i.phys.kn = KN
         i.phys.ks = KS
+        i.phys.shearForce = Vector3.Zero   # demcell re-detects contacts without shear history
 O.engines = [
     ForceResetter(),
     InsertionSortCollider([Bo1_Sphere_Aabb()]),
@@ -97,6 +99,9 @@ while O.iter - i0 < MAXSOLVE:
     if unbalancedForce(True) <= TOL:
         ok = True
         break
+st = getStress()
+th = O.cell.hSize[2, 2]                    # 2D stress per unit thickness [N/m]
+res.update(solve_stress=[[st[0, 0] * th, st[0, 1] * th], [st[1, 0] * th, st[1, 1] * th]])
 res.update(solve_steps=O.iter - i0, solve_wall=time.time() - t0, solve_cpu=cpu() - c0, solve_converged=ok,
            solve_unbalanced=unbalancedForce(True), solve_contacts=O.interactions.countReal(),
            maxrss_kb=resource.getrusage(resource.RUSAGE_SELF).ru_maxrss)

@@ -1,0 +1,1 @@
+"""Boundary-value problems shared by demos, tests and benchmarks (built on demand)."""

@@ -1,0 +1,179 @@
+"""Biaxial test with a shear band: micropolar Ehlers sand (thesis 004, A.2, section 6.2).
+
+A plane-strain specimen of Hostun sand (W x H, default 50 mm x 100 mm) is consolidated by
+a confining pressure of 100 kN/m^2 (phase 1) and then compressed by the top platen at
+constant lateral pressure (phase 2). Smooth platens, rotation free on every face, and a
+weakened square at the lower left corner (beta0, beta* x 0.8) where the band starts. The
+vertical stress (platen reaction / width) rises, peaks, and drops when the band forms;
+the micropolar terms (l_c = 3 mm, mu_c = mu, k_sigma = 10 by default) give the band a
+thickness that does not depend on the mesh, `--classical` switches them off. The set-up
+and every choice the thesis leaves open are in cosserat_fenicsx/scenes/biaxial.py and
+docs/biaxial.md.
+
+At the final state the band is measured as in section 4.4: the norm of the total strain
+at every Gauss point is fitted with e0 + A exp(-d^2 / 2 H^2) (eq 4.22), d the distance
+from the band axis. `band_thickness` is H, the standard deviation of that bell (what
+the thesis calls the thickness; the full width at half maximum is 2.355 H).
+
+Outputs in --out, written as the run goes: history.csv (one row per converged step:
+axial_strain, vertical_stress [Pa], volumetric_strain, ...; tension positive, strains
+from the start of phase 2), fields.xdmf (displacement, rotation, stress, couple_stress,
+plastic_strain, accumulated_plastic_strain, yield_function [Pa], plastic (fraction of the
+cell's Gauss points flowing), strain_norm), and at the end summary.json
+(peak_vertical_stress [Pa], band_thickness [m], band_inclination_deg, Newton residual
+histories) and biaxial.png (load-displacement curve; band profile with the fitted bell).
+In ParaView: open fields.xdmf, colour by 'strain_norm' or 'accumulated_plastic_strain' to
+see the band, by 'rotation' and 'couple_stress' to see the micropolar activity along it,
+and by 'plastic' to see the unloaded wedges outside it (section 6.2.1, Fig. 6.7).
+
+    mpirun -n 2 python3 demos/biaxial.py                      # micropolar, a few minutes
+    mpirun -n 2 python3 demos/biaxial.py --classical --out results/biaxial_classical
+    python3 demos/biaxial.py --cell-size 5e-3 --steps 30 -snes_monitor
+"""
+import sys, os  # noqa: E401
+sys.path.insert(0, os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
+
+import math
+import time
+
+import numpy as np
+from mpi4py import MPI
+
+from cosserat_fenicsx import cli
+from cosserat_fenicsx.output import FieldWriter, CsvLog, write_json, print0
+from cosserat_fenicsx.scenes.biaxial import BiaxialSettings, BiaxialTest, convergence_orders
+from cosserat_fenicsx.shear_band import bell
+from cosserat_fenicsx.stepping import LoadSteppingError
+
+parser = cli.make_parser(__doc__)
+cli.add_material_options(parser, mu=91.0e6, lmbda=49.4e6, l_c=3.0e-3)
+cli.add_mesh_options(parser, cell_size=2.5e-3)
+cli.add_output_options(parser, "results/biaxial")
+cli.add_stepping_options(parser, steps=50)
+g = parser.add_argument_group("biaxial test")
+g.add_argument("--classical", action="store_true",
+               help="classical (Cauchy) continuum: no rotation field, micropolar terms off (same as --cauchy)")
+g.add_argument("--width", type=float, default=0.05, help="specimen width W [m] (default %(default)g)")
+g.add_argument("--height", type=float, default=0.10, help="specimen height H [m] (default %(default)g)")
+g.add_argument("--confining", type=float, default=100e3, help="confining pressure p [Pa] (default %(default)g)")
+g.add_argument("--axial-strain", type=float, default=0.05,
+               help="platen displacement / H in phase 2 (default %(default)g)")
+g.add_argument("--consolidation-steps", type=int, default=5, help="steps of phase 1 (default %(default)s)")
+g.add_argument("--k-sigma", type=float, default=10.0, help="skew-stress weight k_sigma in F, G (default %(default)g)")
+g.add_argument("--k-mu", type=float, default=0.0, help="couple-stress weight k_mu [1/m^2] (default %(default)g)")
+g.add_argument("--eta", type=float, default=0.1, help="Perzyna time eta [s] (2.81), 1 s per step (default %(default)g)")
+g.add_argument("--weak-size", type=float, default=5e-3,
+               help="side of the weakened square at the lower left corner [m], 0: none (default %(default)g)")
+g.add_argument("--weak-factor", type=float, default=0.8,
+               help="beta0 and beta* of the weakened square relative to the rest (default %(default)g)")
+g.add_argument("--write-every", type=int, default=5, help="XDMF every N steps and at the end (default %(default)s)")
+args = cli.parse(parser)
+comm = MPI.COMM_WORLD
+classical = args.classical or args.cauchy
+e = args.elasticity
+settings = BiaxialSettings(
+    width=args.width, height=args.height, confining=args.confining, axial_strain=args.axial_strain,
+    consolidation_steps=args.consolidation_steps, steps=args.steps, cell_size=args.cell_size,
+    cell_type=args.cell_type, micropolar=not classical, weak_size=args.weak_size,
+    weak_beta_factor=args.weak_factor, eta=args.eta, degree_u=args.degree_u, degree_phi=args.degree_phi,
+    material=dict(mu=e.mu, lmbda=e.lmbda, mu_c=e.mu_c, l_c=e.l_c, k_sigma=args.k_sigma, k_mu=args.k_mu))
+try:
+    test = BiaxialTest(comm, settings)
+except ValueError as error:
+    parser.error(str(error))
+print0(comm, f"biaxial: {'classical' if classical else 'micropolar'} {test.material!r}, "
+             f"{comm.allreduce(len(test.points))} Gauss points, {test.n_weak_cells} weakened cells, "
+             f"{comm.size} rank(s)")
+
+writer = FieldWriter(test.problem, os.path.join(args.out, "fields.xdmf"), args.fields)
+for name, size, values in test.cell_fields():
+    writer.add_cell_field(name, (size,) if size > 1 else (), values)
+columns = ["step", "time", "phase", "axial_strain", "vertical_stress", "volumetric_strain", "top_displacement",
+           "plastic_fraction", "max_yield_function", "newton_iterations", "residual", "cuts", "wall_time"]
+history = CsvLog(comm, os.path.join(args.out, "history.csv"), columns)
+
+
+def record(row):
+    history.write(row)
+    if row["step"] % args.write_every == 0:
+        writer.write(row["time"])
+
+
+start = time.perf_counter()
+stopped = ""
+try:
+    test.run(record)
+except LoadSteppingError as error:
+    stopped = str(error)   # keep what was computed: summary and plot of the part before
+    print0(comm, f"biaxial: stopped early: {stopped}")
+writer.write(test.problem.time)
+writer.close()
+history.close()
+wall = time.perf_counter() - start
+
+# --- summary: peak, band (section 4.4), Newton convergence --------------------------------
+rows = test.history
+stress = np.array([r["vertical_stress"] for r in rows])
+axial = np.array([r["axial_strain"] for r in rows])
+i_peak = int(np.argmin(stress))
+band = None
+try:
+    band = test.band()
+except ValueError as error:
+    print0(comm, f"biaxial: no band fitted: {error}")
+plastic_infos = [(r["step"], info) for r, info in zip(rows, test.solver.infos_converged()) if r["phase"] == 2]
+longest = max(plastic_infos, key=lambda x: len(x[1].residual_history), default=(None, None))
+summary = {
+    "peak_vertical_stress": float(stress[i_peak]), "axial_strain_at_peak": float(axial[i_peak]),
+    "final_vertical_stress": float(stress[-1]), "final_axial_strain": float(axial[-1]),
+    "vertical_stress_end_of_consolidation": float(stress[settings.consolidation_steps - 1]),
+    "band_thickness": band.thickness if band else None,
+    "band_thickness_definition": "H = standard deviation of the fitted bell (thesis 4.22); FWHM = 2.355 H",
+    "band_inclination_deg": band.inclination_deg if band else None,
+    "band_inclination_definition": "angle between band axis and horizontal, positive rising to +x",
+    "band_fit": band.as_dict() if band else None,
+    "max_yield_function_final": rows[-1]["max_yield_function"],
+    "newton_residuals_longest_plastic_step": list(map(float, longest[1].residual_history)) if longest[1] else [],
+    "newton_orders_longest_plastic_step": convergence_orders(longest[1].residual_history) if longest[1] else [],
+    "newton_longest_plastic_step": longest[0],
+    "steps": len(rows), "cut_backs": int(rows[-1]["cuts"]) if rows else 0,
+    "completed": not stopped, "stopped": stopped,
+    "wall_time": wall, "kernel_time_rank0": test.zoned.kernel_time, "ranks": comm.size,
+    "classical": classical, "l_c": e.l_c, "mu_c": e.mu_c if not classical else 0.0, "k_sigma": args.k_sigma,
+    "k_mu": args.k_mu, "eta": args.eta, "cell_size": args.cell_size, "width": args.width,
+    "height": args.height, "confining": args.confining, "weak_size": args.weak_size,
+    "weak_factor": args.weak_factor}
+write_json(comm, os.path.join(args.out, "summary.json"), summary)
+
+# --- figure: load-displacement and the band profile --------------------------------------
+values = np.concatenate(comm.allgather(test.strain_norm()))
+points = np.concatenate(comm.allgather(test.points))
+if comm.rank == 0:
+    import matplotlib
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    fig, ax = plt.subplots(1, 3 if band else 2, figsize=(14 if band else 9, 4))
+    phase2 = np.array([r["phase"] == 2 for r in rows])
+    ax[0].plot(-axial[phase2] * 100, -stress[phase2] / 1e3, "k-")
+    ax[0].plot(-axial[i_peak] * 100, -stress[i_peak] / 1e3, "ro")
+    ax[0].set_xlabel("axial strain -eps_11 [%]"); ax[0].set_ylabel("vertical stress -sigma_11 [kPa]")
+    ax[1].plot(-axial[phase2] * 100, [r["volumetric_strain"] for r, m in zip(rows, phase2) if m], "b-")
+    ax[1].set_xlabel("axial strain -eps_11 [%]"); ax[1].set_ylabel("volumetric strain (mean tr eps)")
+    if band:
+        a = math.radians(band.inclination_deg)
+        d = (points[:, 1] - band.x10) * math.cos(a) - points[:, 0] * math.sin(a)
+        order = np.argsort(d)
+        r = (band.offset, band.amplitude, band.thickness, band.x10, a)
+        ax[2].plot(d * 1e3, values, ".", ms=1, color="0.5", label="|eps| at Gauss points")
+        ax[2].plot(d[order] * 1e3, bell(points[order], r), "r-", label=f"eq 4.22: H = {band.thickness * 1e3:.2f} mm")
+        ax[2].set_xlabel("distance from band axis d [mm]"); ax[2].set_ylabel("|eps|"); ax[2].legend()
+    kind = "classical" if classical else f"micropolar l_c = {e.l_c * 1e3:g} mm"
+    fig.suptitle(f"biaxial test, {kind}, h = {args.cell_size * 1e3:g} mm"
+                 + (f"; band {band.inclination_deg:.1f} deg" if band else ""))
+    fig.tight_layout(); fig.savefig(os.path.join(args.out, "biaxial.png"), dpi=120)
+print0(comm, f"peak vertical stress {summary['peak_vertical_stress'] / 1e3:.1f} kPa at axial strain "
+             f"{summary['axial_strain_at_peak']:.4f}; band H = "
+             + (f"{band.thickness * 1e3:.2f} mm, inclination {band.inclination_deg:.1f} deg" if band else "none")
+             + f"; {wall:.0f} s")
+if stopped:
+    sys.exit(1)

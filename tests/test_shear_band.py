@@ -1,0 +1,73 @@
+"""The section 4.4 band fit (cosserat_fenicsx.shear_band) on synthetic data with known
+parameters: it must return them, with noise, for both band orientations, from the
+automatic initial guess; its derivatives are those of eq 4.22."""
+import math
+
+import numpy as np
+import pytest
+
+from cosserat_fenicsx.shear_band import bell, fit_band, initial_guess, _jacobian
+
+pytestmark = pytest.mark.serial
+
+
+def synthetic(r, n=4000, noise=0.0, seed=0, size=(0.05, 0.10)):
+    rng = np.random.default_rng(seed)
+    points = np.column_stack([rng.uniform(0, size[0], n), rng.uniform(0, size[1], n)])
+    return points, bell(points, r) + rng.normal(0.0, noise, n) if noise else bell(points, r)
+
+
+@pytest.mark.parametrize("H, alpha_deg, x10", [(2e-3, 55.0, 0.02), (4e-3, -48.0, 0.08),
+                                                 (1e-3, 30.0, 0.03), (6e-3, 62.0, -0.01)])
+def test_recovers_known_parameters(H, alpha_deg, x10):
+    r = (0.01, 0.15, H, x10, math.radians(alpha_deg))
+    points, values = synthetic(r, noise=0.003, seed=int(H * 1e4))
+    fit = fit_band(points, values)
+    assert fit.converged
+    assert fit.thickness == pytest.approx(H, rel=0.03)
+    assert fit.inclination_deg == pytest.approx(alpha_deg, abs=0.5)
+    assert fit.offset == pytest.approx(0.01, abs=1e-3)
+    assert fit.amplitude == pytest.approx(0.15, rel=0.03)
+    assert fit.rms_residual == pytest.approx(0.003, rel=0.1)   # the noise, nothing more
+
+
+def test_exact_data_is_fitted_exactly():
+    r = (0.02, 0.1, 3e-3, 0.01, math.radians(57.0))
+    points, values = synthetic(r)
+    fit = fit_band(points, values)
+    assert fit.thickness == pytest.approx(3e-3, rel=1e-6)
+    assert fit.inclination_deg == pytest.approx(57.0, abs=1e-5)
+    assert fit.x10 == pytest.approx(0.01, abs=1e-8)
+    assert fit.rms_residual < 1e-8
+
+
+def test_initial_guess_finds_the_band_axis():
+    r = (0.0, 0.1, 2e-3, 0.02, math.radians(50.0))
+    points, values = synthetic(r)
+    g = initial_guess(points, values)
+    assert math.degrees(g[4]) == pytest.approx(50.0, abs=3.0)
+    assert 0.5e-3 < g[2] < 4e-3
+
+
+def test_jacobian_is_the_derivative_of_eq_4_22():
+    rng = np.random.default_rng(3)
+    points = rng.uniform(0, 0.05, (50, 2))
+    r = np.array([0.01, 0.2, 3e-3, 0.015, 0.9])
+    J = _jacobian(points, r)
+    for k in range(5):
+        h = 1e-6 * max(abs(r[k]), 1e-3)
+        rp, rm = r.copy(), r.copy()
+        rp[k] += h
+        rm[k] -= h
+        fd = (bell(points, rp) - bell(points, rm)) / (2 * h)
+        assert np.allclose(J[:, k], fd, rtol=1e-5, atol=1e-8 * np.abs(fd).max())
+
+
+def test_bad_input_is_named():
+    points = np.random.default_rng(0).uniform(0, 1, (20, 2))
+    with pytest.raises(ValueError, match="uniform"):
+        fit_band(points, np.ones(20))
+    with pytest.raises(ValueError, match="non-finite"):
+        fit_band(points, np.r_[np.nan, np.ones(19)])
+    with pytest.raises(ValueError, match="at least 6"):
+        fit_band(points[:3], np.arange(3.0))

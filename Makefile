@@ -31,6 +31,8 @@ deps:
 demo: deps
 	$(MPIRUN) -n $(NP) $(PYTHON) demos/hole_plate.py --out $(OUT)/hole_plate
 	$(MPIRUN) -n $(NP) $(PYTHON) demos/shear_layer.py --out $(OUT)/shear_layer
+	$(PYTHON) demos/material_point.py --test all --out $(OUT)/material_point
+	$(PYTHON) demos/dem_cell.py --out $(OUT)/dem_cell
 
 test: deps
 	NP=$(NP) TEST_TIMEOUT=$(TEST_TIMEOUT) tests/run_suite.sh $(PYTHON)
@@ -40,8 +42,17 @@ test-debian13:
 	$(DEBIAN13) --extra-pkgs "$(DEBIAN13_PKGS)" --bind-rw "$(CURDIR)":/srv/project --workdir /srv/project \
 		-- sh tests/run_suite.sh python3
 
+# figures, not tests; YADE is only needed here (DEM speed and cross-check)
+BENCH_PACKAGES = yade
 benchmark: deps
-	$(PYTHON) benchmarks/convergence.py --out $(OUT)/benchmarks
+	@dpkg-query -W -f='$${Status}\n' $(BENCH_PACKAGES) 2>/dev/null | grep -q "ok installed" || \
+		{ $(SUDO) apt-get update -q && DEBIAN_FRONTEND=noninteractive $(SUDO) apt-get install -y -q $(BENCH_PACKAGES); }
+	$(PYTHON) benchmarks/convergence.py --np $(NP) --out $(OUT)/benchmarks
+	$(PYTHON) benchmarks/ehlers_kernel_throughput.py --json $(OUT)/benchmarks/ehlers_kernel_throughput.json
+	$(PYTHON) benchmarks/dem_speed.py --out $(OUT)/benchmarks/dem_speed
+	$(PYTHON) benchmarks/dem_tangent.py --out $(OUT)/benchmarks/dem_tangent
+	$(PYTHON) benchmarks/dem_relaxation.py --out $(OUT)/benchmarks/dem_relaxation
+	$(PYTHON) -m pytest -q -p no:cacheprovider -m slow tests
 
 clean:
 	rm -rf $(OUT) .pytest_cache

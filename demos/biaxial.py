@@ -93,10 +93,14 @@ columns = ["step", "time", "phase", "axial_strain", "vertical_stress", "volumetr
 history = CsvLog(comm, os.path.join(args.out, "history.csv"), columns)
 
 
+written = []
+
+
 def record(row):
     history.write(row)
     if row["step"] % args.write_every == 0:
         writer.write(row["time"])
+        written.append(row["time"])
 
 
 start = time.perf_counter()
@@ -106,7 +110,8 @@ try:
 except LoadSteppingError as error:
     stopped = str(error)   # keep what was computed: summary and plot of the part before
     print0(comm, f"biaxial: stopped early: {stopped}")
-writer.write(test.problem.time)
+if test.history and test.history[-1]["time"] not in written:
+    writer.write(test.history[-1]["time"])   # the last converged state (once)
 writer.close()
 history.close()
 wall = time.perf_counter() - start
@@ -126,7 +131,7 @@ longest = max(plastic_infos, key=lambda x: len(x[1].residual_history), default=(
 summary = {
     "peak_vertical_stress": float(stress[i_peak]), "axial_strain_at_peak": float(axial[i_peak]),
     "final_vertical_stress": float(stress[-1]), "final_axial_strain": float(axial[-1]),
-    "vertical_stress_end_of_consolidation": float(stress[settings.consolidation_steps - 1]),
+    "vertical_stress_end_of_consolidation": float([r for r in rows if r["phase"] == 1][-1]["vertical_stress"]),
     "band_thickness": band.thickness if band else None,
     "band_thickness_definition": "H = standard deviation of the fitted bell (thesis 4.22); FWHM = 2.355 H",
     "band_inclination_deg": band.inclination_deg if band else None,
@@ -154,6 +159,7 @@ if comm.rank == 0:
     import matplotlib.pyplot as plt
     fig, ax = plt.subplots(1, 3 if band else 2, figsize=(14 if band else 9, 4))
     phase2 = np.array([r["phase"] == 2 for r in rows])
+    phase2[int(np.flatnonzero(~phase2)[-1])] = True   # start the curves at the consolidated state
     ax[0].plot(-axial[phase2] * 100, -stress[phase2] / 1e3, "k-")
     ax[0].plot(-axial[i_peak] * 100, -stress[i_peak] / 1e3, "ro")
     ax[0].set_xlabel("axial strain -eps_11 [%]"); ax[0].set_ylabel("vertical stress -sigma_11 [kPa]")

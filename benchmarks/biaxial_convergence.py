@@ -40,6 +40,7 @@ def main():
     p.add_argument("--width", type=float, default=0.025)
     p.add_argument("--height", type=float, default=0.05)
     p.add_argument("--weak-size", type=float, default=5e-3)
+    p.add_argument("--weak-factor", type=float, default=0.9)
     p.add_argument("--axial-strain", type=float, default=0.065)
     p.add_argument("--k-sigma", type=float, default=10.0)
     p.add_argument("--k-mu", type=float, default=0.0)

@@ -38,6 +38,7 @@ COLUMNS = ["model", "l_c", "cell_size", "peak_vertical_stress", "axial_strain_at
 def run_case(comm, args, micropolar, l_c, h):
     s = BiaxialSettings(width=args.width, height=args.height, cell_size=h, micropolar=micropolar,
                         axial_strain=args.axial_strain, steps=args.steps, weak_size=args.weak_size,
+                        weak_beta_factor=args.weak_factor,
                         material=dict(l_c=l_c, k_sigma=args.k_sigma, k_mu=args.k_mu) if micropolar else {})
     start = time.perf_counter()
     test = BiaxialTest(comm, s, verbose=False)
@@ -101,6 +102,8 @@ def main():
     p.add_argument("--width", type=float, default=0.025)
     p.add_argument("--height", type=float, default=0.05)
     p.add_argument("--weak-size", type=float, default=5e-3)
+    p.add_argument("--weak-factor", type=float, default=0.9,
+                   help="beta0, beta* of the weakened square relative to the rest (default 0.9; the demo uses 0.8)")
     p.add_argument("--axial-strain", type=float, default=0.065)
     p.add_argument("--steps", type=int, default=65)
     p.add_argument("--skip-classical", action="store_true")

@@ -69,7 +69,7 @@ class BiaxialSettings:
     degree_phi: int = 1
     micropolar: bool = True           # False: Cauchy continuum, no rotation field
     weak_size: float = 5.0e-3         # side of the weakened square [m] (0: none)
-    weak_beta_factor: float = 0.9     # beta0, beta* of the weakened zone relative to the rest
+    weak_beta_factor: float = 0.8     # beta0, beta* of the weakened zone relative to the rest
     eta: float = 0.1                  # Perzyna time [s] (2.81), see the module docstring
     material: dict = field(default_factory=dict)   # further EhlersMaterial keyword overrides
     solver_options: dict = field(default_factory=dict)

@@ -283,7 +283,9 @@ class BiaxialTest:
         return result
 
     def cell_fields(self):
-        """(name, size, values_fn) of the DG0 fields written next to the FE fields."""
+        """(name, shape, values_fn) of the DG0 fields written next to the FE fields; the
+        plastic strain is a 2x2 tensor (row-major eps_p11, eps_p12, eps_p21, eps_p22) like
+        the stress, so that XDMF stores it as cell data."""
         cb = lambda: self.callback  # noqa: E731
         idx = self.material.state_index
 
@@ -292,11 +294,11 @@ class BiaxialTest:
 
         plastic = lambda: cb().cell_average((cb().state_old[:, [idx["Lambda"]]] > 0).astype(float))  # noqa: E731
         strain_norm = lambda: cb().cell_average(self.strain_norm()[:, None])  # noqa: E731
-        return [("plastic_strain", 4, avg([idx[n] for n in ("eps_p11", "eps_p12", "eps_p21", "eps_p22")])),
-                ("accumulated_plastic_strain", 1, avg([idx["eps_p_dev_accumulated"]])),
-                ("yield_function", 1, avg([idx["yield_function"]])),
-                ("plastic", 1, plastic),
-                ("strain_norm", 1, strain_norm)]
+        return [("plastic_strain", (2, 2), avg([idx[n] for n in ("eps_p11", "eps_p12", "eps_p21", "eps_p22")])),
+                ("accumulated_plastic_strain", (), avg([idx["eps_p_dev_accumulated"]])),
+                ("yield_function", (), avg([idx["yield_function"]])),
+                ("plastic", (), plastic),
+                ("strain_norm", (), strain_norm)]
 
     def row(self, record):
         """One history row at a converged step."""

@@ -61,15 +61,16 @@ def test_bad_option_is_named(demo, tmp_path):
 
 def test_one_and_two_ranks_give_the_same_curve(demo, tmp_path):
     """The Gauss-point work follows the mesh partition; the load-displacement curve is the
-    same on 1 and 2 ranks to the solver tolerance (SNES rtol 1e-10; through the peak and the
-    start of the band)."""
+    same on 1 and 2 ranks to the solver tolerance (SNES rtol 1e-10), through the peak and
+    the formation of the band (the stress drops, most points unload) with its cut-backs."""
     curves = []
     for ranks in (1, 2):
         out = tmp_path / f"n{ranks}"
-        demo("biaxial", *SMALL, "--axial-strain", 0.05, "--steps", 20, "--out", out, ranks=ranks)
+        demo("biaxial", *SMALL, "--axial-strain", 0.065, "--steps", 30, "--out", out, ranks=ranks)
         curves.append(history(out))
         assert read_summary(out)["ranks"] == ranks
     a, b = curves
+    assert a["plastic_fraction"][-1] < 0.8 and a["vertical_stress"][-1] > 0.9 * a["vertical_stress"].min()
     assert len(a) == len(b) and np.array_equal(a["time"], b["time"])
     scale = np.abs(a["vertical_stress"]).max()
     assert np.abs(a["vertical_stress"] - b["vertical_stress"]).max() < 1e-7 * scale

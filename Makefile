@@ -33,6 +33,7 @@ demo: deps
 	$(MPIRUN) -n $(NP) $(PYTHON) demos/shear_layer.py --out $(OUT)/shear_layer
 	$(PYTHON) demos/material_point.py --test all --out $(OUT)/material_point
 	$(PYTHON) demos/dem_cell.py --out $(OUT)/dem_cell
+	$(MPIRUN) -n $(NP) $(PYTHON) demos/biaxial.py --out $(OUT)/biaxial
 
 test: deps
 	NP=$(NP) TEST_TIMEOUT=$(TEST_TIMEOUT) tests/run_suite.sh $(PYTHON)
@@ -52,6 +53,10 @@ benchmark: deps
 	$(PYTHON) benchmarks/dem_speed.py --out $(OUT)/benchmarks/dem_speed
 	$(PYTHON) benchmarks/dem_tangent.py --out $(OUT)/benchmarks/dem_tangent
 	$(PYTHON) benchmarks/dem_relaxation.py --out $(OUT)/benchmarks/dem_relaxation
+	$(PYTHON) benchmarks/biaxial_regularisation.py --out $(OUT)/benchmarks/biaxial_regularisation
+	$(PYTHON) benchmarks/biaxial_convergence.py --out $(OUT)/benchmarks/biaxial_convergence
+	$(PYTHON) benchmarks/biaxial_profile.py --out $(OUT)/benchmarks/biaxial_profile
+	$(MPIRUN) -n $(NP) $(PYTHON) benchmarks/biaxial_profile.py --out $(OUT)/benchmarks/biaxial_profile_np$(NP)
 	$(PYTHON) -m pytest -q -p no:cacheprovider -m slow tests
 
 clean:

@@ -16,7 +16,7 @@ DEB_PACKAGES = python3-dolfinx-real python3-numba python3-scipy python3-pytest \
 	python3-matplotlib python3-gmsh python3-h5py mpi-default-bin openmpi-bin \
 	xvfb xauth python3-paraview
 SUDO := $(shell [ "$$(id -u)" = 0 ] || echo sudo)
-DEBIAN13 = ../shared/tools/debian13-env.sh
+DEBIAN13 ?= ../shared/tools/debian13-env.sh
 DEBIAN13_PKGS = python3-matplotlib python3-gmsh python3-h5py
 
 .PHONY: deps demo test test-debian13 benchmark clean

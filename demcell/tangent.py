@@ -97,24 +97,18 @@ def _perturbation_options(cell, eps, rel=1e-5):
                                max_increment=max(opts.max_increment, 2.0 * eps))
 
 
-def perturbation_tangent(cell, eps=1e-5):
-    """Consistent tangent by perturbation (CTO, 001 eq. 6): for each component, a copy of the
-    cell is rolled back to its last committed state and solved to F + eps L^mn. ``cell`` (a
-    DemCell) must hold a solved state at F. Returns (C 4x4 d sigma/dF, solve results)."""
-    F = cell.deformation_gradient()
-    opts = _perturbation_options(cell, eps)
-    # the reference state is re-solved with the same tight options (5 solves, as in 001),
-    # so that the relaxation of the residual of the cell's own solve does not enter dsigma
-    base = cell.copy()
-    base.rollback()
+def _stress_differences(base, trial_from, F, eps, opts):
+    """Relax `base` at F with the tight options `opts`, then for each component m, n solve
+    the cell `trial_from(base)` at F + eps L^mn; returns (C 4x4 d sigma/dF, solve results).
+    The reference is re-solved with the same options so that the relaxation of its own
+    residual does not enter dsigma / eps."""
     base.options = opts
     base.set_deformation(F)
     results = [base.solve()]
     sig0 = base.cauchy_stress()
     C = np.zeros((4, 4))
     for c, (m, n) in enumerate(COMPONENTS):
-        trial = cell.copy()
-        trial.rollback()
+        trial = trial_from(base)
         trial.options = opts
         Fp = F.copy()
         Fp[m, n] += eps
@@ -124,28 +118,27 @@ def perturbation_tangent(cell, eps=1e-5):
     return C, results
 
 
+def perturbation_tangent(cell, eps=1e-5):
+    """Consistent tangent by perturbation (CTO, 001 eq. 6): for each component, a copy of the
+    cell is rolled back to its last committed state and solved to F + eps L^mn. ``cell`` (a
+    DemCell) must hold a solved state at F. Returns (C 4x4 d sigma/dF, solve results)."""
+
+    def rolled_back_copy(_):
+        trial = cell.copy()
+        trial.rollback()
+        return trial
+
+    return _stress_differences(rolled_back_copy(None), rolled_back_copy, cell.deformation_gradient(),
+                               eps, _perturbation_options(cell, eps))
+
+
 def demqo_tangent(cell, eps=1e-6):
     """DEM-based quasi-static operator (DEMQO, 001 eq. 20): four perturbations eps L^mn from
     the current equilibrium with frozen, non-sliding contacts. ``cell`` must be a DemCell."""
-    F = cell.deformation_gradient()
-    opts = _perturbation_options(cell, eps)
-    # first relax the frozen reference with the same tight options (its residual would
-    # otherwise relax during the perturbations and enter dsigma / eps)
     base = cell.copy()
     base.freeze_contacts()
-    base.options = opts
-    base.set_deformation(F)
-    results = [base.solve()]
-    sig0 = base.cauchy_stress()
-    C = np.zeros((4, 4))
-    for c, (m, n) in enumerate(COMPONENTS):
-        trial = base.copy()
-        Fp = F.copy()
-        Fp[m, n] += eps
-        trial.set_deformation(Fp)
-        results.append(trial.solve())
-        C[:, c] = ((trial.cauchy_stress() - sig0) / eps).reshape(4)
-    return C, results
+    return _stress_differences(base, lambda b: b.copy(), cell.deformation_gradient(), eps,
+                               _perturbation_options(cell, eps))
 
 
 @njit(cache=True)

@@ -71,15 +71,31 @@ STATE_NAMES = (
     "eps_p_dev_accumulated", "substeps", "local_iterations", "eps_p_vol_offset",
 )
 
-# rows of the 2D work array W (73 x 12) and of the vector work array V (24 x 12)
-_J, _JT, _JLU, _Z, _H, _CE, _DEP, _DP = 0, 12, 24, 36, 48, 55, 62, 69
-_R, _RT, _X, _XT, _N, _DF, _SC, _SE, _EE, _EP, _P, _STR, _ESUB, _EP0, _P0, _DNDP = range(16)
-_SCALE = 19
+# Work arrays of the batch kernel, allocated once per call of update_batch and passed down
+# as separate arguments.  (Slicing rows out of one big work array creates array views, and
+# every view costs an atomic reference-count increment and decrement in Numba: that was
+# about a third of the residual/Jacobian time.)
+WS_NAMES = ("X", "Xt", "R", "Rt", "J", "Jt", "Jlu", "Z", "n", "H", "dndp", "dF", "Ee", "Se",
+            "Ce", "sc", "Str", "Ep", "p", "Esub", "Ep0", "p0", "DEp", "Dp", "scale", "V")
 
 
+@njit(cache=True, error_model="numpy")
 def make_workspace():
-    """Work arrays for one thread of the batch kernel (allocated once per call)."""
-    return np.zeros((73, NX)), np.zeros((24, NX))
+    """Work arrays for one thread of the batch kernel, in the order of WS_NAMES.
+
+    X, Xt, R, Rt (12): iterate, line-search trial and their residuals; J, Jt, Jlu, Z (12x12):
+    Jacobians, LU copy, right-hand sides; n (7), H (7x7), dndp (3x7): flow direction and its
+    derivatives; dF (7); Ee, Se, Ce (7x7), sc: elastic strain, stress, tangent, dS/d eps_crit;
+    Str: trial stress; Ep, p, Esub, Ep0, p0: history and substep strain; DEp (7x7), Dp (4x7):
+    history sensitivity; scale (5): hardening row scales and the eps_p^V offset (index 4);
+    V (4x7): gradients of tr n and |dev n|.
+    """
+    return (np.zeros(NX), np.zeros(NX), np.zeros(NX), np.zeros(NX),
+            np.zeros((NX, NX)), np.zeros((NX, NX)), np.zeros((NX, NX)), np.zeros((NX, NX)),
+            np.zeros(7), np.zeros((7, 7)), np.zeros((3, 7)), np.zeros(7),
+            np.zeros(7), np.zeros(7), np.zeros((7, 7)), np.zeros(7), np.zeros(7),
+            np.zeros(7), np.zeros(4), np.zeros(7), np.zeros(7), np.zeros(4),
+            np.zeros((7, 7)), np.zeros((4, 7)), np.zeros(5), np.zeros((4, 7)))
 
 
 @njit(cache=True, error_model="numpy")
@@ -93,11 +109,13 @@ def _hardening_constants(params):
 
 
 @njit(cache=True, error_model="numpy")
-def residual_jacobian(X, E, Ep0, p0, dt, params, R, J, W, V, want_jac):
+def residual_jacobian(X, E, Ep0, p0, dt, params, R, J, n, H, dndp, dF, Ee, Se, Ce, sc, scale, V,
+                      want_jac):
     """Residual R (12) of Table 3.1 at X and, if want_jac, its Jacobian J = dR/dX.
 
     Ep0 (7): plastic strain/curvature at the start of the (sub)step, p0 (4) hardening.
-    Leaves in the work arrays: n_G (V[_N]), dF (V[_DF]), C_e at the solution (W[_CE:]).
+    Leaves in the work arrays: n_G (n), its derivatives (H, dndp), dF, C_e and sc at X.
+    scale (5): row scales of the hardening residuals and the eps_p^V offset (index 4).
     Returns (valid, F).  valid is False when X is outside the domain of the model
     (beyond the compression point, then F = inf; at the stress apex, or delta, epsilon,
     gamma out of range, then F = 0); the line search then backtracks.
@@ -108,15 +126,11 @@ def residual_jacobian(X, E, Ep0, p0, dt, params, R, J, W, V, want_jac):
     gamma = X[11]
     if not (delta > 0.0 and eps > 0.0 and gamma > 0.0 and gamma < GAMMA_MAX and X[7] >= 0.0):
         return False, 0.0
-    S = X[0:7]
+    S = X  # the generalised stress is X[0:7]
     lam = X[7]
-    n = V[_N, 0:7]
-    H = W[_H:_H + 7, 0:7]
-    dndp = V[_DNDP:_DNDP + 3, 0:7]
     G, phiG = plastic_potential_derivatives(S, beta, delta, eps, params, n, H, dndp)
     if not phiG > 0.0:
         return False, 0.0
-    dF = V[_DF, 0:7]
     F, dFb, dFd, dFe, dFg, phiF = yield_function_gradient(S, beta, delta, eps, gamma, params, dF)
     if not phiF > 0.0:
         return False, 0.0
@@ -125,16 +139,12 @@ def residual_jacobian(X, E, Ep0, p0, dt, params, R, J, W, V, want_jac):
     d1 = n[1] - v / 3.0
     d2 = n[2] - v / 3.0
     w = math.sqrt(d0 * d0 + d1 * d1 + d2 * d2 + n[3] * n[3] + n[4] * n[4])
-    Ee = V[_EE, 0:7]
     for i in range(7):
         Ee[i] = E[i] - Ep0[i] - lam * n[i]
-    epv = Ep0[0] + Ep0[1] + Ep0[2] + V[_SCALE, 4] + lam * v
+    epv = Ep0[0] + Ep0[1] + Ep0[2] + scale[4] + lam * v
     if not epv < 0.5:
         return False, 0.0
     c, dc = compression_point(epv, params)
-    Se = V[_SE, 0:7]
-    Ce = W[_CE:_CE + 7, 0:7]
-    sc = V[_SC, 0:7]
     if not elastic_stress(Ee, c, params, Se, Ce, sc):
         return False, np.inf  # beyond the compression point (inf tags the cause)
     for i in range(7):
@@ -154,26 +164,23 @@ def residual_jacobian(X, E, Ep0, p0, dt, params, R, J, W, V, want_jac):
         pk = X[8 + k]
         A = sg[k] * (pstar[k] - pk)
         B = lam * (cv[k] * v + cd[k] * w)
-        R[8 + k] = ((pk - p0[k]) - A * B) / V[_SCALE, k]
+        R[8 + k] = ((pk - p0[k]) - A * B) / scale[k]
     if not want_jac:
         return True, F
     # ---------------------------------------------------------------- Jacobian
     # gradients of v = tr n and w = |dev n| w.r.t. S and p = (beta, delta, epsilon)
-    gv = V[20, 0:7]
-    gw = V[21, 0:7]
+    # V rows: 0 gradient of v, 1 gradient of w, 2 dv/dp, 3 dw/dp
     winv = 1.0 / w if w > 1e-14 else 0.0  # |dev n| has a kink at 0 (hydrostatic flow): subgradient 0
     for j in range(7):
-        gv[j] = H[0, j] + H[1, j] + H[2, j]
-        gw[j] = winv * (d0 * H[0, j] + d1 * H[1, j] + d2 * H[2, j] + n[3] * H[3, j] + n[4] * H[4, j])
-    dvp = V[22, 0:4]
-    dwp = V[23, 0:4]
+        V[0, j] = H[0, j] + H[1, j] + H[2, j]
+        V[1, j] = winv * (d0 * H[0, j] + d1 * H[1, j] + d2 * H[2, j] + n[3] * H[3, j] + n[4] * H[4, j])
     for m in range(3):
-        dvp[m] = dndp[m, 0] + dndp[m, 1] + dndp[m, 2]
-        vm = dvp[m] / 3.0
-        dwp[m] = winv * (d0 * (dndp[m, 0] - vm) + d1 * (dndp[m, 1] - vm) + d2 * (dndp[m, 2] - vm)
-                         + n[3] * dndp[m, 3] + n[4] * dndp[m, 4])
-    dvp[3] = 0.0
-    dwp[3] = 0.0
+        V[2, m] = dndp[m, 0] + dndp[m, 1] + dndp[m, 2]
+        vm = V[2, m] / 3.0
+        V[3, m] = winv * (d0 * (dndp[m, 0] - vm) + d1 * (dndp[m, 1] - vm) + d2 * (dndp[m, 2] - vm)
+                          + n[3] * dndp[m, 3] + n[4] * dndp[m, 4])
+    V[2, 3] = 0.0
+    V[3, 3] = 0.0
     # G1/G2 rows: R = S - S^e(E - Ep0 - lam n, c(epv0 + lam v)).  C_e is block diagonal
     # (normal 3x3, shear 2x2, couple 2x diagonal): the products below use only its blocks.
     for i in range(7):
@@ -190,7 +197,7 @@ def residual_jacobian(X, E, Ep0, p0, dt, params, R, J, W, V, want_jac):
             s = 0.0
             for k in range(k0, k1):
                 s += Ce[i, k] * H[k, j]
-            J[i, j] = lam * (s - dc * sc[i] * gv[j])
+            J[i, j] = lam * (s - dc * sc[i] * V[0, j])
         J[i, i] += 1.0
         s = 0.0
         for k in range(k0, k1):
@@ -200,7 +207,7 @@ def residual_jacobian(X, E, Ep0, p0, dt, params, R, J, W, V, want_jac):
             s = 0.0
             for k in range(k0, k1):
                 s += Ce[i, k] * dndp[m, k]
-            J[i, 8 + m] = lam * (s - dc * sc[i] * dvp[m])
+            J[i, 8 + m] = lam * (s - dc * sc[i] * V[2, m])
         J[i, 11] = 0.0
     # g3 row
     for j in range(7):
@@ -221,18 +228,18 @@ def residual_jacobian(X, E, Ep0, p0, dt, params, R, J, W, V, want_jac):
         pk = X[8 + k]
         A = sg[k] * (pstar[k] - pk)
         B = lam * (cv[k] * v + cd[k] * w)
-        inv = 1.0 / V[_SCALE, k]
+        inv = 1.0 / scale[k]
         for j in range(7):
-            J[8 + k, j] = -A * lam * (cv[k] * gv[j] + cd[k] * gw[j]) * inv
+            J[8 + k, j] = -A * lam * (cv[k] * V[0, j] + cd[k] * V[1, j]) * inv
         J[8 + k, 7] = -A * (cv[k] * v + cd[k] * w) * inv
         for m in range(4):
-            J[8 + k, 8 + m] = -A * lam * (cv[k] * dvp[m] + cd[k] * dwp[m]) * inv
+            J[8 + k, 8 + m] = -A * lam * (cv[k] * V[2, m] + cd[k] * V[3, m]) * inv
         J[8 + k, 8 + k] += (1.0 + sg[k] * B) * inv
     return True, F
 
 
 @njit(cache=True, error_model="numpy")
-def _merit(R, V, sig_scale, m_scale):
+def _merit(R, sig_scale, m_scale):
     s = 0.0
     for i in range(5):
         t = R[i] / sig_scale
@@ -248,31 +255,27 @@ def _merit(R, V, sig_scale, m_scale):
 
 
 @njit(cache=True, error_model="numpy")
-def local_step(E, dt, Ep, p, params, W, V, S_out, C_out, t, with_history):
+def local_step(E, dt, Ep, p, params, S_out, C_out, t, with_history,
+               X, Xt, R, Rt, J, Jt, Jlu, Z, n, H, dndp, dF, Ee, Se, Ce, sc, Str, Ep0, p0, DEp, Dp, scale, V):
     """One implicit Euler step of the local system from history (Ep, p) to total strain E.
 
     On success Ep (7) and p (4) are overwritten with the new history, S_out with the
     stress and C_out with the consistent tangent dS/dE_final.  t: fraction of the full
     increment reached at the end of this substep (E = E_old + t (E_final - E_old));
-    with_history: the start history depends on E_final through W[_DEP], W[_DP] (earlier
-    substeps), which are then updated for the next substep (exact tangent under substepping).
+    with_history: the start history depends on E_final through DEp, Dp (earlier substeps),
+    which are then updated for the next substep (exact tangent under substepping).
+    The remaining arguments are the work arrays of make_workspace.
     Returns
     (status, dlam, F, iterations).
     """
-    Ep0 = V[_EP0, 0:7]
-    p0 = V[_P0, 0:4]
     for i in range(7):
         Ep0[i] = Ep[i]
     for k in range(4):
         p0[k] = p[k]
     # ----- elastic predictor
-    Ee = V[_EE, 0:7]
     for i in range(7):
         Ee[i] = E[i] - Ep0[i]
-    c, dc = compression_point(Ep0[0] + Ep0[1] + Ep0[2] + V[_SCALE, 4], params)
-    Str = V[_STR, 0:7]
-    Ce = W[_CE:_CE + 7, 0:7]
-    sc = V[_SC, 0:7]
+    c, dc = compression_point(Ep0[0] + Ep0[1] + Ep0[2] + scale[4], params)
     if not elastic_stress(Ee, c, params, Str, Ce, sc):
         return STATUS_COMPRESSION_POINT, 0.0, 0.0, 0
     Ftr = yield_function(Str, p0[0], p0[1], p0[2], p0[3], params)
@@ -282,28 +285,17 @@ def local_step(E, dt, Ep, p, params, W, V, S_out, C_out, t, with_history):
     sig_scale = max(smax, 1e-6)  # >= 1 Pa
     pstar, cv, cd, sg = _hardening_constants(params)
     for k in range(4):
-        V[_SCALE, k] = abs(p0[k]) + abs(pstar[k])
-    DEp = W[_DEP:_DEP + 7, 0:7]
-    Dp = W[_DP:_DP + 4, 0:7]
+        scale[k] = abs(p0[k]) + abs(pstar[k])
     if Ftr <= 1e-14 * sig_scale:
         for i in range(7):
             S_out[i] = Str[i]
         # elastic (sub)step: dS/dE = C_e t - (C_e - sc (x) dc 1_tr) dE_p/dE, history unchanged
-        if not consistent_tangent(W[_J:_J + NX], Ce, sc, dc, t, DEp, Dp, V[_SCALE, 0:4], with_history,
-                                  W[_JLU:_JLU + NX], W[_Z:_Z + NX], C_out, True):
+        if not consistent_tangent(J, Ce, sc, dc, t, DEp, Dp, scale, with_history, Jlu, Z, C_out, True):
             return STATUS_SINGULAR, 0.0, Ftr, 0
         return STATUS_OK, 0.0, Ftr, 0
     Itr = Str[0] + Str[1] + Str[2]
     m_scale = sig_scale * max(params[P_L_C], 1e-6)
     # ----- plastic corrector: Newton from the predictor
-    X = V[_X]
-    Xt = V[_XT]
-    R = V[_R]
-    Rt = V[_RT]
-    J = W[_J:_J + NX]
-    Jt = W[_JT:_JT + NX]
-    Jlu = W[_JLU:_JLU + NX]
-    Z = W[_Z:_Z + NX]
     tol = params[P_TOL]
     max_iter = int(params[P_MAX_ITER])
     # Newton starts from the elastic predictor (dlam = 0).  (Starting from dlam = Lambda_old dt
@@ -313,8 +305,9 @@ def local_step(E, dt, Ep, p, params, W, V, S_out, C_out, t, with_history):
     X[7] = 0.0 if params[P_R] == 1.0 else 1e-12
     for k in range(4):
         X[8 + k] = p0[k]
-    valid, F = residual_jacobian(X, E, Ep0, p0, dt, params, R, J, W, V, True)
-    merit = _merit(R, V, sig_scale, m_scale) if valid else np.inf
+    valid, F = residual_jacobian(X, E, Ep0, p0, dt, params, R, J, n, H, dndp, dF, Ee, Se, Ce, sc,
+                                 scale, V, True)
+    merit = _merit(R, sig_scale, m_scale) if valid else np.inf
     if not valid:
         return (STATUS_TENSILE if Itr >= 0.0 else STATUS_SINGULAR), 0.0, 0.0, 0
     converged = False
@@ -338,11 +331,12 @@ def local_step(E, dt, Ep, p, params, W, V, S_out, C_out, t, with_history):
                 Xt[i] = X[i] + alpha * Z[i, 0]
             if Xt[7] < 0.0:
                 Xt[7] = 0.0
-            ok, Ft = residual_jacobian(Xt, E, Ep0, p0, dt, params, Rt, Jt, W, V, True)
+            ok, Ft = residual_jacobian(Xt, E, Ep0, p0, dt, params, Rt, Jt, n, H, dndp, dF, Ee, Se, Ce,
+                                       sc, scale, V, True)
             if not ok and Ft == np.inf:
                 hit_crit = True
             if ok:
-                mt = _merit(Rt, V, sig_scale, m_scale)
+                mt = _merit(Rt, sig_scale, m_scale)
                 if mt <= (1.0 - 1e-4 * alpha) * merit or mt < tol:
                     accepted = True
                     break
@@ -362,7 +356,6 @@ def local_step(E, dt, Ep, p, params, W, V, S_out, C_out, t, with_history):
         return (STATUS_COMPRESSION_POINT if hit_crit else STATUS_NOT_CONVERGED), 0.0, 0.0, it
     # converged: the last residual_jacobian call was at X (predictor or accepted line-search
     # trial), so the work arrays (n_G, C_e) and J belong to the solution
-    n = V[_N, 0:7]
     lam = X[7]
     for i in range(7):
         S_out[i] = X[i]
@@ -370,102 +363,12 @@ def local_step(E, dt, Ep, p, params, W, V, S_out, C_out, t, with_history):
     for k in range(4):
         p[k] = X[8 + k]
     v = n[0] + n[1] + n[2]
-    c, dc = compression_point(Ep0[0] + Ep0[1] + Ep0[2] + V[_SCALE, 4] + lam * v, params)
-    if not consistent_tangent(J, W[_CE:_CE + 7, 0:7], V[_SC, 0:7], dc, t, DEp, Dp, V[_SCALE, 0:4],
-                              with_history, Jlu, Z, C_out, False):
+    c, dc = compression_point(Ep0[0] + Ep0[1] + Ep0[2] + scale[4] + lam * v, params)
+    if not consistent_tangent(J, Ce, sc, dc, t, DEp, Dp, scale, with_history, Jlu, Z, C_out, False):
         return STATUS_SINGULAR, lam, F, it
     if with_history:
-        propagate_history_sensitivity(Z, n, W[_H:_H + 7, 0:7], V[_DNDP:_DNDP + 3, 0:7], lam, DEp, Dp)
+        propagate_history_sensitivity(Z, n, H, dndp, lam, DEp, Dp)
     return STATUS_OK, lam, F, it
-
-
-@njit(cache=True, error_model="numpy")
-def update_point(E, dt, hist_old, params, S_out, C_out, hist_new, W, V):
-    """Full Gauss-point update with substepping (internal units inside, SI history).
-
-    E (7): total generalised strain at t_n; hist_old/hist_new: rows of the state
-    arrays (layout STATE_NAMES, SI).  Writes S_out (7, MPa / MPa m) and C_out (7x7).
-    Returns the status code (errors.STATUS_*).
-    """
-    su = STRESS_UNIT
-    for i in range(7):
-        if not math.isfinite(E[i]):
-            return STATUS_NONFINITE_INPUT
-    for i in range(hist_old.shape[0]):
-        if not math.isfinite(hist_old[i]):
-            return STATUS_NONFINITE_INPUT
-    Eold = hist_old[S_STRAIN:S_STRAIN + 7]
-    Ep = V[_EP, 0:7]
-    p = V[_P, 0:4]
-    Esub = V[_ESUB, 0:7]
-    max_levels = int(params[P_MAX_LEVELS])
-    V[_SCALE, 4] = hist_old[S_EPV_OFFSET]
-    status = STATUS_NOT_CONVERGED
-    total_it = 0
-    dlam_sum = 0.0
-    dev_acc = 0.0
-    F = 0.0
-    nsub = 1
-    for level in range(max_levels + 1):
-        nsub = 1 << level
-        for i in range(7):
-            Ep[i] = hist_old[S_EPS_P + i]
-        p[0] = hist_old[S_BETA]
-        p[1] = hist_old[S_DELTA] / su
-        p[2] = hist_old[S_EPSILON] / su
-        p[3] = hist_old[S_GAMMA]
-        dlam_sum = 0.0
-        dev_acc = 0.0
-        total_it = 0
-        status = STATUS_OK
-        for i in range(11):  # d(history)/dE_final = 0 at the start of the increment
-            for j in range(7):
-                W[_DEP + i, j] = 0.0
-        for k in range(1, nsub + 1):
-            t = k / nsub
-            for i in range(7):
-                Esub[i] = Eold[i] + t * (E[i] - Eold[i])
-            # plastic strain before the substep, for the accumulated deviatoric measure
-            e0 = Ep[0]
-            e1 = Ep[1]
-            e2 = Ep[2]
-            e3 = Ep[3]
-            e4 = Ep[4]
-            status, dlam, F, it = local_step(Esub, dt / nsub, Ep, p, params, W, V, S_out, C_out,
-                                             t, nsub > 1)
-            total_it += it
-            if status != STATUS_OK:
-                break
-            dlam_sum += dlam
-            a0 = Ep[0] - e0
-            a1 = Ep[1] - e1
-            a2 = Ep[2] - e2
-            tr = (a0 + a1 + a2) / 3.0
-            a3 = Ep[3] - e3
-            a4 = Ep[4] - e4
-            dev_acc += math.sqrt((a0 - tr) ** 2 + (a1 - tr) ** 2 + (a2 - tr) ** 2 + a3 * a3 + a4 * a4)
-        if status == STATUS_OK:
-            break
-        if status == STATUS_NONFINITE_INPUT:
-            break
-    if status != STATUS_OK:
-        return status
-    for i in range(7):
-        hist_new[S_EPS_P + i] = Ep[i]
-        hist_new[S_STRAIN + i] = E[i]
-    hist_new[S_BETA] = p[0]
-    hist_new[S_DELTA] = p[1] * su
-    hist_new[S_EPSILON] = p[2] * su
-    hist_new[S_GAMMA] = p[3]
-    hist_new[S_LAMBDA] = dlam_sum / dt if dt > 0.0 else 0.0
-    hist_new[S_SIG33] = S_out[2] * su
-    hist_new[S_F] = F * su
-    hist_new[S_EPS_P_DEV] = hist_old[S_EPS_P_DEV] + dev_acc
-    hist_new[S_SUBSTEPS] = nsub
-    hist_new[S_ITERATIONS] = total_it
-    for i in range(S_ITERATIONS + 1, hist_new.shape[0]):
-        hist_new[i] = hist_old[i]
-    return STATUS_OK
 
 
 @njit(cache=True, error_model="numpy")
@@ -481,8 +384,8 @@ def update_batch(grad, dt, state_old, params, flux, tangent, state_new, status):
     npts = grad.shape[0]
     k = grad.shape[1]
     su = STRESS_UNIT
-    W = np.zeros((73, NX))
-    V = np.zeros((24, NX))
+    (X, Xt, R, Rt, J, Jt, Jlu, Z, n, H, dndp, dF, Ee, Se, Ce, sc, Str, Ep, p, Esub, Ep0, p0, DEp, Dp,
+     scale, V) = make_workspace()
     E = np.zeros(7)
     S = np.zeros(7)
     C = np.zeros((7, 7))
@@ -498,6 +401,8 @@ def update_batch(grad, dt, state_old, params, flux, tangent, state_new, status):
         for a in range(k):
             idx[a] = a
     polar = params[P_MICROPOLAR] != 0.0
+    max_levels = int(params[P_MAX_LEVELS])
+    nstate = state_old.shape[1]
     for ip in range(npts):
         for i in range(7):
             E[i] = 0.0
@@ -506,7 +411,65 @@ def update_batch(grad, dt, state_old, params, flux, tangent, state_new, status):
         if not polar:
             E[5] = 0.0  # classical model: curvature ignored
             E[6] = 0.0
-        code = update_point(E, dt, state_old[ip], params, S, C, state_new[ip], W, V)
+        # ---- Gauss-point update with substepping (internal units inside, SI history).  The
+        # per-point code is written out here rather than in a function of its own: a call with
+        # the ~30 work arrays as arguments costs an atomic reference-count increment and
+        # decrement per array and call, which Numba does not remove in a function this large.
+        finite = True
+        for i in range(7):
+            finite = finite and math.isfinite(E[i])
+        for i in range(nstate):
+            finite = finite and math.isfinite(state_old[ip, i])
+        code = STATUS_OK if finite else STATUS_NONFINITE_INPUT
+        total_it = 0
+        dlam_sum = 0.0
+        dev_acc = 0.0
+        F = 0.0
+        nsub = 1
+        scale[4] = state_old[ip, S_EPV_OFFSET]
+        for level in range(max_levels + 1 if finite else 0):
+            nsub = 1 << level
+            for i in range(7):
+                Ep[i] = state_old[ip, S_EPS_P + i]
+            p[0] = state_old[ip, S_BETA]
+            p[1] = state_old[ip, S_DELTA] / su
+            p[2] = state_old[ip, S_EPSILON] / su
+            p[3] = state_old[ip, S_GAMMA]
+            dlam_sum = 0.0
+            dev_acc = 0.0
+            total_it = 0
+            code = STATUS_OK
+            for j in range(7):  # d(history)/dE_final = 0 at the start of the increment
+                for i in range(7):
+                    DEp[i, j] = 0.0
+                for i in range(4):
+                    Dp[i, j] = 0.0
+            for ks in range(1, nsub + 1):
+                t = ks / nsub
+                for i in range(7):
+                    Esub[i] = state_old[ip, S_STRAIN + i] + t * (E[i] - state_old[ip, S_STRAIN + i])
+                # plastic strain before the substep, for the accumulated deviatoric measure
+                e0 = Ep[0]
+                e1 = Ep[1]
+                e2 = Ep[2]
+                e3 = Ep[3]
+                e4 = Ep[4]
+                code, dlam, F, it = local_step(Esub, dt / nsub, Ep, p, params, S, C, t, nsub > 1,
+                                               X, Xt, R, Rt, J, Jt, Jlu, Z, n, H, dndp, dF, Ee, Se, Ce, sc,
+                                               Str, Ep0, p0, DEp, Dp, scale, V)
+                total_it += it
+                if code != STATUS_OK:
+                    break
+                dlam_sum += dlam
+                a0 = Ep[0] - e0
+                a1 = Ep[1] - e1
+                a2 = Ep[2] - e2
+                tr = (a0 + a1 + a2) / 3.0
+                a3 = Ep[3] - e3
+                a4 = Ep[4] - e4
+                dev_acc += math.sqrt((a0 - tr) ** 2 + (a1 - tr) ** 2 + (a2 - tr) ** 2 + a3 * a3 + a4 * a4)
+            if code == STATUS_OK:
+                break
         status[ip] = code
         if code != STATUS_OK:
             for a in range(k):
@@ -516,6 +479,21 @@ def update_batch(grad, dt, state_old, params, flux, tangent, state_new, status):
             for i in range(state_new.shape[1]):
                 state_new[ip, i] = state_old[ip, i]
             continue
+        for i in range(7):
+            state_new[ip, S_EPS_P + i] = Ep[i]
+            state_new[ip, S_STRAIN + i] = E[i]
+        state_new[ip, S_BETA] = p[0]
+        state_new[ip, S_DELTA] = p[1] * su
+        state_new[ip, S_EPSILON] = p[2] * su
+        state_new[ip, S_GAMMA] = p[3]
+        state_new[ip, S_LAMBDA] = dlam_sum / dt if dt > 0.0 else 0.0
+        state_new[ip, S_SIG33] = S[2] * su
+        state_new[ip, S_F] = F * su
+        state_new[ip, S_EPS_P_DEV] = state_old[ip, S_EPS_P_DEV] + dev_acc
+        state_new[ip, S_SUBSTEPS] = nsub
+        state_new[ip, S_ITERATIONS] = total_it
+        for i in range(S_ITERATIONS + 1, nstate):
+            state_new[ip, i] = state_old[ip, i]
         for a in range(k):
             flux[ip, a] = S[idx[a]] * su
             for b in range(k):

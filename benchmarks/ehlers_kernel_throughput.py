@@ -16,13 +16,21 @@ best of --repeat runs is the least disturbed one.
 and checks the Numba cache: the first call in two fresh processes is timed, and the
 dispatcher statistics must show cache hits and no cache misses (no recompilation).
 
-    python3 benchmarks/ehlers_kernel_throughput.py [--points 20000] [--repeat 5]
+    python3 benchmarks/ehlers_kernel_throughput.py [--points 20000] [--repeat 5] [--baseline REV]
+
+--baseline REV also times the kernel of git revision REV (extracted to a temporary directory)
+on the same inputs, alternating old and new runs, and prints the CPU-time ratio new/old per
+regime (best of --repeat each) and the largest relative difference of flux, tangent and state.
+On a shared machine this ratio is more reliable than absolute figures.
 """
 import argparse
 import json
 import os
+import importlib
+import shutil
 import subprocess
 import sys
+import tempfile
 import time
 
 import numpy as np
@@ -108,12 +116,58 @@ def measure(material, g, st, repeat):
     return n / min(wall), n / np.median(wall), n / min(cpu), plastic, iters
 
 
+def load_baseline(rev):
+    """update_batch of the Ehlers kernel at git revision rev, as a separate top-level package."""
+    tmp = tempfile.mkdtemp(prefix="ehlers_baseline_")
+    arch = subprocess.run(["git", "-C", ROOT, "archive", rev, "cosserat_fenicsx/materials/ehlers"],
+                          capture_output=True, check=True).stdout
+    subprocess.run(["tar", "-x", "-C", tmp], input=arch, check=True)
+    pkg = os.path.join(tmp, "ehlers_baseline")
+    shutil.move(os.path.join(tmp, "cosserat_fenicsx", "materials", "ehlers"), pkg)
+    for name in ("__init__.py", "material.py", "material_point.py"):
+        os.remove(os.path.join(pkg, name))
+    open(os.path.join(pkg, "__init__.py"), "w").close()
+    err = os.path.join(pkg, "errors.py")
+    src = open(err).read().replace("from ...constitutive import ConstitutiveError",
+                                   "class ConstitutiveError(RuntimeError):\n    pass")
+    open(err, "w").write(src)
+    sys.path.insert(0, tmp)
+    return importlib.import_module("ehlers_baseline.local_solver").update_batch
+
+
+def compare(old_kernel, params, g, st, repeat):
+    """CPU-time throughput of the baseline and the current kernel, runs alternated; max rel. diff."""
+    from cosserat_fenicsx.materials.ehlers.local_solver import update_batch
+    n = g.shape[0]
+    out = {}
+    for lab, fn in (("old", old_kernel), ("new", update_batch)):
+        f, t, s, c = np.zeros((n, 6)), np.zeros((n, 6, 6)), np.zeros_like(st), np.zeros(n, np.int32)
+        fn(g, 1.0, st, params, f, t, s, c)  # warm-up
+        out[lab] = (fn, f, t, s, c)
+    best = {"old": np.inf, "new": np.inf}
+    for r in range(repeat):
+        for lab in (("old", "new") if r % 2 == 0 else ("new", "old")):
+            fn, f, t, s, c = out[lab]
+            c0 = time.process_time()
+            fn(g, 1.0, st, params, f, t, s, c)
+            best[lab] = min(best[lab], time.process_time() - c0)
+    diff = 0.0
+    for a, b in zip(out["old"][1:4], out["new"][1:4]):
+        a, b = a.reshape(n, -1), b.reshape(n, -1)
+        sc = np.maximum(np.maximum(np.abs(a).max(1), np.abs(b).max(1)), 1e-300)
+        diff = max(diff, float((np.abs(a - b).max(1) / sc).max()))
+    same = bool(np.array_equal(out["old"][4], out["new"][4]))
+    return n / best["old"], n / best["new"], diff, same
+
+
 def main(argv=None):
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--points", type=int, default=20000)
     ap.add_argument("--repeat", type=int, default=5)
     ap.add_argument("--json", default=None, help="also write the figures to this JSON file")
+    ap.add_argument("--baseline", default=None, help="git revision whose kernel is timed alongside")
     args = ap.parse_args(argv)
+    old_kernel = load_baseline(args.baseline) if args.baseline else None
     from cosserat_fenicsx.materials.ehlers import EhlersMaterial
     mat = EhlersMaterial.hostun()
     rng = np.random.default_rng(0)
@@ -127,6 +181,12 @@ def main(argv=None):
         rows[kind] = dict(wall_best_updates_per_s=best, wall_median_updates_per_s=med,
                           cpu_updates_per_s=cpu, plastic_fraction=plastic, mean_local_iterations=iters)
         print(f"{kind:10s} {best:12.3e} {med:12.3e} {cpu:12.3e} {plastic:8.2f} {iters:9.2f}")
+        if old_kernel is not None:
+            cpu_old, cpu_new, diff, same = compare(old_kernel, mat.params_array, g, st, args.repeat)
+            rows[kind].update(baseline_cpu_updates_per_s=cpu_old, alternated_cpu_updates_per_s=cpu_new,
+                              max_relative_difference=diff, same_status=same)
+            print(f"{'':10s} vs {args.baseline}: CPU-time old {cpu_old:.3e}, new {cpu_new:.3e} upd/s/core, "
+                  f"new/old {cpu_new / cpu_old:.3f}, max rel. difference {diff:.1e}, same status {same}")
     print(f"load average during the run: {os.getloadavg()[0]:.2f} on {os.cpu_count()} cores")
     print("\nfirst call in a fresh process (import / first update; numba cache hits, misses):")
     fresh = []

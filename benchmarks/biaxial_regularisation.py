@@ -32,13 +32,14 @@ from cosserat_fenicsx.scenes.biaxial import BiaxialSettings, BiaxialTest
 from cosserat_fenicsx.stepping import LoadSteppingError
 
 COLUMNS = ["model", "l_c", "cell_size", "peak_vertical_stress", "axial_strain_at_peak", "final_vertical_stress",
-           "band_thickness", "band_inclination_deg", "band_rms", "completed", "steps", "wall_time"]
+           "plastic_fraction_final", "band_thickness", "band_inclination_deg", "band_rms", "completed", "steps", "wall_time"]
 
 
 def run_case(comm, args, micropolar, l_c, h):
     s = BiaxialSettings(width=args.width, height=args.height, cell_size=h, micropolar=micropolar,
                         axial_strain=args.axial_strain, steps=args.steps, weak_size=args.weak_size,
                         weak_beta_factor=args.weak_factor,
+                        eta=args.eta,
                         material=dict(l_c=l_c, k_sigma=args.k_sigma, k_mu=args.k_mu) if micropolar else {})
     start = time.perf_counter()
     test = BiaxialTest(comm, s, verbose=False)
@@ -58,14 +59,15 @@ def run_case(comm, args, micropolar, l_c, h):
         band = None
     return {"model": "micropolar" if micropolar else "classical", "l_c": l_c if micropolar else 0.0,
             "cell_size": h, "peak_vertical_stress": stress[i], "axial_strain_at_peak": rows[i]["axial_strain"],
-            "final_vertical_stress": stress[-1], "band_thickness": band.thickness if band else np.nan,
+            "final_vertical_stress": stress[-1],
+            "plastic_fraction_final": rows[-1]["plastic_fraction"], "band_thickness": band.thickness if band else np.nan,
             "band_inclination_deg": band.inclination_deg if band else np.nan,
             "band_rms": band.rms_residual if band else np.nan, "completed": completed, "steps": len(rows),
             "wall_time": time.perf_counter() - start,
             "curve": [[r["axial_strain"], r["vertical_stress"]] for r in rows]}
 
 
-def plot(results, out):
+def plot(results, out, mesh_l_c):
     import matplotlib
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
@@ -77,7 +79,7 @@ def plot(results, out):
         ax[0].plot(-c[:, 0] * 100, -c[:, 1] / 1e3, style, label=label)
     ax[0].set_xlabel("axial strain [%]"); ax[0].set_ylabel("vertical stress [kPa]"); ax[0].legend(fontsize=6)
     for model, marker in (("micropolar", "o-"), ("classical", "s--")):
-        rs = sorted([r for r in results if r["model"] == model and (model == "classical" or r["l_c"] == 3e-3)],
+        rs = sorted([r for r in results if r["model"] == model and (model == "classical" or r["l_c"] == mesh_l_c)],
                     key=lambda r: r["cell_size"])
         if rs:
             ax[1].plot([r["cell_size"] * 1e3 for r in rs], [r["band_thickness"] * 1e3 for r in rs], marker, label=model)
@@ -96,26 +98,38 @@ def plot(results, out):
 def main():
     p = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("--out", default="results/regularisation")
-    p.add_argument("--cell-sizes", type=float, nargs="+", default=[2.5e-3, 1.67e-3, 1.25e-3])
-    p.add_argument("--l-c", type=float, nargs="+", default=[2e-3, 3e-3, 4.5e-3],
-                   help="internal lengths of the l_c sweep, on the finest mesh (3 mm is also the mesh sweep)")
+    p.add_argument("--parts", nargs="+", choices=["mesh", "classical", "l_c"], default=["mesh", "classical", "l_c"],
+                   help="mesh: micropolar at --mesh-l-c on every cell size; classical: the Cauchy model on every "
+                        "cell size; l_c: micropolar at every --l-c on --l-c-cell-size")
+    p.add_argument("--cell-sizes", type=float, nargs="+", default=[2.5e-3, 1.25e-3, 0.625e-3])
+    p.add_argument("--mesh-l-c", type=float, default=0.2e-3, help="l_c of the mesh sweep [m] (default 0.2 mm)")
+    p.add_argument("--l-c", type=float, nargs="+", default=[0.75e-3, 0.3e-3, 0.1e-3],
+                   help="internal lengths of the l_c sweep [m]")
+    p.add_argument("--l-c-cell-size", type=float, default=None,
+                   help="cell size of the l_c sweep [m] (default: the smallest of --cell-sizes)")
     p.add_argument("--width", type=float, default=0.025)
     p.add_argument("--height", type=float, default=0.05)
     p.add_argument("--weak-size", type=float, default=5e-3)
-    p.add_argument("--weak-factor", type=float, default=0.9,
-                   help="beta0, beta* of the weakened square relative to the rest (default 0.9; the demo uses 0.8)")
-    p.add_argument("--axial-strain", type=float, default=0.065)
-    p.add_argument("--steps", type=int, default=65)
-    p.add_argument("--skip-classical", action="store_true")
-    p.add_argument("--k-sigma", type=float, default=10.0, help="skew-stress weight in F, G (default 10)")
+    p.add_argument("--weak-factor", type=float, default=0.8,
+                   help="beta0, beta* of the weakened square relative to the rest (default 0.8, as the demo)")
+    p.add_argument("--axial-strain", type=float, default=0.08)
+    p.add_argument("--steps", type=int, default=80)
+    p.add_argument("--eta", type=float, default=0.1, help="Perzyna time [s] (default 0.1, as the demo)")
+    p.add_argument("--k-sigma", type=float, default=0.0,
+                   help="skew-stress weight in F, G (default 0: the regularising choice, docs/biaxial.md; "
+                        "the spec's reference set is 10)")
     p.add_argument("--k-mu", type=float, default=0.0, help="couple-stress weight in F, G [1/m^2] (default 0)")
     args = p.parse_args()
     comm = MPI.COMM_WORLD
     os.makedirs(args.out, exist_ok=True)
-    cases = [(True, 3e-3, h) for h in args.cell_sizes]
-    if not args.skip_classical:
+    cases = []
+    if "mesh" in args.parts:
+        cases += [(True, args.mesh_l_c, h) for h in args.cell_sizes]
+    if "classical" in args.parts:
         cases += [(False, 0.0, h) for h in args.cell_sizes]
-    cases += [(True, l_c, min(args.cell_sizes)) for l_c in args.l_c if l_c != 3e-3]
+    if "l_c" in args.parts:
+        h_l_c = args.l_c_cell_size or min(args.cell_sizes)
+        cases += [(True, l_c, h_l_c) for l_c in args.l_c if (True, l_c, h_l_c) not in cases]
     results = []
     path = os.path.join(args.out, "regularisation.csv")
     if comm.rank == 0:
@@ -129,8 +143,8 @@ def main():
                 csv.writer(f).writerow([r[c] for c in COLUMNS])
             print(" ".join(f"{c}={r[c]:.4g}" if isinstance(r[c], float) else f"{c}={r[c]}" for c in COLUMNS), flush=True)
             with open(os.path.join(args.out, "regularisation.json"), "w") as f:
-                json.dump(results, f, indent=1, default=float)
-            plot(results, args.out)
+                json.dump({"settings": vars(args), "runs": results}, f, indent=1, default=float)
+            plot(results, args.out, args.mesh_l_c)
 
 
 if __name__ == "__main__":

@@ -76,7 +76,7 @@ def plot(results, out):
     styles = {"k_sigma_0": "-", "k_sigma_10": ":", "classical": "--"}
     for r in results:
         c, p = np.array(r["curve"]), np.array(r["profile"])
-        label = f"{r['model']} h={r['cell_size'] * 1e3:.3g} mm"
+        label = f"{r['model']} l_c={r['l_c'] * 1e3:g} eta={r['eta']:g} s h={r['cell_size'] * 1e3:.3g} mm"
         ax[0].plot(c[:, 0] * 100, c[:, 1] / 1e3, styles[r["model"]], label=label)
         ax[1].plot(p[:, 1], p[:, 0] * 1e3, styles[r["model"]], label=label)
     ax[0].set_xlabel("shear U/L [%]"); ax[0].set_ylabel("shear stress tau [kPa]"); ax[0].legend(fontsize=6)
@@ -116,7 +116,12 @@ def main():
     p.add_argument("--eta-sweep", type=float, nargs="*", default=[0.01],
                    help="further eta [s] for k_sigma = 0 and classical on --sweep-cell-size")
     p.add_argument("--sweep-cell-size", type=float, default=2.5e-5)
+    p.add_argument("--replot", action="store_true", help="redraw the figure from --out/softening_layer.json")
     args = p.parse_args()
+    if args.replot:
+        with open(os.path.join(args.out, "softening_layer.json")) as f:
+            plot(json.load(f)["runs"], args.out)
+        return
     os.makedirs(args.out, exist_ok=True)
     path = os.path.join(args.out, "softening_layer.csv")
     with open(path, "w", newline="") as f:

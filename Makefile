@@ -53,6 +53,7 @@ benchmark: deps
 	$(PYTHON) benchmarks/dem_speed.py --out $(OUT)/benchmarks/dem_speed
 	$(PYTHON) benchmarks/dem_tangent.py --out $(OUT)/benchmarks/dem_tangent
 	$(PYTHON) benchmarks/dem_relaxation.py --out $(OUT)/benchmarks/dem_relaxation
+	$(PYTHON) benchmarks/softening_layer.py --out $(OUT)/benchmarks/softening_layer
 	$(PYTHON) benchmarks/biaxial_regularisation.py --out $(OUT)/benchmarks/biaxial_regularisation
 	$(PYTHON) benchmarks/biaxial_convergence.py --out $(OUT)/benchmarks/biaxial_convergence
 	$(PYTHON) benchmarks/biaxial_profile.py --out $(OUT)/benchmarks/biaxial_profile

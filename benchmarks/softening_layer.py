@@ -33,16 +33,19 @@ from cosserat_fenicsx.scenes.softening_layer import LayerError, LayerSettings, S
 
 MODELS = {"k_sigma_0": dict(micropolar=True, k_sigma=0.0),
           "k_sigma_10": dict(micropolar=True, k_sigma=10.0),
-          "classical": dict(micropolar=False)}
-COLUMNS = ["model", "l_c", "eta", "cell_size", "h_over_l_c", "peak_tau", "shear_at_peak", "final_tau", "final_shear",
+          "classical": dict(micropolar=False),
+          "micropolar": dict(micropolar=True)}    # k_sigma, k_mu given per run (sweeps)
+COLUMNS = ["model", "l_c", "eta", "k_sigma", "k_mu", "cell_size", "h_over_l_c", "peak_tau", "shear_at_peak", "final_tau", "final_shear",
            "band_thickness", "band_amplitude", "plastic_fraction_final", "completed", "steps", "wall_time"]
 
 
-def run_case(args, model, h, l_c=None, eta=None):
+def run_case(args, model, h, l_c=None, eta=None, k_sigma=None, k_mu=None):
     m = MODELS[model]
     l_c = args.l_c if l_c is None else l_c
     eta = args.eta if eta is None else eta
-    material = dict(l_c=l_c, k_sigma=m["k_sigma"], k_mu=args.k_mu) if m["micropolar"] else {}
+    k_sigma = m.get("k_sigma", 0.0) if k_sigma is None else k_sigma
+    k_mu = args.k_mu if k_mu is None else k_mu
+    material = dict(l_c=l_c, k_sigma=k_sigma, k_mu=k_mu) if m["micropolar"] else {}
     s = LayerSettings(height=args.height, cell_size=h, shear=args.shear, steps=args.steps,
                       micropolar=m["micropolar"], weak_size=args.weak_size,
                       weak_beta_factor=args.weak_factor, eta=eta, material=material)
@@ -59,7 +62,9 @@ def run_case(args, model, h, l_c=None, eta=None):
     i = int(np.argmax(tau))
     band = layer.band()
     lam = layer.state[:, layer.materials[0].state_index["Lambda"]] > 0
-    return {"model": model, "l_c": l_c if m["micropolar"] else 0.0, "eta": eta, "cell_size": h,
+    return {"model": model, "l_c": l_c if m["micropolar"] else 0.0, "eta": eta,
+            "k_sigma": k_sigma if m["micropolar"] else 0.0, "k_mu": k_mu if m["micropolar"] else 0.0,
+            "cell_size": h,
             "h_over_l_c": h / l_c, "peak_tau": tau[i], "shear_at_peak": shear[i], "final_tau": tau[-1], "final_shear": shear[-1],
             "band_thickness": band.thickness, "band_amplitude": band.amplitude,
             "plastic_fraction_final": float(lam.mean()), "completed": completed, "steps": len(tau),
@@ -73,8 +78,10 @@ def plot(results, out):
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
     fig, ax = plt.subplots(1, 4, figsize=(20, 4.5))
-    styles = {"k_sigma_0": "-", "k_sigma_10": ":", "classical": "--"}
+    styles = {"k_sigma_0": "-", "k_sigma_10": ":", "classical": "--", "micropolar": "-."}
     for r in results:
+        if r["model"] == "micropolar":
+            continue     # the k_sigma / k_mu sweeps: table only
         c, p = np.array(r["curve"]), np.array(r["profile"])
         label = f"{r['model']} l_c={r['l_c'] * 1e3:g} eta={r['eta']:g} s h={r['cell_size'] * 1e3:.3g} mm"
         ax[0].plot(c[:, 0] * 100, c[:, 1] / 1e3, styles[r["model"]], label=label)
@@ -116,6 +123,11 @@ def main():
     p.add_argument("--eta-sweep", type=float, nargs="*", default=[0.01],
                    help="further eta [s] for k_sigma = 0 and classical on --sweep-cell-size")
     p.add_argument("--sweep-cell-size", type=float, default=2.5e-5)
+    p.add_argument("--k-sigma-sweep", type=float, nargs="*", default=[0.1, 1.0, 2.0, 3.0],
+                   help="further k_sigma, each on --k-sweep-cell-sizes (where the regularisation stops)")
+    p.add_argument("--k-mu-sweep", type=float, nargs="*", default=[5e7],
+                   help="further k_mu [1/m^2] with k_sigma = 0, each on --k-sweep-cell-sizes (plastic curvature)")
+    p.add_argument("--k-sweep-cell-sizes", type=float, nargs="*", default=[2e-4, 1e-4, 5e-5])
     p.add_argument("--replot", action="store_true", help="redraw the figure from --out/softening_layer.json")
     args = p.parse_args()
     if args.replot:
@@ -126,13 +138,15 @@ def main():
     path = os.path.join(args.out, "softening_layer.csv")
     with open(path, "w", newline="") as f:
         csv.writer(f).writerow(COLUMNS)
-    cases = [(model, h, None, None) for model in args.models for h in args.cell_sizes]
-    cases += [("k_sigma_0", args.sweep_cell_size, l_c, None) for l_c in args.l_c_sweep]
-    cases += [(model, args.sweep_cell_size, None, eta) for eta in args.eta_sweep
+    cases = [dict(model=model, h=h) for model in args.models for h in args.cell_sizes]
+    cases += [dict(model="k_sigma_0", h=args.sweep_cell_size, l_c=l_c) for l_c in args.l_c_sweep]
+    cases += [dict(model=model, h=args.sweep_cell_size, eta=eta) for eta in args.eta_sweep
               for model in ("k_sigma_0", "classical")]
+    cases += [dict(model="micropolar", h=h, k_sigma=k) for k in args.k_sigma_sweep for h in args.k_sweep_cell_sizes]
+    cases += [dict(model="micropolar", h=h, k_mu=k) for k in args.k_mu_sweep for h in args.k_sweep_cell_sizes]
     results = []
-    for model, h, l_c, eta in cases:
-        r = run_case(args, model, h, l_c, eta)
+    for case in cases:
+        r = run_case(args, **case)
         results.append(r)
         with open(path, "a", newline="") as f:
             csv.writer(f).writerow([r[c] for c in COLUMNS])

@@ -108,7 +108,8 @@ def plot(results, out):
 def main():
     p = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("--out", default="results/softening_layer")
-    p.add_argument("--models", nargs="+", choices=list(MODELS), default=list(MODELS))
+    p.add_argument("--models", nargs="+", choices=["k_sigma_0", "k_sigma_10", "classical"],
+                   default=["k_sigma_0", "k_sigma_10", "classical"])
     p.add_argument("--cell-sizes", type=float, nargs="+", default=[4e-4, 2e-4, 1e-4, 5e-5])
     p.add_argument("--l-c", type=float, default=1e-4, help="internal length [m] (default 0.1 mm)")
     p.add_argument("--k-mu", type=float, default=0.0)

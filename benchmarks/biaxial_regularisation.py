@@ -39,7 +39,7 @@ def run_case(comm, args, micropolar, l_c, h):
     s = BiaxialSettings(width=args.width, height=args.height, cell_size=h, micropolar=micropolar,
                         axial_strain=args.axial_strain, steps=args.steps, weak_size=args.weak_size,
                         weak_beta_factor=args.weak_factor,
-                        eta=args.eta,
+                        eta=args.eta, step_time=getattr(args, "step_time", 1.0),
                         material=dict(l_c=l_c, k_sigma=args.k_sigma, k_mu=args.k_mu) if micropolar else {})
     start = time.perf_counter()
     test = BiaxialTest(comm, s, verbose=False)

@@ -28,9 +28,11 @@ is the [REC] model of spec 7.2):
   beta* multiplied by `weak_beta_factor` (less friction: it yields first and triggers the
   band, "a specific position, which is weakened for the simulation", section 6.2.1).
 
-Time and viscosity. One nominal load step is one second of physical time (dt = 1 s,
-cut-backs halve it). The Perzyna time (2.81) of this scene is eta = 0.1 s, not the 1e-4 s
-of the material-point driver: with 1e-4 s the band forms by a snap (the platen force drops
+Time and viscosity. One nominal load step is `step_time` of physical time (default 1 s,
+cut-backs halve it); only the Perzyna law (2.81) sees physical time, so the scene gives the
+material eta / step_time and the solver works in nominal steps. A study of the time step
+at a fixed loading rate keeps steps x step_time constant. The Perzyna time (2.81) of this
+scene is eta = 0.1 s, not the 1e-4 s of the material-point driver: with 1e-4 s the band forms by a snap (the platen force drops
 by several per cent within a platen displacement of 1e-5 H) that displacement control
 cannot follow, and the global Newton stalls at dt -> 0 (measured; docs/biaxial.md). With
 0.1 s the overstress sigma_ref eta Lambda stays about 1-2 % of the stress in the band and
@@ -71,12 +73,13 @@ class BiaxialSettings:
     weak_size: float = 5.0e-3         # side of the weakened square [m] (0: none)
     weak_beta_factor: float = 0.8     # beta0, beta* of the weakened zone relative to the rest
     eta: float = 0.1                  # Perzyna time [s] (2.81), see the module docstring
+    step_time: float = 1.0            # physical time of one nominal step [s]
     material: dict = field(default_factory=dict)   # further EhlersMaterial keyword overrides
     solver_options: dict = field(default_factory=dict)
     dt_min_fraction: float = 2.0 ** -10   # smallest step after cut-backs, in nominal steps
 
     def check(self):
-        for name in ("width", "height", "confining", "cell_size"):
+        for name in ("width", "height", "confining", "cell_size", "step_time"):
             if not getattr(self, name) > 0:
                 raise ValueError(f"biaxial: {name} must be positive, got {getattr(self, name)!r}")
         if not 0 < self.axial_strain < 0.5:
@@ -195,7 +198,7 @@ class BiaxialTest:
         self.verbose = verbose
         overrides = dict(s.material)
         overrides.setdefault("micropolar", s.micropolar)
-        overrides.setdefault("eta", s.eta)
+        overrides["eta"] = overrides.get("eta", s.eta) / s.step_time   # material time = nominal steps
         self.material = EhlersMaterial.hostun(**overrides)
         p = self.material.parameters
         materials = [self.material]

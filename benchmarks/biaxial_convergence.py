@@ -31,7 +31,7 @@ sys.path.insert(0, os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
 import numpy as np
 from mpi4py import MPI
 
-from benchmarks.biaxial_regularisation import run_case
+from benchmarks.biaxial_regularisation import add_specimen_arguments, run_case
 
 COLUMNS = ["cell_size", "steps", "peak_vertical_stress", "band_thickness", "band_inclination_deg",
            "completed", "wall_time", "error_peak", "error_thickness"]
@@ -42,18 +42,11 @@ def main():
     p.add_argument("--out", default="results/convergence")
     p.add_argument("--cell-sizes", type=float, nargs="+", default=[3.33e-3, 2.5e-3, 1.67e-3])
     p.add_argument("--step-counts", type=int, nargs="+", default=[40, 80, 160])
-    p.add_argument("--width", type=float, default=0.025)
-    p.add_argument("--height", type=float, default=0.05)
-    p.add_argument("--weak-size", type=float, default=5e-3)
-    p.add_argument("--weak-factor", type=float, default=0.8)
-    p.add_argument("--axial-strain", type=float, default=0.08)
-    p.add_argument("--eta", type=float, default=0.1, help="Perzyna time [s]")
+    add_specimen_arguments(p)
     p.add_argument("--loading-time", type=float, default=80.0,
                    help="physical duration of the compression [s], the same for every step count, so that "
                         "the steps change the time discretisation and not the loading rate (default 80 s)")
     p.add_argument("--l-c", type=float, default=0.2e-3, help="internal length [m]")
-    p.add_argument("--k-sigma", type=float, default=0.0)
-    p.add_argument("--k-mu", type=float, default=0.0)
     args = p.parse_args()
     comm = MPI.COMM_WORLD
     os.makedirs(args.out, exist_ok=True)

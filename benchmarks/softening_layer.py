@@ -29,7 +29,8 @@ sys.path.insert(0, os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
 
 import numpy as np
 
-from cosserat_fenicsx.scenes.softening_layer import LayerError, LayerSettings, SofteningLayer
+from cosserat_fenicsx.scenes.softening_layer import LayerSettings, SofteningLayer
+from cosserat_fenicsx.stepping import LoadSteppingError
 
 MODELS = {"k_sigma_0": dict(micropolar=True, k_sigma=0.0),
           "k_sigma_10": dict(micropolar=True, k_sigma=10.0),
@@ -54,7 +55,7 @@ def run_case(args, model, h, l_c=None, eta=None, k_sigma=None, k_mu=None):
     completed = True
     try:
         layer.run()
-    except LayerError as error:
+    except LoadSteppingError as error:
         completed = False
         print(f"  stopped: {error}", flush=True)
     tau = np.array([r["tau"] for r in layer.history])

@@ -32,17 +32,16 @@ import numpy as np
 import scipy.sparse as sp
 import scipy.sparse.linalg as spla
 
+from types import SimpleNamespace
+
 from ..constitutive import ConstitutiveError
 from ..materials.ehlers import EhlersMaterial
 from ..shear_band import fit_band
+from ..stepping import LoadStepper
 
 # 3-point Gauss-Legendre on [-1, 1]: exact for the P2 x P2 stiffness (and as the 2D forms)
 _XI = np.array([-math.sqrt(0.6), 0.0, math.sqrt(0.6)])
 _W = np.array([5.0, 8.0, 5.0]) / 9.0
-
-
-class LayerError(RuntimeError):
-    """The load stepping of the layer could not continue (the message names the cause)."""
 
 
 @dataclass
@@ -128,7 +127,6 @@ class SofteningLayer:
             self.materials.append(EhlersMaterial.hostun(**dict(base, beta0=p.beta0 * factor,
                                                                beta_star=p.beta_star * factor)))
             self.zones.append(idx)
-        self.beta_factor = weak
         npts = self.y.size
         self.state = np.empty((npts, EhlersMaterial.state_size))
         for m, idx in zip(self.materials, self.zones):
@@ -138,6 +136,8 @@ class SofteningLayer:
         self.tangent = np.zeros((npts, 6, 6))
         self.state_new = self.state.copy()
         self._last_increment = None
+        self._trial = None          # converged x of the current step, until commit
+        self._t, self._U, self._dt, self._its = 0.0, 0.0, 1.0, 0
         self.history = []
 
     # --------------------------------------------------------------------------------
@@ -204,29 +204,39 @@ class SofteningLayer:
             x[self.free] -= spla.spsolve(Kff, r[self.free])
         raise ConstitutiveError(f"Newton did not converge in {self.s.max_iterations} iterations")
 
+    # the interface LoadStepper drives (stepping.py): time = nominal steps of the shear
+    def set_time(self, t):
+        self._t = t
+        self._U = self.s.shear * self.s.height * t / self.s.steps
+
+    def set_time_step(self, dt):
+        self._dt = dt
+
+    def solve(self):
+        """One step to the current U with Newton; the record LoadStepper reads."""
+        try:
+            self._trial, self._its = self.solve_step(self._U, self._dt)
+        except ConstitutiveError as error:
+            return SimpleNamespace(converged=False, failure=str(error), reason=None, iterations=0, residual=np.nan)
+        return SimpleNamespace(converged=True, failure=None, reason=None, iterations=self._its, residual=0.0)
+
+    def rollback(self):
+        self._trial = None          # x, state are only replaced at commit
+
+    def commit(self, dt):
+        x = self._trial
+        self._last_increment = x - self.x
+        self.x = x
+        self.state, self.state_new = self.state_new.copy(), self.state_new
+        self.history.append({"time": self._t, "shear": x[self.top_u1] / self.s.height, "tau": self.tau(),
+                             "iterations": self._its})
+
     def run(self):
-        """Shear to U_end = shear * L; returns the history rows. Cuts the step on a failed
-        point update or Newton; raises LayerError when the step falls below min_step."""
-        s = self.s
-        U_end = s.shear * s.height
-        t, dt = 0.0, 1.0
-        while t < s.steps - 1e-12:
-            dt = min(dt, s.steps - t)
-            try:
-                x, its = self.solve_step(U_end * (t + dt) / s.steps, dt)
-            except ConstitutiveError as error:
-                dt *= 0.5
-                if dt < s.min_step:
-                    raise LayerError(f"softening layer: step cut below {s.min_step} at shear "
-                                     f"{U_end * t / s.steps / s.height:.4g}: {error}") from error
-                continue
-            self._last_increment = x - self.x
-            self.x, t = x, t + dt
-            self.state, self.state_new = self.state_new.copy(), self.state_new
-            self.history.append({"time": t, "shear": x[self.top_u1] / s.height, "tau": self.tau(),
-                                 "iterations": its})
-            if its <= 6:
-                dt = min(1.0, 1.5 * dt)
+        """Shear to U_end = shear * L with the project's LoadStepper (cut-back on a failed point
+        update or Newton, growth after <= 6 iterations); returns the history rows. Raises
+        LoadSteppingError naming the cause when the step falls below min_step."""
+        LoadStepper(self, self, t_end=self.s.steps, dt=1.0, dt_min=self.s.min_step, dt_max=1.0,
+                    easy_iterations=6, verbose=False).run()
         return self.history
 
     def strain_norm(self):

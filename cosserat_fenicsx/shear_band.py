@@ -40,6 +40,13 @@ class BandFit:
         return asdict(self)
 
 
+def strain_norm(gradients):
+    """e = |eps| of the total (non-symmetric) strain, the quantity fitted in section 4.4, from
+    the callback gradients [eps11, eps22, eps12, eps21, kappa31, kappa32] (n, 6) [-]."""
+    g = np.asarray(gradients)
+    return np.sqrt(np.sum(g[:, :4] ** 2, axis=1))
+
+
 def bell(points, r):
     """e(x; r) of eq 4.22 at points (n, 2) given as (x, y) = (x2, x1)."""
     e0, A, H, x10, alpha = r

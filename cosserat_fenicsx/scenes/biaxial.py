@@ -51,7 +51,7 @@ from .. import compat, meshes
 from ..constitutive import Constitutive
 from ..output import print0
 from ..problem import CosseratProblem
-from ..shear_band import fit_band
+from ..shear_band import fit_band, strain_norm
 from ..snes import NewtonSolver
 from ..stepping import LoadStepper
 
@@ -267,7 +267,7 @@ class BiaxialTest:
     def strain_norm(self):
         """|eps| of the total (non-symmetric) strain at every owned Gauss point (section 4.4)."""
         g = self.callback.evaluate_gradients()
-        return np.sqrt(np.sum(g[:, :4] ** 2, axis=1))
+        return strain_norm(g)
 
     def band(self):
         """Gaussian fit of eq 4.22 to the strain norm of all Gauss points (every rank gets it)."""

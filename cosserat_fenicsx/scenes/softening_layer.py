@@ -36,7 +36,7 @@ from types import SimpleNamespace
 
 from ..constitutive import ConstitutiveError
 from ..materials.ehlers import EhlersMaterial
-from ..shear_band import fit_band
+from ..shear_band import fit_band, strain_norm
 from ..stepping import LoadStepper
 
 # 3-point Gauss-Legendre on [-1, 1]: exact for the P2 x P2 stiffness (and as the 2D forms)
@@ -242,7 +242,7 @@ class SofteningLayer:
     def strain_norm(self):
         """|eps| of the total non-symmetric strain at the Gauss points (section 4.4)."""
         g = self.gradients(self.x)
-        return np.sqrt(np.sum(g[:, :4] ** 2, axis=1))
+        return strain_norm(g)
 
     def band(self):
         """Section 4.4 fit to the final strain norm. The layer is a band parallel to x, so the

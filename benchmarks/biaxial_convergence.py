@@ -62,8 +62,7 @@ def main():
             csv.writer(f).writerow(COLUMNS)
     for h, n in cases:
         args.steps = n
-        args.step_time = args.loading_time / n
-        r = run_case(comm, args, True, args.l_c, h)
+        r = run_case(comm, args, True, args.l_c, h, step_time=args.loading_time / n)
         r["steps"] = n
         ref = ref or r
         r["error_peak"] = abs(r["peak_vertical_stress"] - ref["peak_vertical_stress"]) / abs(ref["peak_vertical_stress"])

@@ -35,11 +35,11 @@ COLUMNS = ["model", "l_c", "cell_size", "peak_vertical_stress", "axial_strain_at
            "plastic_fraction_final", "band_thickness", "band_inclination_deg", "band_rms", "completed", "steps", "wall_time"]
 
 
-def run_case(comm, args, micropolar, l_c, h):
+def run_case(comm, args, micropolar, l_c, h, step_time=1.0):
     s = BiaxialSettings(width=args.width, height=args.height, cell_size=h, micropolar=micropolar,
                         axial_strain=args.axial_strain, steps=args.steps, weak_size=args.weak_size,
                         weak_beta_factor=args.weak_factor,
-                        eta=args.eta, step_time=getattr(args, "step_time", 1.0),
+                        eta=args.eta, step_time=step_time,
                         material=dict(l_c=l_c, k_sigma=args.k_sigma, k_mu=args.k_mu) if micropolar else {})
     start = time.perf_counter()
     test = BiaxialTest(comm, s, verbose=False)

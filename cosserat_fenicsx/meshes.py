@@ -11,16 +11,25 @@ MESH_DIR = os.path.join(os.path.dirname(os.path.dirname(os.path.abspath(__file__
 RECTANGLE_BOUNDARIES = {"left": 1, "right": 2, "bottom": 3, "top": 4}
 
 
-def rectangle(comm, width, height, cell_size, cell_type="triangle", origin=(0.0, 0.0)):
-    """Structured rectangle [x0, x0 + width] x [y0, y0 + height]; returns
-    (mesh, facet_tags, boundaries) with boundaries left/right/bottom/top."""
-    for name, value in (("width", width), ("height", height), ("cell_size", cell_size)):
+def rectangle(comm, width, height, cell_size=None, cell_type="triangle", origin=(0.0, 0.0), divisions=None):
+    """Structured rectangle [x0, x0 + width] x [y0, y0 + height], either of squares of about
+    `cell_size` or of `divisions` = (nx, ny) rectangles (each split into two triangles for
+    cell_type 'triangle'); returns (mesh, facet_tags, boundaries) with boundaries
+    left/right/bottom/top."""
+    if (cell_size is None) == (divisions is None):
+        raise ValueError("give exactly one of cell_size and divisions")
+    for name, value in (("width", width), ("height", height)) + ((("cell_size", cell_size),) if divisions is None else ()):
         if not value > 0:
             raise ValueError(f"{name} must be positive, got {value}")
     if cell_type not in ("triangle", "quadrilateral"):
         raise ValueError(f"cell_type must be 'triangle' or 'quadrilateral', got {cell_type!r}")
-    nx = max(1, int(math.ceil(width / cell_size - 1e-9)))
-    ny = max(1, int(math.ceil(height / cell_size - 1e-9)))
+    if divisions is not None:
+        nx, ny = divisions
+        if not all(isinstance(n, (int, np.integer)) and n >= 1 for n in (nx, ny)):
+            raise ValueError(f"divisions must be two integers >= 1, got {divisions!r}")
+    else:
+        nx = max(1, int(math.ceil(width / cell_size - 1e-9)))
+        ny = max(1, int(math.ceil(height / cell_size - 1e-9)))
     x0, y0 = origin
     mesh = dolfinx.mesh.create_rectangle(
         comm, [np.array([x0, y0]), np.array([x0 + width, y0 + height])], [nx, ny],

@@ -344,6 +344,11 @@ class CosseratProblem:
         if self.callback is not None:
             self.callback.update()
 
+    def before_jacobian(self):
+        """Called by the solver before the Jacobian is assembled (material tangents)."""
+        if self.callback is not None:
+            self.callback.update_tangent()
+
     def commit(self, dt):
         self.w_committed.x.array[:] = self.w.x.array
         if self.callback is not None:

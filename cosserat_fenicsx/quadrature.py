@@ -2,22 +2,45 @@
 
 Strain and curvature are evaluated at the quadrature points of the cells this rank owns
 (dolfinx 0.5 cannot interpolate an Expression into a quadrature space, so the Expression
-is evaluated and the array written), the material updates every point, and stress,
+is evaluated and the array written), the material updates the points, and stress,
 couple stress and tangent are written into quadrature Functions that the residual and
 Jacobian forms use. The quadrature degree of these spaces is the degree of the forms'
 measure, so the forms read exactly the values the material produced.
+
+Which points are updated when (docs/callback.md):
+
+* residual: every point, or, for a `rate_independent` material, the points whose
+  gradients differ from those of their last update (bitwise);
+* Jacobian: a `tangent_on_demand` material computes the tangents of the points updated
+  since their last tangent, then the tangent Function is written (so is it before the
+  Dirichlet lifting of the first residual of a load step, which reads the tangent; at that
+  residual the points are the committed ones and the Jacobian that follows needs exactly
+  these tangents); any other material's tangent comes with its update, as before;
+* commit (load step converged): trial history -> committed, then `material.commit()`;
+  rollback (step cut): committed -> trial, `material.rollback()`, and the fluxes and the
+  "last update" gradients go back to the committed ones.
 """
+import time
+
 import dolfinx.fem
 import numpy as np
 import ufl
 
 from . import compat
-from .constitutive import ConstitutiveError
+from .constitutive import ConstitutiveError, STATUS_OK
 from .kinematics import stress_tensor, couple_stress_vector
 
 
 class GaussPointCallback:
-    """Owns the quadrature fields and the committed/trial history of one material."""
+    """Owns the quadrature fields, the committed/trial history of one material and the
+    per-point status and cost arrays.
+
+    status  (n,) int  status of the last update of each point (0 ok, > 0 flagged)
+    cost    (n,)      work spent on each point since the last commit (material's unit)
+    step_cost (n,)    the same for the last converged step (what a load balancer reads)
+    timers  wall seconds in gradient evaluation, material update, material tangent
+    counters point updates, points left out as unchanged, point tangents
+    """
 
     def __init__(self, mesh, material, gradient_ufl, degree):
         self.mesh = mesh
@@ -41,6 +64,17 @@ class GaussPointCallback:
         self.state_old = material.initial_state(n)
         self.state_new = self.state_old.copy()
         self.time_step = 0.0
+        self.status = np.zeros(n, dtype=np.int32)
+        self.cost = np.zeros(n)
+        self.step_cost = np.zeros(n)
+        self.cost_unit = ""
+        self.timers = {"gradients": 0.0, "update": 0.0, "tangent": 0.0}
+        self.counters = {"point_updates": 0, "points_unchanged": 0, "point_tangents": 0}
+        # gradients each point was last updated with (NaN: never), and their committed copy
+        self._updated_at = np.full_like(self.gradients, np.nan)
+        self._committed_at = self._updated_at.copy()
+        self._flux_committed = self.flux_values.copy()
+        self._tangent_stale = np.ones(n, dtype=bool)
 
     @property
     def n_points(self):
@@ -59,29 +93,104 @@ class GaussPointCallback:
 
     # --- the update ------------------------------------------------------------------
     def evaluate_gradients(self):
+        start = time.perf_counter()
         values = compat.eval_expression(self.expression, self.mesh, self.cells)
         self.gradients[:] = values.reshape(self.n_points, -1)
+        self.timers["gradients"] += time.perf_counter() - start
         return self.gradients
 
     def update(self):
-        """Update every owned Gauss point from the current fields. Raises
-        ConstitutiveError on this rank only; the caller makes the failure collective."""
+        """Update the Gauss points from the current fields (see the module docstring).
+        Raises ConstitutiveError on this rank only; the caller makes the failure
+        collective."""
         self.evaluate_gradients()
-        self.material.update(self.gradients, self.time_step, self.state_old,
-                             self.flux_values, self.tangent_values, self.state_new)
-        if not (np.isfinite(self.flux_values).all() and np.isfinite(self.tangent_values).all()):
-            bad = np.flatnonzero(~np.isfinite(self.flux_values).all(axis=1))
+        m = self.material
+        start = time.perf_counter()
+        if m.rate_independent:
+            points = np.flatnonzero((self.gradients != self._updated_at).any(axis=1))
+            self.counters["points_unchanged"] += self.n_points - len(points)
+            report = m.update(self.gradients, self.time_step, self.state_old, self.flux_values,
+                              self.tangent_values, self.state_new, points=points) if len(points) else None
+        else:
+            points = slice(None)
+            report = m.update(self.gradients, self.time_step, self.state_old, self.flux_values,
+                              self.tangent_values, self.state_new)
+        self.timers["update"] += time.perf_counter() - start
+        n_updated = self.n_points if isinstance(points, slice) else len(points)
+        self.counters["point_updates"] += n_updated
+        self._record(points, report)
+        flux = self.flux_values[points]
+        finite = np.isfinite(flux).all(axis=1)
+        if not m.tangent_on_demand:
+            finite &= np.isfinite(self.tangent_values[points]).reshape(n_updated, -1).all(axis=1)
+        if not finite.all():
             raise ConstitutiveError(f"material returned non-finite stress or tangent at "
-                                    f"{max(len(bad), 1)} Gauss point(s)")
-        nf = self.material.flux_size
+                                    f"{int(np.count_nonzero(~finite))} Gauss point(s)")
+        self._updated_at[points] = self.gradients[points]
+        self._tangent_stale[points] = True
+        nf = m.flux_size
         self.flux.x.array.reshape(-1, nf)[self.dofs] = self.flux_values
+        if not m.tangent_on_demand:
+            self._write_tangent()
+
+    def update_tangent(self):
+        """Before a Jacobian assembly (and before the Dirichlet lifting of the first
+        residual of a load step): a tangent_on_demand material computes the tangents of the
+        points updated since their last one and the tangent Function is written. The
+        tangent of any other material came with its update and is written already."""
+        m = self.material
+        if not m.tangent_on_demand:
+            return
+        points = np.flatnonzero(self._tangent_stale)
+        if len(points):
+            start = time.perf_counter()
+            report = m.tangent(points, self.tangent_values)
+            self.timers["tangent"] += time.perf_counter() - start
+            self.counters["point_tangents"] += len(points)
+            self._record(points, report, statuses=False)
+            if not np.isfinite(self.tangent_values[points]).all():
+                raise ConstitutiveError("material returned a non-finite tangent at "
+                                        f"{len(points)} Gauss point(s)")
+            self._tangent_stale[:] = False
+        self._write_tangent()
+
+    def _write_tangent(self):
+        nf = self.material.flux_size
         self.tangent.x.array.reshape(-1, nf * nf)[self.dofs] = self.tangent_values.reshape(-1, nf * nf)
+
+    def _record(self, points, report, statuses=True):
+        """Keep the per-point status and cost of a report; a failed point raises."""
+        if report is None:
+            if statuses:
+                self.status[points] = STATUS_OK
+            return
+        if report.cost_unit:
+            self.cost_unit = report.cost_unit
+        self.cost[points] += report.cost
+        if statuses:
+            self.status[points] = report.status
+        failed = np.flatnonzero(np.asarray(report.status) < 0)
+        if failed.size:
+            rows = np.arange(self.n_points)[points]
+            raise ConstitutiveError(report.message or f"Gauss point update failed at {failed.size} point(s) "
+                                    f"(first: local point {int(rows[failed[0]])})")
 
     def commit(self):
         self.state_old[:] = self.state_new
+        self.material.commit()
+        self._committed_at[:] = self._updated_at
+        self._flux_committed[:] = self.flux_values
+        self.step_cost[:] = self.cost
+        self.cost[:] = 0.0
 
     def rollback(self):
         self.state_new[:] = self.state_old
+        self.material.rollback()
+        self._updated_at[:] = self._committed_at
+        self.flux_values[:] = self._flux_committed
+        self._tangent_stale[:] = True
+        nf = self.material.flux_size
+        self.flux.x.array.reshape(-1, nf)[self.dofs] = self.flux_values
 
     def cell_average(self, values):
         """Quadrature-weighted average per owned cell of a (n_points, k) array."""

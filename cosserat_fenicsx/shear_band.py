@@ -152,3 +152,20 @@ def fit_band(points, values, r0=None, max_iter=200, tol=1e-10):
     return BandFit(thickness=float(r[2]), inclination_deg=math.degrees(r[4]), offset=float(r[0]),
                    amplitude=float(r[1]), x10=float(r[3]), rms_residual=math.sqrt(f / len(values)),
                    iterations=it, converged=converged)
+
+
+def fit_band_collective(comm, points, values):
+    """fit_band over the points of all ranks (each rank passes its own); rank 0 fits and
+    every rank gets the BandFit, or the same ValueError."""
+    points = np.concatenate(comm.allgather(np.asarray(points)))
+    values = np.concatenate(comm.allgather(np.asarray(values)))
+    result = None
+    if comm.rank == 0:
+        try:
+            result = fit_band(points, values)
+        except ValueError as error:
+            result = str(error)
+    result = comm.bcast(result, root=0)
+    if isinstance(result, str):
+        raise ValueError(result)
+    return result

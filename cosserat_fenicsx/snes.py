@@ -5,7 +5,17 @@ given on the command line as -snes_*, -ksp_*, -pc_*, -mat_* overrides them (see
 cli.forward_petsc_options). A Gauss-point failure (ConstitutiveError) on any rank turns
 the residual into NaN on every rank (the decision is reduced over the ranks before the
 collective assembly steps, so nobody waits forever): SNES stops with DIVERGED_FNORM_NAN
-on all ranks together and the cause is reported.
+on all ranks together and the cause is reported. A failure while the material computes its
+tangents (before the Jacobian assembly) is made collective the same way: the matrix is
+replaced by the identity and the next residual is NaN, so SNES stops at once.
+
+Stopping test. The default is PETSc's (snes_rtol, snes_atol on the residual norm). With
+`force_rtol` the test is the one FEM x DEM uses (001 section 6, Fig. 6: FNORM/RNORM):
+the norm of the residual at the free dofs over the norm of the reactions (internal forces
+at the Dirichlet dofs), checked from the first Newton update on (when the Dirichlet rows
+hold their new values). A material whose stress carries a relaxation error (a DEM cell
+relaxed to a tolerance) cannot bring the residual below that error: this test stops at
+a level the material can deliver. `SolveInfo.force_ratios` is its history.
 """
 from dataclasses import dataclass, field
 import time
@@ -42,6 +52,7 @@ class SolveInfo:
     residual_history: list = field(default_factory=list)
     failure: str = ""
     wall_time: float = 0.0
+    force_ratios: list = field(default_factory=list)
 
 
 class NewtonSolver:
@@ -49,8 +60,11 @@ class NewtonSolver:
 
     _count = 0
 
-    def __init__(self, problem, options=None, prefix="cosserat_"):
+    def __init__(self, problem, options=None, prefix="cosserat_", force_rtol=None):
+        if force_rtol is not None and not (np.isfinite(force_rtol) and force_rtol > 0):
+            raise ValueError(f"force_rtol must be a positive number, got {force_rtol!r}")
         self.problem = problem
+        self.force_rtol = force_rtol
         self.residual_form, self.jacobian_form = problem.forms()
         self.x = compat.petsc_vector(problem.w)
         self.b = dolfinx.fem.petsc.create_vector(self.residual_form)
@@ -61,7 +75,7 @@ class NewtonSolver:
         NewtonSolver._count += 1
         prefix = f"{prefix}{NewtonSolver._count}_"
         self.snes.setOptionsPrefix(prefix)
-        self._failure, self._fatal = "", False
+        self._failure, self._fatal, self._first_residual = "", False, True
         opts = PETSc.Options()
         merged = dict(DEFAULT_OPTIONS)
         merged.update(options or {})
@@ -76,49 +90,125 @@ class NewtonSolver:
         self.snes.setFunction(self._residual, self.b)
         self.snes.setJacobian(self._jacobian, self.A)
         self.snes.setFromOptions()
+        self._force_ratios = []
+        if force_rtol is not None:
+            self._bc_rows = self._owned_dirichlet_rows()
+            self.snes.setConvergenceTest(self._force_ratio_test)
+        #: wall seconds: material (Gauss-point update and tangents), residual and Jacobian
+        #: assembly, and the rest of the solves (linear solve, SNES, line search)
+        self.timers = {"material": 0.0, "residual_assembly": 0.0, "jacobian_assembly": 0.0, "solve_total": 0.0}
         self.snes.getKSP().setFromOptions()
         self.snes.setConvergenceHistory(reset=True)   # one history per solve, not cumulative
         for key in merged:
             opts.delValue(prefix + key)
 
+    def _owned_dirichlet_rows(self):
+        n_owned = self.x.getLocalSize()
+        rows = [bc.dof_indices()[0] for bc in self.problem.bcs]
+        rows = np.unique(np.concatenate(rows)) if rows else np.zeros(0, dtype=np.int32)
+        return rows[rows < n_owned]
+
+    def _force_ratio_test(self, snes, it, norms):
+        """Converged when |residual at free dofs| <= force_rtol |reactions| (after it 0)."""
+        ratio = self._force_ratios[-1] if self._force_ratios else np.nan
+        if not np.isfinite(ratio) or self._failure:
+            return PETSc.SNES.ConvergedReason.DIVERGED_FNORM_NAN
+        if it >= 1 and ratio <= self.force_rtol:
+            return PETSc.SNES.ConvergedReason.CONVERGED_FNORM_RELATIVE
+        if it >= snes.getTolerances()[3]:
+            return PETSc.SNES.ConvergedReason.DIVERGED_MAX_IT
+        return PETSc.SNES.ConvergedReason.ITERATING
+
+    def _record_force_ratio(self, b):
+        """FNORM / RNORM of the assembled residual b (before the Dirichlet rows are set)."""
+        local = b.array_r
+        reactions = float(np.sum(local[self._bc_rows] ** 2))
+        free = float(np.sum(local ** 2)) - reactions
+        comm = self.problem.mesh.comm
+        free, reactions = comm.allreduce(free), comm.allreduce(reactions)
+        self._force_ratios.append(np.sqrt(max(free, 0.0)) / np.sqrt(reactions) if reactions > 0 else np.inf)
+
     def _residual(self, snes, x, b):
+        start, material = time.perf_counter(), self.timers["material"]
+        try:
+            self._assemble_residual(x, b)
+        finally:   # the material's share is counted apart
+            self.timers["residual_assembly"] += (time.perf_counter() - start
+                                                 - (self.timers["material"] - material))
+
+    def _assemble_residual(self, x, b):
+        if self._failure:   # a collective failure in the tangents: stop SNES here
+            with b.localForm() as local:
+                local.set(np.nan)
+            self._force_ratios.append(np.nan)
+            return
         x.ghostUpdate(addv=PETSc.InsertMode.INSERT, mode=PETSc.ScatterMode.FORWARD)
         w = compat.petsc_vector(self.problem.w)
         if x.handle != w.handle:
             x.copy(w)
         self.problem.w.x.scatter_forward()
-        failure, fatal = "", 0
-        try:
-            self.problem.before_residual()
-        except ConstitutiveError as error:
-            failure = str(error)
-        except Exception as error:  # a bug on one rank must not leave the others waiting
-            failure, fatal = f"{type(error).__name__}: {error}", 1
-        # the decision must be collective: assembly below has collective steps
-        comm = self.problem.mesh.comm
-        if comm.allreduce(1 if failure else 0) > 0:
-            self._fatal = comm.allreduce(fatal) > 0
-            self._failure = next(f for f in comm.allgather(failure) if f)
+        failed = self._material_step(self.problem.before_residual)
+        if not failed and self._first_residual:
+            # the lifting below applies the Dirichlet increment of the step through the
+            # Jacobian form, which reads the material tangent: make it current
+            self._first_residual = False
+            failed = self._material_step(self.problem.before_jacobian)
+        if failed:
             with b.localForm() as local:
                 local.set(np.nan)
+            self._force_ratios.append(np.nan)
             return
         with b.localForm() as local:
             local.set(0.0)
         dolfinx.fem.petsc.assemble_vector(b, self.residual_form)
+        if self.force_rtol is not None:
+            b.ghostUpdate(addv=PETSc.InsertMode.ADD, mode=PETSc.ScatterMode.REVERSE)
+            self._record_force_ratio(b)
+            with b.localForm() as local:   # undo the reverse scatter: lifting adds again below
+                local.array[b.getLocalSize():] = 0.0
         compat.apply_lifting(b, self.jacobian_form, self.problem.bcs, x, -1.0)
         b.ghostUpdate(addv=PETSc.InsertMode.ADD, mode=PETSc.ScatterMode.REVERSE)
         compat.set_bc(b, self.problem.bcs, x, -1.0)
 
+    def _material_step(self, step):
+        """Run a material step (update or tangents) with the failure made collective before
+        any MPI call: returns True (on every rank) when it failed on any rank."""
+        start = time.perf_counter()
+        failure, fatal = "", 0
+        try:
+            step()
+        except ConstitutiveError as error:
+            failure = str(error)
+        except Exception as error:  # a bug on one rank must not leave the others waiting
+            failure, fatal = f"{type(error).__name__}: {error}", 1
+        self.timers["material"] += time.perf_counter() - start
+        comm = self.problem.mesh.comm
+        if comm.allreduce(1 if failure else 0) > 0:
+            self._fatal = comm.allreduce(fatal) > 0
+            self._failure = next(f for f in comm.allgather(failure) if f)
+            return True
+        return False
+
     def _jacobian(self, snes, x, A, P):
+        failed = self._material_step(self.problem.before_jacobian)
+        start = time.perf_counter()
         A.zeroEntries()
-        dolfinx.fem.petsc.assemble_matrix(A, self.jacobian_form, bcs=self.problem.bcs)
-        A.assemble()
+        if failed:   # a harmless matrix; the next residual is NaN and stops SNES
+            A.assemble()
+            A.shift(1.0)
+        else:
+            dolfinx.fem.petsc.assemble_matrix(A, self.jacobian_form, bcs=self.problem.bcs)
+            A.assemble()
+        self.timers["jacobian_assembly"] += time.perf_counter() - start
 
     def solve(self):
         """One nonlinear solve at the problem's current load. Collective."""
         self._failure, self._fatal = "", False
+        self._force_ratios = []
+        self._first_residual = True
         start = time.perf_counter()
         self.snes.solve(None, self.x)
+        self.timers["solve_total"] += time.perf_counter() - start
         if self._fatal:
             raise RuntimeError(f"material update failed: {self._failure}")
         self.problem.w.x.scatter_forward()
@@ -131,7 +221,7 @@ class NewtonSolver:
         return SolveInfo(converged=converged, iterations=self.snes.getIterationNumber(),
                          residual=residual, reason=REASONS.get(reason, str(reason)),
                          residual_history=history, failure=self._failure,
-                         wall_time=time.perf_counter() - start)
+                         wall_time=time.perf_counter() - start, force_ratios=list(self._force_ratios))
 
     def destroy(self):
         self.snes.destroy()

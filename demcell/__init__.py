@@ -7,6 +7,7 @@ Main entry points:
 * ``generate_packing``, ``hexagonal_lattice``   packing.py
 * ``save_packing``, ``load_packing``, ``write_vtk_snapshot``   io.py
 * ``MicroCell`` (interface), ``DemCell``, ``create_cells``, ``RelaxationOptions``  interface.py
+* ``isotropic_stage``, ``reference_cell``   preparation.py (000 section 4.1)
 * ``homogenize`` / ``Homogenized``    homogenization.py (000 eqs. 14, 16, 38-40; 001 eq. 8)
 * tangents                             tangent.py (001 eqs. 6, 13, 20)
 
@@ -19,9 +20,10 @@ from .homogenization import Homogenized, homogenize
 from .interface import DemCell, MicroCell, RelaxationOptions, SolveResult, create_cells
 from .io import load_packing, save_packing, write_vtk_snapshot
 from .packing import generate_packing, hexagonal_lattice, loose_state
+from .preparation import isotropic_stage, reference_cell
 from .state import CellState
 
 __all__ = ["ContactLaw", "DemCellError", "InputError", "SolveError", "Homogenized", "homogenize",
            "DemCell", "MicroCell", "RelaxationOptions", "SolveResult", "create_cells",
            "load_packing", "save_packing", "write_vtk_snapshot", "generate_packing",
-           "hexagonal_lattice", "loose_state", "CellState"]
+           "hexagonal_lattice", "loose_state", "CellState", "isotropic_stage", "reference_cell"]

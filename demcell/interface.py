@@ -181,6 +181,7 @@ class DemCell(MicroCell):
         self._target = state.F
         self._committed = state.copy()
         self.last_result = None
+        self.last_tangent_steps = 0
 
     # ----- configuration
     def _check_dt(self):
@@ -330,16 +331,18 @@ class DemCell(MicroCell):
         measure: 'dsigma_dF' (d sigma_ij/dF_kl = d sigma/d Grad u) or 'dP_dF'."""
         if measure not in ("dsigma_dF", "dP_dF"):
             raise InputError(f"unknown tangent measure {measure!r}: 'dsigma_dF' or 'dP_dF'")
+        results = []
         if kind == "kruyt":
             C = kruyt_operator(self.state, self._law_array)
         elif kind == "demqo":
-            C, _ = demqo_tangent(self, 1e-6 if eps is None else eps)
+            C, results = demqo_tangent(self, 1e-6 if eps is None else eps)
         elif kind == "perturbation":
-            C, _ = perturbation_tangent(self, 1e-5 if eps is None else eps)
+            C, results = perturbation_tangent(self, 1e-5 if eps is None else eps)
         elif kind == "pstlo":
             C = pstlo_operator(self.state, self._law_array)
         else:
             raise InputError(f"unknown tangent kind {kind!r}: 'kruyt', 'demqo', 'pstlo' or 'perturbation'")
+        self.last_tangent_steps = sum(r.steps for r in results)   # DEM steps of its relaxations
         if measure == "dP_dF":
             C = dsigma_to_dpk1(C, self.state.F, self.cauchy_stress())
         return C

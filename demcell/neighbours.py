@@ -69,6 +69,13 @@ def build_pairs(h, s, radius, skin, new_i, new_j):
     cap = new_i.shape[0]
     nb1 = int(w1 / rc)
     nb2 = int(w2 / rc)
+    # a cell stretched far beyond its particles (a diverging macro iterate) would need
+    # (w / rc)^2 bins: cap them at about 4 per particle (larger bins stay correct)
+    while nb1 * nb2 > 4 * n + 9 and max(nb1, nb2) > 3:
+        if nb1 >= nb2:
+            nb1 = max(3, nb1 // 2)
+        else:
+            nb2 = max(3, nb2 // 2)
     count = 0
     if nb1 < 3 or nb2 < 3:
         for i in range(n):

@@ -59,22 +59,37 @@ def dsigma_to_dpk1(C_sigma, F, sigma):
     return out
 
 
+@njit(cache=True)
+def _kruyt_sum(h, s, pair_i, pair_j, touching, n_pairs, kn, kt, Fi):
+    """sum_c K_ik l_j (F^-1 l)_m over the touching contacts, K = kn n n + kt t t."""
+    T = np.zeros((2, 2, 2, 2))
+    K = np.empty((2, 2))
+    for k in range(n_pairs):
+        if touching[k] == 0:
+            continue
+        dx, dy = branch_vector(h, s, pair_i[k], pair_j[k])
+        length = math.sqrt(dx * dx + dy * dy)
+        nx, ny = dx / length, dy / length
+        K[0, 0] = kn * nx * nx + kt * ny * ny
+        K[0, 1] = K[1, 0] = (kn - kt) * nx * ny
+        K[1, 1] = kn * ny * ny + kt * nx * nx
+        lv = (dx, dy)
+        gl = (Fi[0, 0] * dx + Fi[0, 1] * dy, Fi[1, 0] * dx + Fi[1, 1] * dy)
+        for i in range(2):
+            for j in range(2):
+                for kk in range(2):
+                    for m in range(2):
+                        T[i, j, kk, m] += K[i, kk] * lv[j] * gl[m]
+    return T
+
+
 def kruyt_operator(state, law):
     """Upper-bound Kruyt operator (UKO, 001 eq. 13) of the current contacts [N/m]."""
-    h, s = state.h, state.s
-    area = abs(np.linalg.det(h))
+    area = abs(np.linalg.det(state.h))
     Fi = np.linalg.inv(state.F)
     kt = law[KS] if law[MU] > 0.0 else 0.0
-    T = np.zeros((2, 2, 2, 2))
-    for k in range(state.n_pairs):
-        if not state.touching[k]:
-            continue
-        dx, dy = branch_vector(h, s, int(state.pair_i[k]), int(state.pair_j[k]))
-        lvec = np.array([dx, dy])
-        n = lvec / math.hypot(dx, dy)
-        t = np.array([-n[1], n[0]])
-        K = law[KN] * np.outer(n, n) + kt * np.outer(t, t)        # K_ik
-        T += np.einsum("ik,j,m->ijkm", K, lvec, Fi @ lvec)
+    T = _kruyt_sum(state.h, state.s, state.pair_i, state.pair_j, state.touching, state.n_pairs,
+                   float(law[KN]), float(kt), Fi)
     return from_tensor4(T / area)
 
 

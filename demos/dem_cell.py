@@ -15,7 +15,8 @@ energy tolerance E_kin/E_pot <= 1e-3 (000 eq. 31).
 2. Isotropic compression stage: friction switched on, the cell relaxed under
    sigma = -p0 I (stress control on F_11, F_22 and F_12).
 3. Biaxial stage: axial direction e1 shortened in increments of the axial strain
-   (F_11 imposed), lateral stress sigma_22 = -p0 kept by the servo on F_22, F_12 = F_21 = 0.
+   (F_11 imposed), lateral stress sigma_22 = -p0 kept by the servo on F_22, F_12 = F_21 = 0
+   (``--axial-direction 2`` exchanges the axes: the FE specimen's vertical is e2).
    Each increment is a quasi-static solve (loading ramp, 001 eq. 7, then dynamic relaxation).
 
 Sign conventions (as on the FE side): tension positive, so the axial strain F_11 - 1 and a
@@ -65,6 +66,9 @@ def parse(argv=None):
     p.add_argument("--axial-strain", type=float, default=0.1,
                    help="final axial shortening |F_11 - 1| (default 0.1, 000 Table 3)")
     p.add_argument("--increment", type=float, default=1e-3, help="axial strain per increment (default 1e-3)")
+    p.add_argument("--axial-direction", type=int, choices=(1, 2), default=1,
+                   help="axis shortened: 1 (e1, default) or 2 (e2, the vertical of demos/femdem_biaxial.py); "
+                        "the other is held at sigma = -p0 by the servo")
     p.add_argument("--pressure", type=float, default=10.0, help="confining pressure p0 [N/m] (default 10)")
     p.add_argument("--kn", type=float, default=1e4, help="normal stiffness [N/m] (default 1e4)")
     p.add_argument("--ks", type=float, default=2e3, help="tangential stiffness [N/m] (default 2e3)")
@@ -129,11 +133,10 @@ def main(argv=None):
           f"A0 {info['anisotropy']:.3f}, R_min/L {info['r_min_over_L']:.4f}")
     opts = RelaxationOptions(tol=1e-3, damping=0.7, criterion="energy", method=a.relaxation)
     cell = dc.DemCell(state, law, opts)
-    # isotropic compression stage with friction on
-    iso = cell.solve(stress_mask=[[True, True], [False, True]], stress_target=-a.pressure * np.eye(2))
-    if not iso.converged:
-        raise SystemExit(f"isotropic stage did not converge: {iso.message}")
-    cell.commit()
+    try:
+        dc.isotropic_stage(cell, a.pressure)   # friction on, sigma = -p0 I (000 section 4.1)
+    except dc.SolveError as error:
+        raise SystemExit(str(error))
     F = cell.deformation_gradient()
     F_iso = F.copy()
     J_iso = np.linalg.det(F_iso)
@@ -148,8 +151,11 @@ def main(argv=None):
                  ["axial_strain", "sigma_11", "sigma_22", "sigma_12", "sigma_21", "couple_31", "couple_32",
                   "sliding_fraction", "n_contacts", "converged", "steps"])
 
+    ax = a.axial_direction - 1          # axial e1 (default) or e2 (the FE specimen's vertical)
+    lat = 1 - ax
+
     def record(h, res_steps, converged):
-        eps_a = F[0, 0] / F_iso[0, 0] - 1.0
+        eps_a = F[ax, ax] / F_iso[ax, ax] - 1.0
         eps_v = np.linalg.det(cell.deformation_gradient()) / J_iso - 1.0
         row = [eps_a, h.stress_ratio, eps_v, h.coordination_number, h.anisotropy]
         history.append(row)
@@ -162,12 +168,14 @@ def main(argv=None):
     record(hom, 0, True)
     dc.write_vtk_snapshot(snap_dir, 0, cell.state)
     n_inc = int(round(a.axial_strain / a.increment))
-    mask = np.array([[False, False], [False, True]])
-    target = np.diag([0.0, -a.pressure])
+    mask = np.zeros((2, 2), dtype=bool)
+    mask[lat, lat] = True
+    target = np.zeros((2, 2))
+    target[lat, lat] = -a.pressure
     steps_total, n_bad = 0, 0
     for k in range(1, n_inc + 1):
         F = cell.deformation_gradient()
-        F[0, 0] = F_iso[0, 0] * (1.0 - k * a.increment)
+        F[ax, ax] = F_iso[ax, ax] * (1.0 - k * a.increment)
         cell.set_deformation(F)
         res = cell.solve(stress_mask=mask, stress_target=target)
         steps_total += res.steps
@@ -192,7 +200,7 @@ def main(argv=None):
                    friction_angle_at_peak_deg=float(math.degrees(math.asin(min(1.0, hh[ipk, 1])))),
                    increments=n_inc, increments_not_converged=n_bad, dem_steps=int(steps_total),
                    time_step_s=cell.dt, wall_time_s=time.time() - t0, packing=info,
-                   options=vars(a), sign_convention="tension positive; axial_strain = F11/F11_iso - 1")
+                   options=vars(a), sign_convention="tension positive; axial_strain = F_aa/F_aa_iso - 1 (a = axial direction)")
     with open(os.path.join(a.out, "summary.json"), "w") as f:
         json.dump(summary, f, indent=2, default=str)
     print(f"[demcell] peak stress ratio {summary['peak_stress_ratio']:.3f} at axial strain "

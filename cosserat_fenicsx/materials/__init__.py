@@ -6,6 +6,9 @@ must never import Numba.  The Numba-compiled Ehlers kernels live in
 subpackage is used explicitly, e.g.::
 
     from cosserat_fenicsx.materials.ehlers import EhlersMaterial
+
+The FEM x DEM material (a demcell cell per Gauss point) is :mod:`cosserat_fenicsx.materials.dem`,
+the only subpackage that imports demcell.
 """
 
-__all__ = ["ehlers"]
+__all__ = ["ehlers", "dem"]

@@ -51,7 +51,7 @@ from .. import compat, meshes
 from ..constitutive import Constitutive
 from ..output import print0
 from ..problem import CosseratProblem
-from ..shear_band import fit_band, strain_norm
+from ..shear_band import fit_band_collective, strain_norm
 from ..snes import NewtonSolver
 from ..stepping import LoadStepper
 
@@ -271,19 +271,7 @@ class BiaxialTest:
 
     def band(self):
         """Gaussian fit of eq 4.22 to the strain norm of all Gauss points (every rank gets it)."""
-        values = self.strain_norm()
-        points = np.concatenate(self.comm.allgather(self.points))
-        values = np.concatenate(self.comm.allgather(values))
-        result = None
-        if self.comm.rank == 0:
-            try:
-                result = fit_band(points, values)
-            except ValueError as error:
-                result = str(error)
-        result = self.comm.bcast(result, root=0)
-        if isinstance(result, str):
-            raise ValueError(result)
-        return result
+        return fit_band_collective(self.comm, self.points, self.strain_norm())
 
     def cell_fields(self):
         """(name, shape, values_fn) of the DG0 fields written next to the FE fields; the

@@ -1,0 +1,201 @@
+"""FEM x DEM: a periodic DEM cell (demcell) at every Gauss point, behind the callback.
+
+One `demcell.DemCell` per Gauss point of the cells this rank owns, created once (copies of
+the zone's reference cell) and resident on the rank for the whole run.
+
+Which state a cell starts from (docs/femdem.md): every update of a point within a load step
+starts its cell from the committed state of the last converged step and loads it to the
+current iterate's F (001 eq. 7 with F_i the committed F): the step's answer depends on the
+committed state and the target only, not on the Newton path or the line search, as for a
+return mapping. The tangent is the chosen operator of the cell at the current iterate
+(cto: 001 eq. 6, four more solves from the committed state; demqo: eq. 20, four frozen-
+contact relaxations from the current equilibrium; kruyt: eq. 13; pstlo: appendix B). Points
+whose gradients did not change are not solved again (`rate_independent`), tangents are
+computed when the Jacobian is assembled (`tangent_on_demand`), commit / rollback reach the
+cells.
+
+Per point the history array holds the committed outputs of the cell (coordination number,
+fabric anisotropy, sliding fraction, stress ratio, contacts, DEM steps of the last solve,
+status). Status: 0 ok; 1 (flagged, the run goes on): the cell lost every contact, its
+stress is zero; < 0 (failed, the step is cut): -1 the cell did not relax within its step
+budget, -2 inadmissible F (det F <= 0), -3 the micro solve broke down (non-finite values,
+cell squeezed below the minimum-image size); a target F further than
+`max_strain_increment` from the committed F is refused as -2 before the cell is touched.
+"""
+import time
+
+import numpy as np
+
+from ...constitutive import Constitutive, PointReport
+from .cells import TANGENTS
+
+STATUS_NO_CONTACTS = 1
+STATUS_NOT_RELAXED, STATUS_BAD_F, STATUS_BROKEN = -1, -2, -3
+
+
+class DemMaterial(Constitutive):
+    """Gauss-point material backed by demcell cells.
+
+    reference_cells  list of prepared DemCells, one per zone (see cells.reference_cells)
+    mode             a mode object of modes.py (classical, hybrid, micropolar)
+    tangent          'cto' | 'demqo' | 'kruyt' | 'pstlo'
+    """
+
+    rate_independent = True
+    tangent_on_demand = True
+    state_names = ("coordination_number", "anisotropy", "sliding_fraction", "stress_ratio",
+                   "n_contacts", "dem_steps", "status")
+    state_index = {name: i for i, name in enumerate(state_names)}
+    cost_unit = "DEM time steps"
+
+    def __init__(self, reference_cells, mode, tangent="pstlo", max_strain_increment=0.05):
+        if tangent not in TANGENTS:
+            raise ValueError(f"unknown tangent {tangent!r}: one of {', '.join(TANGENTS)}")
+        if not reference_cells:
+            raise ValueError("DemMaterial needs at least one reference cell")
+        if mode.name == "micropolar" and not all(getattr(c, "micropolar", False) for c in reference_cells):
+            raise ValueError("mode 'micropolar' needs a cell that carries rotation and curvature itself "
+                             "(rotation_mode='micropolar'); demcell's DemCell gives the force stress of a "
+                             "deformation only: use mode 'hybrid'")
+        if not (np.isfinite(max_strain_increment) and max_strain_increment > 0):
+            raise ValueError(f"max_strain_increment must be positive, got {max_strain_increment!r}")
+        self.max_strain_increment = float(max_strain_increment)
+        self.reference_cells = list(reference_cells)
+        self.mode = mode
+        self.tangent_name = tangent
+        self._kind = TANGENTS[tangent]
+        self.zone = None
+        self.cells = []
+        self.coordinates = None
+        self._touched = set()
+        self.timers = {"solve": 0.0, "homogenize": 0.0, "tangent": 0.0, "commit": 0.0}
+
+    # --- set-up ------------------------------------------------------------------------
+    def set_zones(self, zone):
+        """zone[p]: index of the reference cell of point p (before the callback is built)."""
+        zone = np.asarray(zone, dtype=np.int64)
+        if zone.size and (zone.min() < 0 or zone.max() >= len(self.reference_cells)):
+            raise ValueError("DemMaterial: zone index out of range")
+        self.zone = zone
+
+    def set_point_coordinates(self, xy):
+        """(x, y) of the points, used to name a failing point in messages."""
+        self.coordinates = np.asarray(xy)
+
+    def initial_state(self, n_points):
+        """Create the cells (copies of the reference cells) and their initial outputs."""
+        if self.zone is None:
+            self.zone = np.zeros(n_points, dtype=np.int64)
+        if len(self.zone) != n_points:
+            raise RuntimeError("DemMaterial: set_zones needs one entry per Gauss point")
+        self.cells = [self.reference_cells[z].copy() for z in self.zone]
+        state = np.zeros((n_points, len(self.state_names)))
+        for z, ref in enumerate(self.reference_cells):
+            state[self.zone == z] = self._outputs(ref.homogenized(), 0, 0)
+        return state
+
+    def initial_fluxes(self):
+        """Fluxes of the reference state (F = I) per point, (n, 6)."""
+        out = np.zeros((len(self.cells), 6))
+        for z, ref in enumerate(self.reference_cells):
+            row = np.zeros(6)
+            self.mode.fluxes(ref.homogenized(), np.zeros(6), row)
+            out[self.zone == z] = row
+        return out
+
+    def where(self, p):
+        if self.coordinates is not None and p < len(self.coordinates):
+            x, y = self.coordinates[p]
+            return f"Gauss point at ({x:.4g}, {y:.4g})"
+        return f"local Gauss point {p}"
+
+    @staticmethod
+    def _outputs(h, steps, status):
+        return (h.coordination_number, h.anisotropy, h.sliding_fraction, h.stress_ratio,
+                h.n_contacts, steps, status)
+
+    # --- the callback --------------------------------------------------------------------
+    def update(self, gradients, dt, state_old, flux_out, tangent_out, state_new, points=None):
+        points = np.arange(len(self.cells)) if points is None else np.asarray(points)
+        status = np.zeros(len(points), dtype=np.int32)
+        cost = np.zeros(len(points))
+        message, failed = "", False
+        for k, p in enumerate(points):
+            cell = self.cells[p]
+            self._touched.add(int(p))
+            start = time.perf_counter()
+            code, text, steps = self._solve(cell, gradients[p])
+            self.timers["solve"] += time.perf_counter() - start
+            cost[k] = steps
+            status[k] = code
+            if code < 0:
+                if not failed:       # the first failure names the cause, before any flag
+                    message, failed = f"{self.where(p)}: {text}", True
+                continue
+            start = time.perf_counter()
+            h = cell.homogenized()
+            self.mode.fluxes(h, gradients[p], flux_out[p])
+            state_new[p] = self._outputs(h, steps, code)
+            self.timers["homogenize"] += time.perf_counter() - start
+            if code > 0 and not message:
+                message = f"{self.where(p)}: {text}"
+        return PointReport(status=status, cost=cost, message=message, cost_unit=self.cost_unit)
+
+    def _solve(self, cell, gradients):
+        """(status, message, DEM steps) of one solve from the committed state."""
+        import demcell as dc
+        cell.rollback()
+        jump = float(np.abs(self.mode.deformation(gradients) - cell.deformation_gradient()).max())
+        if not jump <= self.max_strain_increment:
+            # a cell asked to jump this far is either a load step far too large or a Newton
+            # iterate running away: refuse it (the step is cut) instead of tearing the cell
+            return (STATUS_BAD_F, f"strain increment {jump:.3g} from the committed state exceeds "
+                    f"max_strain_increment = {self.max_strain_increment:g} (load step too large, or "
+                    "the Newton iteration is diverging)", 0)
+        try:
+            self.mode.drive(cell, gradients)
+        except dc.InputError as error:
+            return STATUS_BAD_F, f"inadmissible deformation ({error}): the load step is too large", 0
+        try:
+            result = cell.solve()
+        except dc.SolveError as error:
+            return STATUS_BROKEN, f"micro solve failed: {error}", 0
+        if result.no_contacts:
+            return STATUS_NO_CONTACTS, "the cell lost every contact (zero stress)", result.steps
+        if not result.converged:
+            return (STATUS_NOT_RELAXED, "the cell did not relax within its step budget "
+                    f"(max_steps = {cell.options.max_steps}): {result.message}", result.steps)
+        return 0, "", result.steps
+
+    def tangent(self, points, tangent_out):
+        cost = np.zeros(len(points))
+        start = time.perf_counter()
+        for k, p in enumerate(points):
+            cell = self.cells[p]
+            # a cell without contacts has no stiffness: Kruyt's sum is then exactly zero,
+            # where a linear solve (pstlo) would be singular
+            kind = self._kind if cell.contact_count() else "kruyt"
+            self.mode.tangent(cell, None, kind, tangent_out[p])
+            cost[k] = cell.last_tangent_steps
+        self.timers["tangent"] += time.perf_counter() - start
+        return PointReport(status=np.zeros(len(points), dtype=np.int32), cost=cost, cost_unit=self.cost_unit)
+
+    def commit(self):
+        start = time.perf_counter()
+        for p in self._touched:
+            self.cells[p].commit()
+        self._touched.clear()
+        self.timers["commit"] += time.perf_counter() - start
+
+    def rollback(self):
+        for p in self._touched:
+            self.cells[p].rollback()
+        self._touched.clear()
+
+    # --- diagnostics ---------------------------------------------------------------------
+    def memory_bytes(self):
+        """Bytes held by the cells of this rank (current and committed states)."""
+        return sum(c.memory_bytes() for c in self.cells)
+
+    def describe(self):
+        return dict(self.mode.describe(), tangent=self.tangent_name, n_zones=len(self.reference_cells))

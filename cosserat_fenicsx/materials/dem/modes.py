@@ -1,0 +1,160 @@
+"""How the six gradients of a Gauss point drive a cell, and how the cell's answer becomes the
+six fluxes and the 6x6 tangent of the callback (`kinematics.GRADIENT_NAMES`, `FLUX_NAMES`).
+
+The macro balance is geometrically linear (as for the Ehlers scenes): the strain is
+eps = Grad u + e phi (2.49) and the cell is driven by F = I + sym(eps) (001 eq. 7 with the
+symmetric part of Grad u; on a Cauchy scene eps is sym Grad u already). The rotation part is
+left out on purpose: with linear kinematics, I + Grad u with a skew part W is not a rotation
+but a rotation plus a stretch by sqrt(1 + w^2), which in a shear band (w ~ 0.1-0.3) would
+dilate the cell by w^2 / 2 (0.5-5 %) for nothing; at small strain a rigid rotation must not
+change the stress.
+
+Cell tensors use demcell's order (11, 12, 21, 22) (001 eq. 11): C[r, c] = d sigma_r / d F_c.
+In the callback's order sigma11 -> 0, sigma22 -> 1, sigma12 -> 2, sigma21 -> 3, and the same
+for eps (F_kl - delta_kl -> eps_kl).
+
+Three modes, one object each, all with the same methods (`deformation`, `drive`,
+`fluxes`, `tangent`), so the material never needs to know which one it holds:
+
+* `ClassicalMode`: a Cauchy scene (000, 001). sigma = the cell's Cauchy stress (001 eq. 8),
+  no couple stress.
+* `HybridMode`: the cell gives the symmetric stress; the skew stress 2 mu_c skw(eps) and the
+  couple stress m = 2 mu_c l_c^2 kappa (eq. 2.74) are elastic.
+* `MicropolarMode`: every flux from a cell that carries rotation and curvature itself
+  (driven by F = I + eps, rotation 0, curvature kappa: at small strain the same as
+  F = I + Grad u with the rotation phi, rotated by -phi). It needs a cell with
+  `micropolar = True` answering `set_deformation(F, rotation=, curvature=)`,
+  `cauchy_stress()` (non-symmetric), `couple_stress()` and
+  `tangent(kind, measure="micropolar")` (6x6 in the callback's order).
+"""
+import numpy as np
+
+#: position of demcell's components (11, 12, 21, 22) in the callback's flux / gradient order
+CELL_TO_CALLBACK = np.array([0, 2, 3, 1])
+#: symmetric part of a tensor in demcell's order: P @ t = sym(t)
+SYMMETRISER = np.array([[1.0, 0.0, 0.0, 0.0],
+                        [0.0, 0.5, 0.5, 0.0],
+                        [0.0, 0.5, 0.5, 0.0],
+                        [0.0, 0.0, 0.0, 1.0]])
+
+
+def deformation_gradient(gradients, symmetric=True):
+    """F = I + (sym) eps from one row [eps11, eps22, eps12, eps21, ...]."""
+    e11, e22, e12, e21 = gradients[0], gradients[1], gradients[2], gradients[3]
+    if symmetric:
+        e12 = e21 = 0.5 * (e12 + e21)
+    return np.array([[1.0 + e11, e12], [e21, 1.0 + e22]])
+
+
+def place_cell_tangent(C, out):
+    """Write a 4x4 demcell tangent into the 6x6 callback block (zeros elsewhere)."""
+    out[:] = 0.0
+    out[np.ix_(CELL_TO_CALLBACK, CELL_TO_CALLBACK)] = C
+
+
+class ClassicalMode:
+    """Cauchy continuum: the cell gives the whole stress (000, 001)."""
+    name = "classical"
+    micropolar_scene = False
+
+    def deformation(self, gradients):
+        return deformation_gradient(gradients)
+
+    def drive(self, cell, gradients):
+        cell.set_deformation(self.deformation(gradients))
+
+    def fluxes(self, homogenized, gradients, out):
+        s = homogenized.cauchy
+        out[:] = (s[0, 0], s[1, 1], s[0, 1], s[1, 0], 0.0, 0.0)
+
+    def tangent(self, cell, gradients, kind, out):
+        # the Cauchy scene passes eps12 = eps21 (sym Grad u), so the Jacobian's contraction
+        # with [.., de12, de12, ..] adds both columns: exactly d sigma(I + sym Grad u)
+        place_cell_tangent(cell.tangent(kind), out)
+
+    def describe(self):
+        return {"mode": self.name}
+
+
+class HybridMode:
+    """The cell gives the symmetric stress; skew and couple stress are elastic (eq. 2.74):
+
+        sigma = sym(sigma_cell(I + sym eps)) + 2 mu_c skw(eps),   m = 2 mu_c l_c^2 kappa
+
+    mu_c [stress unit of the cell] > 0, l_c [m] >= 0 (l_c = 0: no couple stress; the
+    rotation then follows the material rotation pointwise)."""
+    name = "hybrid"
+    micropolar_scene = True
+
+    def __init__(self, mu_c, l_c):
+        mu_c, l_c = float(mu_c), float(l_c)
+        if not (np.isfinite(mu_c) and mu_c > 0.0):
+            raise ValueError(f"hybrid mode: mu_c must be a positive number, got {mu_c!r} "
+                             "(mu_c = 0 leaves the rotation undetermined)")
+        if not (np.isfinite(l_c) and l_c >= 0.0):
+            raise ValueError(f"hybrid mode: l_c must be a number >= 0, got {l_c!r}")
+        self.mu_c, self.l_c = mu_c, l_c
+        self.bending_modulus = 2.0 * mu_c * l_c ** 2
+        skew = np.zeros((4, 4))
+        skew[1, 1] = skew[2, 2] = mu_c
+        skew[1, 2] = skew[2, 1] = -mu_c
+        self._skew = skew
+
+    def deformation(self, gradients):
+        return deformation_gradient(gradients)
+
+    def drive(self, cell, gradients):
+        cell.set_deformation(self.deformation(gradients))
+
+    def fluxes(self, homogenized, gradients, out):
+        s = homogenized.cauchy
+        tau = 0.5 * (s[0, 1] + s[1, 0])
+        skw = self.mu_c * (gradients[2] - gradients[3])     # 2 mu_c skw(eps)_12
+        b = self.bending_modulus
+        out[:] = (s[0, 0], s[1, 1], tau + skw, tau - skw, b * gradients[4], b * gradients[5])
+
+    def tangent(self, cell, gradients, kind, out):
+        C = SYMMETRISER @ cell.tangent(kind) @ SYMMETRISER + self._skew
+        place_cell_tangent(C, out)
+        out[4, 4] = out[5, 5] = self.bending_modulus
+
+    def describe(self):
+        return {"mode": self.name, "mu_c": self.mu_c, "l_c": self.l_c,
+                "bending_modulus": self.bending_modulus}
+
+
+class MicropolarMode:
+    """Every flux from a micropolar cell (rotation and curvature imposed on the grains)."""
+    name = "micropolar"
+    micropolar_scene = True
+
+    def deformation(self, gradients):
+        return deformation_gradient(gradients, symmetric=False)
+
+    def drive(self, cell, gradients):
+        cell.set_deformation(self.deformation(gradients), rotation=0.0,
+                             curvature=(gradients[4], gradients[5]))
+
+    def fluxes(self, homogenized, gradients, out):
+        s, m = homogenized.cauchy, homogenized.couple_stress
+        out[:] = (s[0, 0], s[1, 1], s[0, 1], s[1, 0], m[0], m[1])
+
+    def tangent(self, cell, gradients, kind, out):
+        out[:] = cell.tangent(kind, measure="micropolar")
+
+    def describe(self):
+        return {"mode": self.name}
+
+
+MODES = ("classical", "hybrid", "micropolar")
+
+
+def make_mode(name, mu_c=None, l_c=None):
+    """The mode object of `name`; hybrid needs mu_c and l_c."""
+    if name == "classical":
+        return ClassicalMode()
+    if name == "hybrid":
+        return HybridMode(mu_c, l_c)
+    if name == "micropolar":
+        return MicropolarMode()
+    raise ValueError(f"unknown FEM x DEM mode {name!r}: one of {', '.join(MODES)}")

@@ -68,13 +68,17 @@ class GaussPointCallback:
         self.cost = np.zeros(n)
         self.step_cost = np.zeros(n)
         self.cost_unit = ""
+        self.flag_message = ""     # the message of a flagged (usable) point of the last update
         self.timers = {"gradients": 0.0, "update": 0.0, "tangent": 0.0}
         self.counters = {"point_updates": 0, "points_unchanged": 0, "point_tangents": 0}
         # gradients each point was last updated with (NaN: never), and their committed copy
         self._updated_at = np.full_like(self.gradients, np.nan)
         self._committed_at = self._updated_at.copy()
         self._flux_committed = self.flux_values.copy()
+        self._tangent_committed = self.tangent_values.copy()
         self._tangent_stale = np.ones(n, dtype=bool)
+        self._stale_committed = self._tangent_stale.copy()
+        self._status_committed = self.status.copy()
 
     @property
     def n_points(self):
@@ -122,7 +126,7 @@ class GaussPointCallback:
         flux = self.flux_values[points]
         finite = np.isfinite(flux).all(axis=1)
         if not m.tangent_on_demand:
-            finite &= np.isfinite(self.tangent_values[points]).reshape(n_updated, -1).all(axis=1)
+            finite &= np.isfinite(self.tangent_values[points]).all(axis=(1, 2))
         if not finite.all():
             raise ConstitutiveError(f"material returned non-finite stress or tangent at "
                                     f"{int(np.count_nonzero(~finite))} Gauss point(s)")
@@ -163,23 +167,35 @@ class GaussPointCallback:
         if report is None:
             if statuses:
                 self.status[points] = STATUS_OK
+                self._keep_flag("")
             return
         if report.cost_unit:
             self.cost_unit = report.cost_unit
         self.cost[points] += report.cost
         if statuses:
             self.status[points] = report.status
+            self._keep_flag(report.message if (np.asarray(report.status) > 0).any() else "")
         failed = np.flatnonzero(np.asarray(report.status) < 0)
         if failed.size:
             rows = np.arange(self.n_points)[points]
             raise ConstitutiveError(report.message or f"Gauss point update failed at {failed.size} point(s) "
                                     f"(first: local point {int(rows[failed[0]])})")
 
+    def _keep_flag(self, message):
+        """flag_message names a flagged point as long as one is flagged (status > 0)."""
+        if not (self.status > 0).any():
+            self.flag_message = ""
+        elif message:
+            self.flag_message = message
+
     def commit(self):
         self.state_old[:] = self.state_new
         self.material.commit()
         self._committed_at[:] = self._updated_at
         self._flux_committed[:] = self.flux_values
+        self._tangent_committed[:] = self.tangent_values
+        self._stale_committed[:] = self._tangent_stale
+        self._status_committed[:] = self.status
         self.step_cost[:] = self.cost
         self.cost[:] = 0.0
 
@@ -188,9 +204,14 @@ class GaussPointCallback:
         self.material.rollback()
         self._updated_at[:] = self._committed_at
         self.flux_values[:] = self._flux_committed
-        self._tangent_stale[:] = True
+        # the tangents computed at the committed state stay valid: the points are there again
+        self.tangent_values[:] = self._tangent_committed
+        self._tangent_stale[:] = self._stale_committed
+        self.status[:] = self._status_committed
+        self._keep_flag("")
         nf = self.material.flux_size
         self.flux.x.array.reshape(-1, nf)[self.dofs] = self.flux_values
+        self._write_tangent()
 
     def cell_average(self, values):
         """Quadrature-weighted average per owned cell of a (n_points, k) array."""

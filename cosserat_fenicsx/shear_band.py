@@ -169,3 +169,23 @@ def fit_band_collective(comm, points, values):
     if isinstance(result, str):
         raise ValueError(result)
     return result
+
+
+def band_verdict(fit, element_size, specimen_width, min_contrast=0.5):
+    """Whether a fitted bell is a shear band the mesh resolves: (True, "") or (False, why).
+
+    A fit always returns numbers, also on a homogeneous field; a band needs a strain
+    contrast (A >= min_contrast e0: the band strains at least 1.5 times the rest), a
+    thickness the Gauss points resolve (H >= element_size / 2) and a width that fits in
+    the specimen (FWHM = 2.355 H <= specimen_width)."""
+    if not fit.converged:
+        return False, "the fit did not converge"
+    if not fit.amplitude >= min_contrast * max(fit.offset, 0.0):
+        return False, (f"no localisation: strain contrast A/e0 = {fit.amplitude / max(fit.offset, 1e-300):.2g} "
+                       f"below {min_contrast:g}")
+    if fit.thickness < 0.5 * element_size:
+        return False, (f"H = {fit.thickness:.3g} m is below half an element ({element_size:.3g} m): "
+                       "not resolved by the mesh")
+    if 2.355 * fit.thickness > specimen_width:
+        return False, f"diffuse: FWHM 2.355 H = {2.355 * fit.thickness:.3g} m exceeds the specimen width"
+    return True, ""

@@ -53,6 +53,7 @@ class SolveInfo:
     failure: str = ""
     wall_time: float = 0.0
     force_ratios: list = field(default_factory=list)
+    flags: str = ""     # a flagged Gauss point at the last iterate (e.g. a cell without contacts)
 
 
 class NewtonSolver:
@@ -93,6 +94,7 @@ class NewtonSolver:
         self._force_ratios = []
         if force_rtol is not None:
             self._bc_rows = self._owned_dirichlet_rows()
+            self._free_rows = np.setdiff1d(np.arange(self.x.getLocalSize()), self._bc_rows)
             self.snes.setConvergenceTest(self._force_ratio_test)
         #: wall seconds: material (Gauss-point update and tangents), residual and Jacobian
         #: assembly, and the rest of the solves (linear solve, SNES, line search)
@@ -111,7 +113,7 @@ class NewtonSolver:
     def _force_ratio_test(self, snes, it, norms):
         """Converged when |residual at free dofs| <= force_rtol |reactions| (after it 0)."""
         ratio = self._force_ratios[-1] if self._force_ratios else np.nan
-        if not np.isfinite(ratio) or self._failure:
+        if np.isnan(ratio) or self._failure:
             return PETSc.SNES.ConvergedReason.DIVERGED_FNORM_NAN
         if it >= 1 and ratio <= self.force_rtol:
             return PETSc.SNES.ConvergedReason.CONVERGED_FNORM_RELATIVE
@@ -123,10 +125,12 @@ class NewtonSolver:
         """FNORM / RNORM of the assembled residual b (before the Dirichlet rows are set)."""
         local = b.array_r
         reactions = float(np.sum(local[self._bc_rows] ** 2))
-        free = float(np.sum(local ** 2)) - reactions
+        free = float(np.sum(local[self._free_rows] ** 2))
         comm = self.problem.mesh.comm
         free, reactions = comm.allreduce(free), comm.allreduce(reactions)
-        self._force_ratios.append(np.sqrt(max(free, 0.0)) / np.sqrt(reactions) if reactions > 0 else np.inf)
+        # no reaction yet (a step from rest): nothing to compare with, unless nothing is left
+        ratio = np.sqrt(free / reactions) if reactions > 0 else (0.0 if free == 0 else np.inf)
+        self._force_ratios.append(float(ratio) if np.isfinite(free) else np.nan)
 
     def _residual(self, snes, x, b):
         start, material = time.perf_counter(), self.timers["material"]
@@ -214,6 +218,9 @@ class NewtonSolver:
         self.problem.w.x.scatter_forward()
         reason = self.snes.getConvergedReason()
         history = list(self.snes.getConvergenceHistory()[0])
+        callback = self.problem.callback
+        flag = callback.flag_message if callback is not None else ""
+        flags = next((f for f in self.problem.mesh.comm.allgather(flag) if f), "")
         converged = reason > 0 and not self._failure
         residual = self.snes.getFunctionNorm()
         if converged and not np.isfinite(residual):
@@ -221,7 +228,8 @@ class NewtonSolver:
         return SolveInfo(converged=converged, iterations=self.snes.getIterationNumber(),
                          residual=residual, reason=REASONS.get(reason, str(reason)),
                          residual_history=history, failure=self._failure,
-                         wall_time=time.perf_counter() - start, force_ratios=list(self._force_ratios))
+                         wall_time=time.perf_counter() - start, force_ratios=list(self._force_ratios),
+                         flags=flags)
 
     def destroy(self):
         self.snes.destroy()

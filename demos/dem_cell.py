@@ -16,7 +16,11 @@ energy tolerance E_kin/E_pot <= 1e-3 (000 eq. 31).
    sigma = -p0 I (stress control on F_11, F_22 and F_12).
 3. Biaxial stage: axial direction e1 shortened in increments of the axial strain
    (F_11 imposed), lateral stress sigma_22 = -p0 kept by the servo on F_22, F_12 = F_21 = 0
-   (``--axial-direction 2`` exchanges the axes: the FE specimen's vertical is e2).
+   (``--axial-direction 2`` exchanges the axes: the FE specimen's vertical is e2;
+   ``--lateral-control strain`` loads each increment along a straight path in F from the
+   committed state, the lateral strain found by an outer iteration on sigma_lat, which is
+   how a FEM x DEM Gauss point is loaded: a frictional packing is path dependent, and the
+   two controls differ by about 1-2 % in the stress ratio before the peak).
    Each increment is a quasi-static solve (loading ramp, 001 eq. 7, then dynamic relaxation).
 
 Sign conventions (as on the FE side): tension positive, so the axial strain F_11 - 1 and a
@@ -66,6 +70,10 @@ def parse(argv=None):
     p.add_argument("--axial-strain", type=float, default=0.1,
                    help="final axial shortening |F_11 - 1| (default 0.1, 000 Table 3)")
     p.add_argument("--increment", type=float, default=1e-3, help="axial strain per increment (default 1e-3)")
+    p.add_argument("--lateral-control", choices=("servo", "strain"), default="servo",
+                   help="servo (default): the stress servo holds sigma_lat during the relaxation; strain: "
+                        "each increment is a straight path in F from the committed state with F_lat found "
+                        "by an outer secant iteration, as a FEM x DEM Gauss point is loaded")
     p.add_argument("--axial-direction", type=int, choices=(1, 2), default=1,
                    help="axis shortened: 1 (e1, default) or 2 (e2, the vertical of demos/femdem_biaxial.py); "
                         "the other is held at sigma = -p0 by the servo")
@@ -75,6 +83,10 @@ def parse(argv=None):
     p.add_argument("--snapshot-every", type=int, default=10, help="increments between VTK snapshots")
     p.add_argument("--anisotropy", type=float, default=None,
                    help="target initial fabric anisotropy A0 (000 section 4.3.3: 0.02, 0.05, 0.08)")
+    p.add_argument("--relaxation-tol", type=float, default=1e-3,
+                   help="relaxation tolerance (default 1e-3, 000 Table 3)")
+    p.add_argument("--criterion", choices=("energy", "force"), default="energy",
+                   help="convergence test: E_kin/E_pot (000 eq. 31, default) or unbalanced-force ratio (001)")
     p.add_argument("--relaxation", choices=["local", "fire"], default="local",
                    help="dynamic relaxation: local damping 0.7 (000, default) or FIRE")
     p.add_argument("--packing", default=None, help="start from a packing file (.npz from a previous run)")
@@ -88,11 +100,41 @@ def parse(argv=None):
         p.error("--increment must be in (0, axial strain]")
     if a.friction < 0 or a.pressure <= 0 or a.kn <= 0 or a.ks < 0 or a.snapshot_every < 1:
         p.error("friction >= 0, pressure > 0, kn > 0, ks >= 0, snapshot-every >= 1 required")
+    if not (0.0 < a.relaxation_tol < 1.0):
+        p.error("--relaxation-tol must be in (0, 1)")
     if a.anisotropy is not None and not (0.0 <= a.anisotropy < 1.0):
         p.error("--anisotropy must be in [0, 1)")
     if a.packing is not None and not os.path.isfile(a.packing):
         p.error(f"packing file not found: {a.packing}")
     return a
+
+
+def strain_path_step(cell, F, lat, lateral_stress, rtol=1e-4, max_iterations=30):
+    """One increment under full strain control, as a FEM x DEM Gauss point sees it: every trial
+    goes straight from the committed state to F (001 eq. 7), and the lateral component
+    F[lat, lat] is found by a secant iteration until sigma_lat = lateral_stress (to rtol).
+    Returns the last SolveResult with the DEM steps of all trials."""
+    def residual(f):
+        cell.rollback()
+        trial = F.copy()
+        trial[lat, lat] = f
+        cell.set_deformation(trial)
+        result = cell.solve()
+        return cell.cauchy_stress()[lat, lat] - lateral_stress, result
+
+    steps = 0
+    f0 = cell.deformation_gradient()[lat, lat]
+    f1 = f0 + 0.3 * abs(F[1 - lat, 1 - lat] - cell.deformation_gradient()[1 - lat, 1 - lat]) + 1e-12
+    (r0, res), (r1, res) = residual(f0), residual(f1)
+    steps += res.steps
+    for _ in range(max_iterations):
+        if abs(r1) <= rtol * abs(lateral_stress) or r1 == r0:
+            break
+        f0, f1, r0 = f1, f1 - r1 * (f1 - f0) / (r1 - r0), r1
+        r1, res = residual(f1)
+        steps += res.steps
+    res.steps = steps
+    return res
 
 
 def plot(history, path):
@@ -131,7 +173,7 @@ def main(argv=None):
     dc.save_packing(os.path.join(a.out, "packing.npz"), state, info)
     print(f"[demcell]   solid fraction {info['solid_fraction']:.3f}, coordination {info['coordination_number']:.2f}, "
           f"A0 {info['anisotropy']:.3f}, R_min/L {info['r_min_over_L']:.4f}")
-    opts = RelaxationOptions(tol=1e-3, damping=0.7, criterion="energy", method=a.relaxation)
+    opts = RelaxationOptions(tol=a.relaxation_tol, damping=0.7, criterion=a.criterion, method=a.relaxation)
     cell = dc.DemCell(state, law, opts)
     try:
         dc.isotropic_stage(cell, a.pressure)   # friction on, sigma = -p0 I (000 section 4.1)
@@ -176,8 +218,11 @@ def main(argv=None):
     for k in range(1, n_inc + 1):
         F = cell.deformation_gradient()
         F[ax, ax] = F_iso[ax, ax] * (1.0 - k * a.increment)
-        cell.set_deformation(F)
-        res = cell.solve(stress_mask=mask, stress_target=target)
+        if a.lateral_control == "servo":
+            cell.set_deformation(F)
+            res = cell.solve(stress_mask=mask, stress_target=target)
+        else:
+            res = strain_path_step(cell, F, lat, -a.pressure)
         steps_total += res.steps
         if not res.converged:
             n_bad += 1

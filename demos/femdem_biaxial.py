@@ -1,0 +1,270 @@
+#!/usr/bin/python3
+"""FEM x DEM biaxial test: a periodic DEM cell (demcell) at every Gauss point.
+
+What is solved
+--------------
+The biaxial test of paper 000 section 4 on a W x H = 10 mm x 20 mm specimen meshed with
+NX x NY rectangles (--mesh; 000 uses 1x1, 1x2, 2x4, 4x8), every Gauss point carrying its own
+periodic disc cell: the cell is deformed by F = I + sym(eps) (001 eq. 7), relaxes to
+equilibrium (000 section 3.2.1) and its homogenized Cauchy stress (001 eq. 8) is the stress of
+the point. The cell is the one of demos/dem_cell.py (000 Table 3: 228 discs, mu = 0.4,
+kn = 1e4 N/m, ks = 2e3 N/m, tolerance 1e-3; p0 = 10 N/m, see the note on the pressure there),
+prepared by the same isotropic stage; the same --particles N --seed S give the same packing.
+
+1. Isotropic compression: the preparation of the cell, so every Gauss point starts at F = I
+   with sigma = -p0 I; one macro step applies p0 to the lateral faces and checks equilibrium.
+2. Vertical compression: the top platen moves down to --axial-strain of the height in
+   --steps steps, the lateral stress p0 is kept; smooth platens.
+
+Coupling modes (--mode): `classical` (a Cauchy continuum, as 000 and 001), `hybrid` (default:
+a micropolar continuum whose symmetric stress comes from the cell, with elastic skew stress
+2 mu_c skw(eps) and couple stress m = 2 mu_c l_c^2 kappa, eq. 2.74; --mu-c defaults to the
+cell's initial shear modulus, --l-c to the mean grain diameter --grain-diameter), and
+`micropolar` (reserved for a cell that carries rotation and curvature itself). The macro
+Newton uses the cell operator --tangent (cto: 001 eq. 6, demqo: eq. 20, kruyt: eq. 13,
+pstlo: appendix B) and stops at FNORM/RNORM <= --force-rtol (001 section 6). A weak zone
+(--weak-size, --weak-friction: a square at the lower left corner whose cells have less
+friction) triggers a band.
+
+Outputs in --out, written as the run goes: history.csv (axial_strain, stress_ratio = mean
+over the Gauss points of |s11 - s22| / |s11 + s22| (000 eq. 40, Fig. 4), volumetric_strain,
+coordination_number, anisotropy (000 Fig. 5), vertical_reaction [N/m], Newton iterations,
+DEM steps), gauss_points.csv (the stress ratio of every Gauss point per step, 000 Fig. 6),
+fields.xdmf (displacement, rotation, stress, couple_stress and per cell coordination_number,
+anisotropy, sliding_fraction, stress_ratio, equivalent_strain and
+incremental_equivalent_strain (000 Fig. 7), dem_steps); at the end snapshots/ (particles and
+contact forces of the Gauss points with the highest and lowest stress ratio, 000 Fig. 6
+insets), summary.json (peak_stress_ratio, axial_strain_at_peak, n_gauss_points,
+band_thickness and band_inclination_deg from the section 4.4 fit, Newton iterations, DEM
+steps, where the time went) and femdem_biaxial.png (the curves of 000 Figs 4-5).
+Tension positive: the axial strain and a contracting volume are negative.
+
+In ParaView: open fields.xdmf (Xdmf3 Reader T), colour by incremental_equivalent_strain to see
+the band, by stress_ratio or coordination_number for the micro-structure; open
+snapshots/*/particles_0000.vtk with a Glyph (circle, scale by radius, factor 2) and
+contacts_0000.vtk coloured by normal_force.
+
+    python3 demos/femdem_biaxial.py --mesh 1x1 --axial-strain 0.02 --steps 20
+    mpirun -n 2 python3 demos/femdem_biaxial.py --mesh 2x4 --out results/femdem_biaxial
+    mpirun -n 2 python3 demos/femdem_biaxial.py --mode classical --mesh 4x8 --weak-size 2.5e-3 --weak-friction 0.8
+"""
+import sys, os  # noqa: E401
+sys.path.insert(0, os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
+
+import math
+import time
+
+import numpy as np
+from mpi4py import MPI
+
+from cosserat_fenicsx import cli
+from cosserat_fenicsx.output import CsvLog, FieldWriter, print0, write_json
+from cosserat_fenicsx.scenes.femdem_biaxial import FemDemBiaxial, FemDemSettings, max_over_ranks, parse_mesh
+from cosserat_fenicsx.shear_band import band_verdict
+from cosserat_fenicsx.stepping import LoadSteppingError
+
+parser = cli.make_parser(__doc__)
+cli.add_mesh_options(parser)
+cli.add_output_options(parser, "results/femdem_biaxial")
+cli.add_stepping_options(parser, steps=100)
+g = parser.add_argument_group("specimen and loading (000 section 4.1)")
+g.add_argument("--mesh", default="2x4", help="NXxNY rectangles (000: 1x1, 1x2, 2x4, 4x8; default %(default)s)")
+g.add_argument("--width", type=float, default=0.01, help="specimen width W [m] (default %(default)g)")
+g.add_argument("--height", type=float, default=0.02, help="specimen height H [m] (default %(default)g)")
+g.add_argument("--axial-strain", type=float, default=0.10, help="platen displacement / H (default %(default)g)")
+g.add_argument("--weak-size", type=float, default=0.0, help="side of the weak square at the lower left corner [m] (default 0: none)")
+g.add_argument("--weak-friction", type=float, default=1.0,
+               help="contact friction of the weak cells / --friction (default %(default)g)")
+g = parser.add_argument_group("the cell (as demos/dem_cell.py)")
+g.add_argument("--particles", type=int, default=228, help="number of discs (default 228, 000 Table 3)")
+g.add_argument("--seed", type=int, default=0, help="packing seed (default 0)")
+g.add_argument("--packing", default=None, help="packing file (.npz from demos/dem_cell.py) instead of generating one")
+g.add_argument("--friction", type=float, default=0.4, help="Coulomb friction mu (default 0.4; inf: no sliding)")
+g.add_argument("--pressure", type=float, default=10.0, help="confining pressure p0 [N/m] (default 10)")
+g.add_argument("--kn", type=float, default=1e4, help="normal contact stiffness [N/m] (default 1e4)")
+g.add_argument("--ks", type=float, default=2e3, help="tangential contact stiffness [N/m] (default 2e3)")
+g.add_argument("--no-rotation", action="store_true", help="lock particle rotations (000 section 4.3.2)")
+g.add_argument("--relaxation-tol", type=float, default=1e-3, help="cell relaxation tolerance (default 1e-3, 000 eq. 31)")
+g.add_argument("--criterion", choices=("energy", "force"), default="energy",
+               help="cell convergence test: E_kin/E_pot (000 eq. 31) or unbalanced-force ratio (001)")
+g.add_argument("--max-dem-steps", type=int, default=200_000, help="DEM steps allowed per cell solve (default %(default)s)")
+g = parser.add_argument_group("coupling")
+g.add_argument("--mode", choices=("classical", "hybrid", "micropolar"), default="hybrid",
+               help="classical: Cauchy continuum; hybrid (default): micropolar, elastic skew and couple stress; "
+                    "micropolar: every flux from the cell (needs a micropolar cell)")
+g.add_argument("--mu-c", type=float, default=None, help="Cosserat modulus [N/m] (hybrid; default: the cell's initial shear modulus)")
+g.add_argument("--l-c", type=float, default=None, help="internal length [m] (hybrid; default: --grain-diameter)")
+g.add_argument("--grain-diameter", type=float, default=2.5e-4,
+               help="mean grain diameter in the specimen's units [m] (default %(default)g: W / 40)")
+g.add_argument("--tangent", choices=("cto", "demqo", "kruyt", "pstlo"), default="pstlo",
+               help="cell operator of the macro Newton (default %(default)s; docs/femdem.md)")
+g.add_argument("--force-rtol", type=float, default=1e-2, help="Newton stops at FNORM/RNORM <= this (default %(default)g)")
+g.add_argument("--write-every", type=int, default=1, help="XDMF every N steps and at the end (default %(default)s)")
+args = cli.parse(parser)
+comm = MPI.COMM_WORLD
+if args.mode == "classical" and (args.mu_c is not None or args.l_c is not None):
+    parser.error("--mu-c and --l-c are micropolar options: a classical (Cauchy) scene has no rotation field")
+if args.write_every < 1:
+    parser.error(f"--write-every must be >= 1, got {args.write_every}")
+
+from cosserat_fenicsx.materials.dem import CellOptions  # noqa: E402  (imports demcell)
+
+try:
+    nx, ny = parse_mesh(args.mesh)
+    settings = FemDemSettings(
+        width=args.width, height=args.height, nx=nx, ny=ny, cell_type=args.cell_type,
+        degree_u=args.degree_u, degree_phi=args.degree_phi, mode=args.mode, tangent=args.tangent,
+        mu_c=args.mu_c, l_c=args.l_c, grain_diameter=args.grain_diameter, axial_strain=args.axial_strain,
+        steps=args.steps, weak_size=args.weak_size, weak_friction_factor=args.weak_friction,
+        force_rtol=args.force_rtol,
+        cell=CellOptions(particles=args.particles, seed=args.seed, packing=args.packing, friction=args.friction,
+                         pressure=args.pressure, kn=args.kn, ks=args.ks, rotation=not args.no_rotation,
+                         relaxation_tol=args.relaxation_tol, criterion=args.criterion,
+                         max_steps=args.max_dem_steps))
+    settings.check()                          # every option, before any cell exists
+    test = FemDemBiaxial(comm, settings)
+except ValueError as error:
+    parser.error(str(error))
+n_points = comm.allreduce(len(test.points))
+print0(comm, f"femdem: {args.mode} mode, {args.tangent} tangent, mesh {nx}x{ny}, {n_points} Gauss points "
+             f"({test.n_weak_cells} weak elements), {test.packing_info['n_particles']} discs per cell, "
+             f"{comm.size} rank(s); cells prepared in {test.preparation_time:.1f} s"
+             + (f"; mu_c = {test.mu_c:.4g} N/m, l_c = {test.l_c:.4g} m" if test.mu_c else ""))
+
+# --- outputs written as the run goes ---------------------------------------------------
+cb = test.callback
+idx = test.material.state_index
+writer = FieldWriter(test.problem, os.path.join(args.out, "fields.xdmf"), args.fields)
+for name in ("coordination_number", "anisotropy", "sliding_fraction", "dem_steps"):
+    writer.add_cell_field(name, (), lambda name=name: cb.cell_average(cb.state_old[:, [idx[name]]]))
+writer.add_cell_field("stress_ratio", (), lambda: cb.cell_average(test.gauss_point_ratios()[:, None]))
+writer.add_cell_field("equivalent_strain", (),
+                      lambda: cb.cell_average(test.equivalent_strain(test.gradients_start)[:, None]))
+writer.add_cell_field("incremental_equivalent_strain", (),
+                      lambda: cb.cell_average(test.equivalent_strain(test.gradients_previous)[:, None]))
+columns = ["step", "time", "phase", "axial_strain", "stress_ratio", "volumetric_strain", "coordination_number",
+           "anisotropy", "sliding_fraction", "vertical_reaction", "vertical_stress", "mean_sigma11", "mean_sigma22",
+           "newton_iterations", "force_ratio", "dem_steps", "points_without_contacts", "cuts", "wall_time"]
+history = CsvLog(comm, os.path.join(args.out, "history.csv"), columns)
+gauss_log = CsvLog(comm, os.path.join(args.out, "gauss_points.csv"), ["step", "axial_strain", "point", "x", "y", "stress_ratio"])
+per_point = []        # (axial_strain, stress ratios in the rank-independent order), rank 0
+written = []
+
+
+def record(row):
+    history.write(row)
+    pts, ratios = test.global_order(test.gauss_point_ratios())
+    if comm.rank == 0:
+        per_point.append((row["axial_strain"], ratios))
+        for k, (xy, r) in enumerate(zip(pts, ratios)):
+            gauss_log.write({"step": row["step"], "axial_strain": row["axial_strain"], "point": k,
+                             "x": xy[0], "y": xy[1], "stress_ratio": r})
+    if row["step"] % args.write_every == 0:
+        writer.write(row["time"])
+        written.append(row["time"])
+
+
+start = time.perf_counter()
+stopped = ""
+try:
+    test.run(record)
+except LoadSteppingError as error:
+    stopped = str(error)   # keep what was computed: summary, plot and snapshots of the part before
+    print0(comm, f"femdem: stopped early: {stopped}")
+if test.history and test.history[-1]["time"] not in written:
+    writer.write(test.history[-1]["time"])
+writer.close()
+history.close()
+gauss_log.close()
+wall = time.perf_counter() - start
+
+# --- particle snapshots of the Gauss points with the highest and lowest stress ratio ------
+ratios = test.gauss_point_ratios()
+snapshots = {}
+for label, pick in (("highest_stress_ratio", np.argmax), ("lowest_stress_ratio", np.argmin)):
+    local = (float(ratios[pick(ratios)]) if len(ratios) else (-np.inf if pick is np.argmax else np.inf),
+             comm.rank, int(pick(ratios)) if len(ratios) else -1)
+    everyone = comm.allgather(local)
+    best = max(everyone) if pick is np.argmax else min(everyone)
+    if comm.rank == best[1]:
+        import demcell
+        directory = os.path.join(args.out, "snapshots", label)
+        demcell.write_vtk_snapshot(directory, 0, test.material.cells[best[2]].state)
+    xy = comm.bcast(test.points[best[2]].tolist() if comm.rank == best[1] else None, root=best[1])
+    snapshots[label] = {"stress_ratio": best[0], "x": xy[0], "y": xy[1],
+                        "files": f"snapshots/{label}/particles_0000.vtk, contacts_0000.vtk"}
+
+# --- summary --------------------------------------------------------------------------------
+rows = [r for r in test.history if r["phase"] == 2]
+fit, band, no_band = None, None, ""
+if rows:
+    try:
+        fit = test.band()
+        is_band, no_band = band_verdict(fit, min(args.width / nx, args.height / ny), args.width)
+        band = fit if is_band else None
+    except ValueError as error:
+        no_band = str(error)
+    if no_band:
+        print0(comm, f"femdem: no band: {no_band}")
+ratio = np.array([r["stress_ratio"] for r in rows]) if rows else np.zeros(0)
+i_peak = int(np.argmax(ratio)) if len(ratio) else None
+iterations = [r["newton_iterations"] for r in rows]
+timing = {k: max_over_ranks(comm, v) for k, v in test.timing().items()}
+memory = comm.allreduce(test.material.memory_bytes())
+summary = {
+    "peak_stress_ratio": float(ratio[i_peak]) if rows else None,
+    "axial_strain_at_peak": float(rows[i_peak]["axial_strain"]) if rows else None,
+    "friction_angle_at_peak_deg": float(math.degrees(math.asin(min(1.0, ratio[i_peak])))) if rows else None,
+    "final_stress_ratio": float(ratio[-1]) if rows else None,
+    "final_axial_strain": float(rows[-1]["axial_strain"]) if rows else None,
+    "n_gauss_points": n_points, "particles_per_cell": test.packing_info["n_particles"],
+    "band_thickness": band.thickness if band else None,
+    "band_thickness_definition": "H = standard deviation of the bell fitted to the equivalent strain (thesis 4.22); FWHM = 2.355 H",
+    "band_inclination_deg": band.inclination_deg if band else None,
+    "band_fit": fit.as_dict() if fit else None, "no_band_reason": no_band,
+    "newton_iterations_total": int(sum(iterations)),
+    "newton_iterations_mean_before_peak": float(np.mean(iterations[:i_peak + 1])) if rows else None,
+    "newton_iterations_mean_after_peak": float(np.mean(iterations[i_peak + 1:])) if rows and i_peak + 1 < len(rows) else None,
+    "newton_force_ratios": [info.force_ratios for info in test.solver.infos_converged()],
+    "dem_steps_total": float(sum(r["dem_steps"] for r in test.history)),
+    "steps": len(test.history), "cut_backs": int(test.history[-1]["cuts"]) if test.history else 0,
+    "completed": not stopped, "stopped": stopped,
+    "wall_time": wall, "cell_preparation_time": test.preparation_time, "ranks": comm.size,
+    "time_max_over_ranks": timing,
+    "memory_per_cell_bytes": memory / n_points, "snapshots": snapshots,
+    "mode": test.material.describe(), "mu_c": test.mu_c, "l_c": test.l_c, "packing": test.packing_info,
+    "options": {k: v for k, v in vars(args).items() if k != "elasticity"},
+}
+write_json(comm, os.path.join(args.out, "summary.json"), summary)
+
+# --- figure: 000 Figs 4-6 -----------------------------------------------------------------------
+if comm.rank == 0 and rows:
+    import matplotlib
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    rows_all = test.history
+    eps = np.array([-r["axial_strain"] * 100 for r in rows_all])
+    fig, ax = plt.subplots(2, 3, figsize=(14, 7.5))
+    if per_point:
+        curves = np.array([p[1] for p in per_point])
+        ax[0, 0].plot(eps, curves, "-", color="0.75", lw=0.5)
+    ax[0, 0].plot(eps, [r["stress_ratio"] for r in rows_all], "k-", lw=2, label="mean over Gauss points")
+    ax[0, 0].set_ylabel("stress ratio |s11-s22|/|s11+s22| (000 eq. 40)"); ax[0, 0].legend()
+    panels = [("volumetric_strain", "volumetric strain (tension +)"), ("coordination_number", "coordination number"),
+              ("anisotropy", "fabric anisotropy A (000 eq. 38)"), ("vertical_stress", "platen reaction / W [N/m]")]
+    for a, (key, label) in zip([ax[0, 1], ax[0, 2], ax[1, 0], ax[1, 1]], panels):
+        a.plot(eps, [r[key] for r in rows_all], "b-")
+        a.set_ylabel(label)
+    ax[1, 2].plot(eps, [r["newton_iterations"] for r in rows_all], "r.")
+    ax[1, 2].set_ylabel("Newton iterations per step")
+    for a in ax.flat:
+        a.set_xlabel("axial strain -eps_22 [%]"); a.grid(alpha=0.3)
+    fig.suptitle(f"FEM x DEM biaxial, {args.mode} mode, mesh {nx}x{ny} ({n_points} cells), "
+                 f"{test.packing_info['n_particles']} discs, {args.tangent} tangent"
+                 + (f"; band H = {band.thickness * 1e3:.2f} mm, {band.inclination_deg:.0f} deg" if band else ""))
+    fig.tight_layout(); fig.savefig(os.path.join(args.out, "femdem_biaxial.png"), dpi=110)
+    plt.close(fig)
+print0(comm, f"peak stress ratio {summary['peak_stress_ratio']} at axial strain {summary['axial_strain_at_peak']}; "
+             f"band H = {summary['band_thickness']}; {wall:.0f} s; outputs in {args.out}")
+if stopped:
+    sys.exit(1)

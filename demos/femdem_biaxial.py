@@ -9,7 +9,8 @@ periodic disc cell: the cell is deformed by F = I + sym(eps) (001 eq. 7), relaxe
 equilibrium (000 section 3.2.1) and its homogenized Cauchy stress (001 eq. 8) is the stress of
 the point. The cell is the one of demos/dem_cell.py (000 Table 3: 228 discs, mu = 0.4,
 kn = 1e4 N/m, ks = 2e3 N/m, tolerance 1e-3; p0 = 10 N/m, see the note on the pressure there),
-prepared by the same isotropic stage; the same --particles N --seed S give the same packing.
+prepared by the same isotropic stage; the same --particles N --seed S give the same packing
+(the cells relax to the unbalanced-force ratio 1e-3 of 001 by default, see --criterion).
 
 1. Isotropic compression: the preparation of the cell, so every Gauss point starts at F = I
    with sigma = -p0 I; one macro step applies p0 to the lateral faces and checks equilibrium.
@@ -84,9 +85,10 @@ g.add_argument("--pressure", type=float, default=10.0, help="confining pressure 
 g.add_argument("--kn", type=float, default=1e4, help="normal contact stiffness [N/m] (default 1e4)")
 g.add_argument("--ks", type=float, default=2e3, help="tangential contact stiffness [N/m] (default 2e3)")
 g.add_argument("--no-rotation", action="store_true", help="lock particle rotations (000 section 4.3.2)")
-g.add_argument("--relaxation-tol", type=float, default=1e-3, help="cell relaxation tolerance (default 1e-3, 000 eq. 31)")
-g.add_argument("--criterion", choices=("energy", "force"), default="energy",
-               help="cell convergence test: E_kin/E_pot (000 eq. 31) or unbalanced-force ratio (001)")
+g.add_argument("--relaxation-tol", type=float, default=1e-3, help="cell relaxation tolerance of --criterion (default 1e-3: 001 section 2, 000 Table 3)")
+g.add_argument("--criterion", choices=("energy", "force"), default="force",
+               help="cell convergence test: unbalanced-force ratio (001, default) or E_kin/E_pot (000 eq. 31; "
+                    "near the peak it leaves a residual floor above --force-rtol, docs/femdem.md)")
 g.add_argument("--max-dem-steps", type=int, default=200_000, help="DEM steps allowed per cell solve (default %(default)s)")
 g = parser.add_argument_group("coupling")
 g.add_argument("--mode", choices=("classical", "hybrid", "micropolar"), default="hybrid",

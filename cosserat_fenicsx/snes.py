@@ -211,7 +211,12 @@ class NewtonSolver:
         self._force_ratios = []
         self._first_residual = True
         start = time.perf_counter()
-        self.snes.solve(None, self.x)
+        try:
+            self.snes.solve(None, self.x)
+        except PETSc.Error as error:
+            # e.g. MUMPS refusing a singular matrix (every Gauss point of an element without
+            # stiffness); the factorisation is collective, so every rank gets here
+            self._failure = self._failure or f"linear solve failed (PETSc error {error.ierr}: singular Jacobian?)"
         self.timers["solve_total"] += time.perf_counter() - start
         if self._fatal:
             raise RuntimeError(f"material update failed: {self._failure}")
@@ -222,6 +227,13 @@ class NewtonSolver:
         flag = callback.flag_message if callback is not None else ""
         flags = next((f for f in self.problem.mesh.comm.allgather(flag) if f), "")
         converged = reason > 0 and not self._failure
+        if not converged and not self._failure and self.force_rtol is not None and len(self._force_ratios) > 2:
+            best = min(self._force_ratios[1:])
+            if np.isfinite(best) and best > self.force_rtol:
+                flags = (flags + "; " if flags else "") + (
+                    f"FNORM/RNORM did not go below {best:.2g} (force_rtol = {self.force_rtol:g}): the cells' "
+                    "response is not smooth at this scale (sliding, rearrangements); tighten the cells' "
+                    "relaxation, use larger cells or loosen force_rtol")
         residual = self.snes.getFunctionNorm()
         if converged and not np.isfinite(residual):
             converged = False

@@ -3,6 +3,7 @@ and a CSV writer that flushes every row (results are written as the run goes).""
 import csv
 import json
 import os
+import zipfile
 
 import numpy as np
 
@@ -30,11 +31,17 @@ def load_packing(path):
             if "demcell_packing_version" not in z.files:
                 raise InputError(f"{path} is not a demcell packing file")
             d = {k: z[k] for k in z.files}
-    except (OSError, ValueError) as e:
-        raise InputError(f"cannot read packing file {path}: {e}") from None
-    info = json.loads(str(d.pop("info_json")))
-    d.pop("demcell_packing_version")
-    return CellState.from_dict(d), info
+    except (OSError, ValueError, EOFError, zipfile.BadZipFile) as e:
+        raise InputError(f"cannot read packing file {path} (not a readable .npz archive: {e})") from None
+    try:
+        info = json.loads(str(d.pop("info_json")))
+        d.pop("demcell_packing_version")
+        state = CellState.from_dict(d).check()
+    except KeyError as e:
+        raise InputError(f"packing file {path} lacks the array {e}") from None
+    except (ValueError, TypeError) as e:
+        raise InputError(f"packing file {path} is inconsistent: {e}") from None
+    return state, info
 
 
 def write_vtk_snapshot(directory, index, state):

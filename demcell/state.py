@@ -128,6 +128,41 @@ class CellState:
             out[f.name] = val
         return out
 
+    def check(self):
+        """Shapes, dtypes and values consistent (a packing read from a file); raises
+        ValueError naming the array."""
+        n = self.radius.shape[0] if self.radius.ndim == 1 else -1
+        if n < 1:
+            raise ValueError(f"radius must be a non-empty 1D array, got shape {self.radius.shape}")
+        per_particle = {"mass": (n,), "inertia": (n,), "s": (n, 2), "v": (n, 2), "theta": (n,), "omega": (n,),
+                        "dtheta": (n,), "force": (n, 2), "moment": (n,), "s_build": (n, 2)}
+        for name, shape in per_particle.items():
+            if getattr(self, name).shape != shape:
+                raise ValueError(f"{name} has shape {getattr(self, name).shape}, expected {shape} for {n} particles")
+        for name in ("h", "h_build", "h_ref"):
+            if getattr(self, name).shape != (2, 2):
+                raise ValueError(f"{name} must be 2x2, got shape {getattr(self, name).shape}")
+        m = self.pair_i.shape[0]
+        for name in PAIR_FIELDS:
+            a = getattr(self, name)
+            if a.shape[0] != m or (name == "d_prev" and a.shape != (m, 2)):
+                raise ValueError(f"pair array {name} has shape {a.shape}, expected ({m},...)")
+        if not 0 <= self.n_pairs <= m:
+            raise ValueError(f"n_pairs = {self.n_pairs} outside [0, {m}]")
+        for name in ("radius", "mass", "inertia"):
+            a = getattr(self, name)
+            if not (np.isfinite(a).all() and (a > 0).all()):
+                raise ValueError(f"{name} must be finite and positive")
+        for name in ("s", "h", "h_ref"):
+            if not np.isfinite(getattr(self, name)).all():
+                raise ValueError(f"{name} has non-finite values")
+        if not abs(np.linalg.det(self.h)) > 0 or not abs(np.linalg.det(self.h_ref)) > 0:
+            raise ValueError("the cell matrix h (or h_ref) is singular")
+        if self.n_pairs and (self.pair_i[:self.n_pairs].max() >= n or self.pair_j[:self.n_pairs].max() >= n
+                             or self.pair_i[:self.n_pairs].min() < 0 or self.pair_j[:self.n_pairs].min() < 0):
+            raise ValueError("pair indices outside the particle range")
+        return self
+
     @classmethod
     def from_dict(cls, d):
         kw = {f.name: d[f.name] for f in fields(cls)}

@@ -116,11 +116,9 @@ def test_corrupt_packing_file(demo, tmp_path, make, pattern):
     assert str(path) in line and re.search(pattern, line), line
 
 
-# --- found while writing these tests: refused, but not cleanly (see the reasons) ----------
+# --- corrupt packings, seeds and budgets that once escaped as tracebacks ------------------
 
 @pytest.mark.serial
-@pytest.mark.xfail(strict=True, reason="a truncated packing .npz escapes demcell.load_packing as "
-                                       "zipfile.BadZipFile: traceback, exit 1")
 def test_truncated_packing_file(demo, tmp_path):
     good = packing_file(tmp_path)
     path = tmp_path / "truncated.npz"
@@ -130,8 +128,6 @@ def test_truncated_packing_file(demo, tmp_path):
 
 
 @pytest.mark.serial
-@pytest.mark.xfail(strict=True, reason="a packing .npz without an array escapes demcell.load_packing "
-                                       "as KeyError: traceback, exit 1")
 def test_packing_file_missing_an_array(demo, tmp_path):
     path = packing_file(tmp_path, "incomplete.npz", radius=None)
     line = refused(demo, tmp_path, "--packing", path)
@@ -139,10 +135,6 @@ def test_packing_file_missing_an_array(demo, tmp_path):
 
 
 @pytest.mark.serial
-@pytest.mark.xfail(strict=True, reason="a packing .npz whose arrays disagree in length is not validated: "
-                                       "the Numba kernels read past the short array, and the run ends at "
-                                       "random in a SolveError / ZeroDivisionError traceback or runs and "
-                                       "fails later (exit 1)")
 def test_packing_file_inconsistent_arrays(demo, tmp_path):
     path = packing_file(tmp_path, "inconsistent.npz", radius=lambda r: r[:5])
     # a small run, so that the outcome where the run gets going costs seconds only
@@ -151,16 +143,12 @@ def test_packing_file_inconsistent_arrays(demo, tmp_path):
 
 
 @pytest.mark.serial
-@pytest.mark.xfail(strict=True, reason="--seed -1 is refused by numpy inside the packing generation: "
-                                       "'error: expected non-negative integer' does not name --seed")
 def test_negative_seed(demo, tmp_path):
     line = refused(demo, tmp_path, "--seed", -1)
     assert re.search(r"\bseed\b", line), line
 
 
 @pytest.mark.serial
-@pytest.mark.xfail(strict=True, reason="--max-dem-steps also limits the reference cell preparation: "
-                                       "a tiny budget ends in a demcell SolveError traceback, exit 1")
 def test_tiny_dem_step_budget(demo, tmp_path):
     line = refused(demo, tmp_path, "--max-dem-steps", 5, "--mesh", "1x1", "--particles", 100)
     assert re.search(r"max[-_]dem[-_]steps|max_steps", line), line
@@ -212,9 +200,6 @@ def test_bad_packing_files_via_the_api(tmp_path):
             FemDemSettings(cell=CellOptions(packing=str(path))).check()
 
 
-@pytest.mark.xfail(strict=True, reason="FemDemSettings.check() does not check degree_u / degree_phi: "
-                                       "CosseratProblem refuses them only after the reference cell "
-                                       "was prepared")
 @pytest.mark.parametrize("name", ["degree_u", "degree_phi"])
 def test_settings_check_names_the_degrees(name):
     with pytest.raises(ValueError, match=name):

@@ -98,6 +98,16 @@ class FemDemSettings:
             raise ValueError(f"femdem: weak_size must be in [0, min(W, H)), got {self.weak_size!r}")
         if not 0 < self.weak_friction_factor <= 1:
             raise ValueError(f"femdem: weak_friction_factor must be in (0, 1], got {self.weak_friction_factor!r}")
+        for name in ("degree_u", "degree_phi"):
+            v = getattr(self, name)
+            if not (isinstance(v, (int, np.integer)) and v >= 1):
+                raise ValueError(f"femdem: {name} must be an integer >= 1, got {v!r}")
+        if self.mode == "micropolar":
+            import demcell
+            if not getattr(demcell.DemCell, "micropolar", False):
+                raise ValueError("femdem: mode 'micropolar' needs a cell that carries rotation and curvature "
+                                 "itself; demcell's DemCell gives the force stress of a deformation only "
+                                 "(use mode hybrid)")
         if self.cell_type not in ("triangle", "quadrilateral"):
             raise ValueError(f"femdem: cell_type must be triangle or quadrilateral, got {self.cell_type!r}")
         self.cell.check()

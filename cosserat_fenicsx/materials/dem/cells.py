@@ -55,8 +55,12 @@ class CellOptions:
             raise ValueError(f"relaxation_tol must be in (0, 1), got {self.relaxation_tol!r}")
         if self.criterion not in ("energy", "force"):
             raise ValueError(f"criterion must be 'energy' or 'force', got {self.criterion!r}")
-        if not (isinstance(self.max_steps, (int, np.integer)) and self.max_steps >= 1):
-            raise ValueError(f"max_steps must be an integer >= 1, got {self.max_steps!r}")
+        if not (isinstance(self.seed, (int, np.integer)) and self.seed >= 0):
+            raise ValueError(f"seed must be an integer >= 0, got {self.seed!r}")
+        check_every = self.relaxation().check_every
+        if not (isinstance(self.max_steps, (int, np.integer)) and self.max_steps >= 2 * check_every):
+            raise ValueError(f"max_steps must be an integer >= {2 * check_every} (the convergence test runs "
+                             f"every {check_every} DEM steps), got {self.max_steps!r}")
         if self.packing is not None:
             self.load_packing()      # missing or corrupt: InputError (a ValueError) now
         self.relaxation()            # unknown or bad extra options

@@ -68,6 +68,7 @@ class DemMaterial(Constitutive):
         self.cells = []
         self.coordinates = None
         self._touched = set()
+        self._floors = {}
         self.timers = {"solve": 0.0, "homogenize": 0.0, "tangent": 0.0, "commit": 0.0}
 
     # --- set-up ------------------------------------------------------------------------
@@ -149,7 +150,7 @@ class DemMaterial(Constitutive):
         if not jump <= self.max_strain_increment:
             # a cell asked to jump this far is either a load step far too large or a Newton
             # iterate running away: refuse it (the step is cut) instead of tearing the cell
-            return (STATUS_BAD_F, f"strain increment {jump:.3g} from the committed state exceeds "
+            return (STATUS_BAD_F, f"strain increment {jump:.6g} from the committed state exceeds "
                     f"max_strain_increment = {self.max_strain_increment:g} (load step too large, or "
                     "the Newton iteration is diverging)", 0)
         try:
@@ -172,13 +173,23 @@ class DemMaterial(Constitutive):
         start = time.perf_counter()
         for k, p in enumerate(points):
             cell = self.cells[p]
-            # a cell without contacts has no stiffness: Kruyt's sum is then exactly zero,
-            # where a linear solve (pstlo) would be singular
-            kind = self._kind if cell.contact_count() else "kruyt"
-            self.mode.tangent(cell, None, kind, tangent_out[p])
+            if cell.contact_count():
+                self.mode.tangent(cell, None, self._kind, tangent_out[p])
+            else:
+                # a cell without contacts has no stiffness (and pstlo's solve would be
+                # singular); a whole element of such points would make the Jacobian singular,
+                # so it gets 1e-6 of its reference cell's stiffness: the stress stays zero
+                tangent_out[p] = self._floor_tangent(int(self.zone[p]))
             cost[k] = cell.last_tangent_steps
         self.timers["tangent"] += time.perf_counter() - start
         return PointReport(status=np.zeros(len(points), dtype=np.int32), cost=cost, cost_unit=self.cost_unit)
+
+    def _floor_tangent(self, zone):
+        if zone not in self._floors:
+            block = np.zeros((6, 6))
+            self.mode.tangent(self.reference_cells[zone], None, "kruyt", block)
+            self._floors[zone] = 1e-6 * block
+        return self._floors[zone]
 
     def commit(self):
         start = time.perf_counter()

@@ -1,0 +1,112 @@
+"""Shared runner of the FEM x DEM benchmarks: one case = one FemDemBiaxial run.
+
+`run_case(comm, out, label, settings)` runs the case (unless `out/label.json` exists: long
+studies resume where they stopped) and writes, as soon as it ends, a JSON record with the
+history, the peak, the band fit and its verdict, the Newton iterations, the DEM steps, wall
+and CPU seconds (CPU summed over the ranks), where the time went (slowest rank), the memory
+of the cells and the load average before and after (the machine may be shared: compare
+times within one run of a study only).
+"""
+import json
+import os
+import resource
+import sys
+import time
+
+import numpy as np
+
+sys.path.insert(0, os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
+
+from cosserat_fenicsx.materials.dem import CellOptions  # noqa: E402
+from cosserat_fenicsx.scenes.femdem_biaxial import FemDemBiaxial, FemDemSettings, max_over_ranks  # noqa: E402
+from cosserat_fenicsx.shear_band import band_verdict  # noqa: E402
+from cosserat_fenicsx.stepping import LoadSteppingError  # noqa: E402
+
+
+def settings(mesh=(2, 4), particles=228, cell=None, **kw):
+    """FemDemSettings with the cell options in one place (`cell`: CellOptions overrides)."""
+    nx, ny = mesh
+    return FemDemSettings(nx=nx, ny=ny, cell=CellOptions(particles=particles, **(cell or {})), **kw)
+
+
+def cpu_seconds():
+    r = resource.getrusage(resource.RUSAGE_SELF)
+    return r.ru_utime + r.ru_stime
+
+
+def run_case(comm, out, label, s, log=print):
+    """Run one case (or read its record); returns the record (every rank)."""
+    path = os.path.join(out, f"{label}.json")
+    if os.path.isfile(path):
+        with open(path) as f:
+            return json.load(f)
+    load_before = os.getloadavg()
+    start, cpu0 = time.perf_counter(), cpu_seconds()
+    test = FemDemBiaxial(comm, s, verbose=False)
+    stopped = ""
+    try:
+        test.run()
+    except LoadSteppingError as error:
+        stopped = str(error)
+    wall = time.perf_counter() - start
+    cpu = comm.allreduce(cpu_seconds() - cpu0)
+    rows = [r for r in test.history if r["phase"] == 2]
+    ratio = np.array([r["stress_ratio"] for r in rows])
+    i_peak = int(np.argmax(ratio)) if len(ratio) else 0
+    fit, verdict = None, "no step"
+    if rows:
+        try:
+            fit = test.band()
+            ok, why = band_verdict(fit, min(s.width / s.nx, s.height / s.ny), s.width)
+            verdict = "band" if ok else why
+        except ValueError as error:
+            verdict = str(error)
+    iterations = [r["newton_iterations"] for r in rows]
+    points, strain = test.global_order(test.equivalent_strain(test.gradients_start))
+    record = {
+        "label": label, "mode": s.mode, "tangent": s.tangent, "mesh": [s.nx, s.ny],
+        "particles": s.cell.particles, "criterion": s.cell.criterion, "relaxation_tol": s.cell.relaxation_tol,
+        "l_c": test.l_c, "mu_c": test.mu_c, "n_gauss_points": comm.allreduce(len(test.points)),
+        "ranks": comm.size, "completed": not stopped, "stopped": stopped,
+        "axial_strain": [r["axial_strain"] for r in rows], "stress_ratio": ratio.tolist(),
+        "volumetric_strain": [r["volumetric_strain"] for r in rows],
+        "coordination_number": [r["coordination_number"] for r in rows],
+        "vertical_stress": [r["vertical_stress"] for r in rows],
+        "newton_iterations": iterations, "dem_steps": [r["dem_steps"] for r in rows],
+        "force_ratios": [info.force_ratios for info in test.solver.infos_converged()][1:],
+        "peak_stress_ratio": float(ratio[i_peak]) if rows else None,
+        "axial_strain_at_peak": float(rows[i_peak]["axial_strain"]) if rows else None,
+        "band_thickness": fit.thickness if fit is not None and verdict == "band" else None,
+        "band_fit": fit.as_dict() if fit is not None else None, "band_verdict": verdict,
+        "wall_time": wall, "cpu_time": cpu, "preparation_time": test.preparation_time,
+        "time_max_over_ranks": {k: max_over_ranks(comm, v) for k, v in test.timing().items()},
+        "memory_per_cell_bytes": comm.allreduce(test.material.memory_bytes()) / comm.allreduce(len(test.points)),
+        "cuts": int(test.history[-1]["cuts"]) if test.history else 0,
+        "load_average_before": load_before[0], "load_average_after": os.getloadavg()[0],
+        # the final equivalent strain since the start of phase 2 at every Gauss point (rank 0)
+        "points": points.tolist() if points is not None else None,
+        "equivalent_strain": strain.tolist() if strain is not None else None,
+    }
+    if comm.rank == 0:
+        os.makedirs(out, exist_ok=True)
+        with open(path + ".tmp", "w") as f:
+            json.dump(record, f, indent=1)
+        os.replace(path + ".tmp", path)
+        log(f"{label}: peak {record['peak_stress_ratio']:.4f} at {record['axial_strain_at_peak']:.4f}, "
+            f"band {verdict if verdict != 'band' else f'H = {fit.thickness * 1e3:.3f} mm'}, "
+            f"{sum(iterations)} Newton iterations, {wall:.0f} s wall, {cpu:.0f} s CPU"
+            + (f"; stopped: {stopped}" if stopped else ""))
+    return record
+
+
+def table(records, columns):
+    """Fixed-width text table of records (list of dicts) for `columns` [(title, key, fmt)]."""
+    head = " ".join(f"{t:>{max(len(t), 10)}}" for t, _, _ in columns)
+    lines = [head, "-" * len(head)]
+    for r in records:
+        cells = []
+        for t, key, fmt in columns:
+            v = key(r) if callable(key) else r.get(key)
+            cells.append(f"{(format(v, fmt) if v is not None else '-'):>{max(len(t), 10)}}")
+        lines.append(" ".join(cells))
+    return "\n".join(lines)

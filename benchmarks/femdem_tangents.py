@@ -1,0 +1,106 @@
+#!/usr/bin/env python3
+"""Macro Newton operators of FEM x DEM compared on the biaxial test, as 001 Table 1 and
+Figs 6-7: the perturbation CTO (001 eq. 6), DEMQO (eq. 20), Kruyt's upper bound (eq. 13)
+and PSTLO (appendix B), each driving the same run to 2 % axial strain.
+
+Per operator: Newton iterations per step before and after the peak, the convergence
+velocity of 001 (the inverse of the number of integrations of the loading path, counting
+five per iteration for the CTO and one for the others, normalised by PSTLO's), DEM steps
+(the cells' real work, tangent relaxations included), wall and CPU time; and the
+convergence of FNORM/RNORM against the iteration for one step before and one after the
+peak (001 Fig. 6). Writes --out/tangents.txt, tangents.png and one JSON record per run.
+
+    mpirun -n 2 python3 benchmarks/femdem_tangents.py --out results/femdem_tangents
+"""
+import argparse
+import os
+
+import numpy as np
+from mpi4py import MPI
+
+from femdem_cases import run_case, settings, table
+
+INTEGRATIONS = {"cto": 5, "demqo": 1, "kruyt": 1, "pstlo": 1}
+
+
+def main():
+    p = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    p.add_argument("--out", default="results/femdem_tangents")
+    p.add_argument("--mesh", default="2x4")
+    p.add_argument("--particles", type=int, default=228)
+    p.add_argument("--axial-strain", type=float, default=0.02)
+    p.add_argument("--steps", type=int, default=20)
+    p.add_argument("--tangents", nargs="+", default=["pstlo", "demqo", "kruyt", "cto"])
+    a = p.parse_args()
+    comm = MPI.COMM_WORLD
+    nx, ny = (int(v) for v in a.mesh.split("x"))
+    records = []
+    for tangent in a.tangents:
+        # a weaker lower left element (friction 0.8 x) breaks the symmetry; 000 has none
+        s = settings(mesh=(nx, ny), particles=a.particles, mode="classical", tangent=tangent,
+                     axial_strain=a.axial_strain, steps=a.steps, weak_size=0.01 / nx, weak_friction_factor=0.8)
+        records.append(run_case(comm, a.out, f"{tangent}_{a.mesh}_{a.particles}", s,
+                                log=lambda t: comm.rank == 0 and print(t, flush=True)))
+    if comm.rank != 0:
+        return
+    ref = next((r for r in records if r["tangent"] == "pstlo"), records[0])
+
+    def split(r):
+        i = int(np.argmax(r["stress_ratio"]))
+        it = np.array(r["newton_iterations"], dtype=float)
+        return it[:i + 1], it[i + 1:]
+
+    def velocity(r, part):
+        n = split(r)[part].sum() * INTEGRATIONS[r["tangent"]]
+        m = split(ref)[part].sum() * INTEGRATIONS[ref["tangent"]]
+        return m / n if n else None
+
+    for r in records:
+        pre, post = split(r)
+        r["it_pre"], r["it_post"] = float(pre.mean()), float(post.mean()) if len(post) else None
+        r["v_i"], r["v_p"] = velocity(r, 0), velocity(r, 1)
+        r["dem_total"] = float(sum(r["dem_steps"]))
+        r["wall_rel"] = 100.0 * r["wall_time"] / ref["wall_time"]
+    text = table(records, [("operator", "tangent", "s"), ("peak", "peak_stress_ratio", ".4f"),
+                           ("at strain", "axial_strain_at_peak", ".4f"), ("it/step pre", "it_pre", ".2f"),
+                           ("it/step post", "it_post", ".2f"), ("V_i", "v_i", ".2f"), ("V_p", "v_p", ".2f"),
+                           ("DEM steps", "dem_total", ".3g"), ("wall [s]", "wall_time", ".0f"),
+                           ("CPU [s]", "cpu_time", ".0f"), ("wall %", "wall_rel", ".0f"), ("cuts", "cuts", "d"),
+                           ("load", "load_average_before", ".1f")])
+    head = (f"FEM x DEM biaxial, classical, mesh {a.mesh} ({records[0]['n_gauss_points']} Gauss points), "
+            f"{a.particles} discs, to {a.axial_strain:g} in {a.steps} steps, FNORM/RNORM <= 1e-2, {comm.size} ranks\n"
+            "V_i, V_p: 001's convergence velocity before / after the peak (1 / integrations of the loading path, "
+            "5 per CTO iteration), relative to pstlo\n")
+    print(head + text)
+    with open(os.path.join(a.out, "tangents.txt"), "w") as f:
+        f.write(head + text + "\n")
+    plot(records, os.path.join(a.out, "tangents.png"))
+
+
+def plot(records, path):
+    import matplotlib
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    fig, ax = plt.subplots(1, 4, figsize=(17, 4))
+    for r in records:
+        i_peak = int(np.argmax(r["stress_ratio"]))
+        pre = min(max(1, i_peak // 2), len(r["force_ratios"]) - 1)
+        post = min(len(r["force_ratios"]) - 1, i_peak + max(2, (len(r["force_ratios"]) - i_peak) // 2))
+        line, = ax[0].semilogy(r["force_ratios"][pre], "o-", label=r["tangent"])
+        ax[1].semilogy(r["force_ratios"][post], "o-", color=line.get_color(), label=r["tangent"])
+        ax[2].plot(-np.array(r["axial_strain"]) * 100, r["newton_iterations"], ".-", color=line.get_color(),
+                   label=r["tangent"])
+    for a, title in zip(ax[:2], ("before the peak", "after the peak")):
+        a.axhline(1e-2, color="k", lw=0.8, ls="--")
+        a.set_xlabel("Newton iteration"); a.set_ylabel("FNORM / RNORM"); a.set_title(title); a.legend()
+    ax[2].set_xlabel("axial strain [%]"); ax[2].set_ylabel("Newton iterations per step"); ax[2].legend()
+    ref = next((r for r in records if r["tangent"] == "pstlo"), records[0])
+    ax[3].bar([r["tangent"] for r in records], [100 * r["wall_time"] / ref["wall_time"] for r in records])
+    ax[3].set_ylabel("relative wall time (pstlo = 100)")
+    fig.suptitle("FEM x DEM Newton operators (001 Figs 6-7)")
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+
+
+if __name__ == "__main__":
+    main()

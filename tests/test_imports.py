@@ -56,3 +56,41 @@ def test_cauchy_scene_has_no_rotation_field():
     assert p.rotation is None and p.couple_stress() is None
     with pytest.raises(ValueError, match="no rotation field"):
         p.add_dirichlet("left", "phi", 0.0)
+
+
+DEM_SCENE = """
+import sys, json
+sys.path.insert(0, {root!r})
+from mpi4py import MPI
+from cosserat_fenicsx.materials.dem import CellOptions
+from cosserat_fenicsx.scenes.femdem_biaxial import FemDemBiaxial, FemDemSettings
+test = FemDemBiaxial(MPI.COMM_WORLD, FemDemSettings(nx=1, ny=1, steps=1, axial_strain=1e-3,
+                                                   cell=CellOptions(particles=30)), verbose=False)
+test.run()
+print(json.dumps({{name: name in sys.modules for name in
+      ("demcell", "cosserat_fenicsx.materials.ehlers", "cosserat_fenicsx.materials.ehlers.local_solver")}}))
+"""
+
+EHLERS_SCENE = """
+import sys, json
+sys.path.insert(0, {root!r})
+from mpi4py import MPI
+from cosserat_fenicsx.scenes.biaxial import BiaxialSettings, BiaxialTest
+test = BiaxialTest(MPI.COMM_WORLD, BiaxialSettings(cell_size=0.025, steps=1, consolidation_steps=1,
+                                                   axial_strain=1e-3), verbose=False)
+test.run()
+print(json.dumps({{name: name in sys.modules for name in
+      ("demcell", "cosserat_fenicsx.materials.dem", "cosserat_fenicsx.materials.ehlers")}}))
+"""
+
+
+def test_dem_scene_imports_no_ehlers_kernel():
+    loaded = modules_after(DEM_SCENE.format(root=ROOT))
+    assert loaded == {"demcell": True, "cosserat_fenicsx.materials.ehlers": False,
+                      "cosserat_fenicsx.materials.ehlers.local_solver": False}
+
+
+def test_ehlers_scene_imports_no_demcell():
+    loaded = modules_after(EHLERS_SCENE.format(root=ROOT))
+    assert loaded == {"demcell": False, "cosserat_fenicsx.materials.dem": False,
+                      "cosserat_fenicsx.materials.ehlers": True}

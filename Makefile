@@ -34,6 +34,7 @@ demo: deps
 	$(PYTHON) demos/material_point.py --test all --out $(OUT)/material_point
 	$(PYTHON) demos/dem_cell.py --out $(OUT)/dem_cell
 	$(MPIRUN) -n $(NP) $(PYTHON) demos/biaxial.py --out $(OUT)/biaxial
+	$(MPIRUN) -n $(NP) $(PYTHON) demos/femdem_biaxial.py --axial-strain 0.03 --steps 30 --out $(OUT)/femdem_biaxial
 
 test: deps
 	NP=$(NP) TEST_TIMEOUT=$(TEST_TIMEOUT) tests/run_suite.sh $(PYTHON)
@@ -58,6 +59,10 @@ benchmark: deps
 	$(PYTHON) benchmarks/biaxial_convergence.py --out $(OUT)/benchmarks/biaxial_convergence
 	$(PYTHON) benchmarks/biaxial_profile.py --out $(OUT)/benchmarks/biaxial_profile
 	$(MPIRUN) -n $(NP) $(PYTHON) benchmarks/biaxial_profile.py --out $(OUT)/benchmarks/biaxial_profile_np$(NP)
+	$(MPIRUN) -n $(NP) $(PYTHON) benchmarks/femdem_tangents.py --out $(OUT)/benchmarks/femdem_tangents
+	$(MPIRUN) -n $(NP) $(PYTHON) benchmarks/femdem_regularisation.py --out $(OUT)/benchmarks/femdem_regularisation
+	$(MPIRUN) -n $(NP) $(PYTHON) benchmarks/femdem_convergence.py --out $(OUT)/benchmarks/femdem_convergence
+	$(MPIRUN) -n $(NP) $(PYTHON) benchmarks/femdem_rotation.py --out $(OUT)/benchmarks/femdem_rotation
 	$(PYTHON) -m pytest -q -p no:cacheprovider -m slow tests
 
 clean:

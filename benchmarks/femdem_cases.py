@@ -42,7 +42,9 @@ def run_case(comm, out, label, s, log=print):
             return json.load(f)
     load_before = os.getloadavg()
     start, cpu0 = time.perf_counter(), cpu_seconds()
-    test = FemDemBiaxial(comm, s, verbose=False)
+    if comm.rank == 0:
+        log(f"{label}: running ({s.mode}, {s.nx}x{s.ny}, {s.cell.particles} discs, {s.tangent})")
+    test = FemDemBiaxial(comm, s, verbose=True)    # one line per step: a long study shows progress
     stopped = ""
     try:
         test.run()
@@ -73,6 +75,7 @@ def run_case(comm, out, label, s, log=print):
         "coordination_number": [r["coordination_number"] for r in rows],
         "vertical_stress": [r["vertical_stress"] for r in rows],
         "newton_iterations": iterations, "dem_steps": [r["dem_steps"] for r in rows],
+        "accepted": [r["accepted"] for r in rows], "final_force_ratio": [r["force_ratio"] for r in rows],
         "force_ratios": [info.force_ratios for info in test.solver.infos_converged()][1:],
         "peak_stress_ratio": float(ratio[i_peak]) if rows else None,
         "axial_strain_at_peak": float(rows[i_peak]["axial_strain"]) if rows else None,

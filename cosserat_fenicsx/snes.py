@@ -15,7 +15,13 @@ the norm of the residual at the free dofs over the norm of the reactions (intern
 at the Dirichlet dofs), checked from the first Newton update on (when the Dirichlet rows
 hold their new values). A material whose stress carries a relaxation error (a DEM cell
 relaxed to a tolerance) cannot bring the residual below that error: this test stops at
-a level the material can deliver. `SolveInfo.force_ratios` is its history.
+a level the material can deliver. `SolveInfo.force_ratios` is its history. With
+`accept_rtol` (>= force_rtol) as well, a solve that does not reach force_rtol within
+snes_max_it but whose best iterate reached FNORM/RNORM <= accept_rtol ends at that iterate
+(re-evaluated, so the material's state is the one of that iterate) and is reported as
+accepted (`SolveInfo.accepted`, reason ACCEPTED_AT_STAGNATION): the residual of a DEM-backed
+material stagnates near the peak at a floor set by the cells' slips, and a step there is as
+converged as the cells allow.
 """
 from dataclasses import dataclass, field
 import time
@@ -54,6 +60,7 @@ class SolveInfo:
     wall_time: float = 0.0
     force_ratios: list = field(default_factory=list)
     flags: str = ""     # a flagged Gauss point at the last iterate (e.g. a cell without contacts)
+    accepted: bool = False   # ended at its best iterate above force_rtol but below accept_rtol
 
 
 class NewtonSolver:
@@ -61,11 +68,16 @@ class NewtonSolver:
 
     _count = 0
 
-    def __init__(self, problem, options=None, prefix="cosserat_", force_rtol=None):
+    def __init__(self, problem, options=None, prefix="cosserat_", force_rtol=None, accept_rtol=None):
         if force_rtol is not None and not (np.isfinite(force_rtol) and force_rtol > 0):
             raise ValueError(f"force_rtol must be a positive number, got {force_rtol!r}")
+        if accept_rtol is not None and not (force_rtol is not None and np.isfinite(accept_rtol)
+                                            and accept_rtol >= force_rtol):
+            raise ValueError(f"accept_rtol must be a number >= force_rtol (and needs force_rtol), got {accept_rtol!r}")
         self.problem = problem
         self.force_rtol = force_rtol
+        self.accept_rtol = accept_rtol
+        self._best = (np.inf, None)
         self.residual_form, self.jacobian_form = problem.forms()
         self.x = compat.petsc_vector(problem.w)
         self.b = dolfinx.fem.petsc.create_vector(self.residual_form)
@@ -131,6 +143,8 @@ class NewtonSolver:
         # no reaction yet (a step from rest): nothing to compare with, unless nothing is left
         ratio = np.sqrt(free / reactions) if reactions > 0 else (0.0 if free == 0 else np.inf)
         self._force_ratios.append(float(ratio) if np.isfinite(free) else np.nan)
+        if self.accept_rtol is not None and self._residual_calls > 1 and ratio < self._best[0]:
+            self._best = (float(ratio), self._x_now.array_r.copy())
 
     def _residual(self, snes, x, b):
         start, material = time.perf_counter(), self.timers["material"]
@@ -151,6 +165,8 @@ class NewtonSolver:
         if x.handle != w.handle:
             x.copy(w)
         self.problem.w.x.scatter_forward()
+        self._x_now = x
+        self._residual_calls += 1      # the first one is the committed state: never "best"
         failed = self._material_step(self.problem.before_residual)
         if not failed and self._first_residual:
             # the lifting below applies the Dirichlet increment of the step through the
@@ -210,6 +226,8 @@ class NewtonSolver:
         self._failure, self._fatal = "", False
         self._force_ratios = []
         self._first_residual = True
+        self._best = (np.inf, None)
+        self._residual_calls = 0
         start = time.perf_counter()
         try:
             self.snes.solve(None, self.x)
@@ -227,6 +245,17 @@ class NewtonSolver:
         flag = callback.flag_message if callback is not None else ""
         flags = next((f for f in self.problem.mesh.comm.allgather(flag) if f), "")
         converged = reason > 0 and not self._failure
+        accepted = False
+        if (not converged and not self._failure and self.accept_rtol is not None
+                and self._best[0] <= self.accept_rtol):
+            # end at the best iterate: re-evaluate it so that fluxes and material state are its own
+            self.x.array[:] = self._best[1]
+            self.x.ghostUpdate(addv=PETSc.InsertMode.INSERT, mode=PETSc.ScatterMode.FORWARD)
+            self._first_residual = False
+            self._residual(self.snes, self.x, self.b)
+            self.problem.w.x.scatter_forward()
+            converged = accepted = not self._failure and self._force_ratios[-1] <= self.accept_rtol
+            reason = "ACCEPTED_AT_STAGNATION"
         if not converged and not self._failure and self.force_rtol is not None and len(self._force_ratios) > 2:
             best = min(self._force_ratios[1:])
             if np.isfinite(best) and best > self.force_rtol:
@@ -238,10 +267,10 @@ class NewtonSolver:
         if converged and not np.isfinite(residual):
             converged = False
         return SolveInfo(converged=converged, iterations=self.snes.getIterationNumber(),
-                         residual=residual, reason=REASONS.get(reason, str(reason)),
+                         residual=residual, reason=reason if isinstance(reason, str) else REASONS.get(reason, str(reason)),
                          residual_history=history, failure=self._failure,
                          wall_time=time.perf_counter() - start, force_ratios=list(self._force_ratios),
-                         flags=flags)
+                         flags=flags, accepted=accepted)
 
     def destroy(self):
         self.snes.destroy()

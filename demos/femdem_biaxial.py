@@ -101,6 +101,9 @@ g.add_argument("--grain-diameter", type=float, default=2.5e-4,
 g.add_argument("--tangent", choices=("cto", "demqo", "kruyt", "pstlo"), default="pstlo",
                help="cell operator of the macro Newton (default %(default)s; docs/femdem.md)")
 g.add_argument("--force-rtol", type=float, default=1e-2, help="Newton stops at FNORM/RNORM <= this (default %(default)g)")
+g.add_argument("--accept-rtol", type=float, default=3e-2,
+               help="a step whose Newton stagnates ends at its best iterate if FNORM/RNORM <= this, reported as "
+                    "accepted (default %(default)g; 0: never)")
 g.add_argument("--write-every", type=int, default=1, help="XDMF every N steps and at the end (default %(default)s)")
 args = cli.parse(parser)
 comm = MPI.COMM_WORLD
@@ -118,7 +121,7 @@ try:
         degree_u=args.degree_u, degree_phi=args.degree_phi, mode=args.mode, tangent=args.tangent,
         mu_c=args.mu_c, l_c=args.l_c, grain_diameter=args.grain_diameter, axial_strain=args.axial_strain,
         steps=args.steps, weak_size=args.weak_size, weak_friction_factor=args.weak_friction,
-        force_rtol=args.force_rtol,
+        force_rtol=args.force_rtol, accept_rtol=args.accept_rtol if args.accept_rtol != 0 else None,
         cell=CellOptions(particles=args.particles, seed=args.seed, packing=args.packing, friction=args.friction,
                          pressure=args.pressure, kn=args.kn, ks=args.ks, rotation=not args.no_rotation,
                          relaxation_tol=args.relaxation_tol, criterion=args.criterion,
@@ -146,7 +149,7 @@ writer.add_cell_field("incremental_equivalent_strain", (),
                       lambda: cb.cell_average(test.equivalent_strain(test.gradients_previous)[:, None]))
 columns = ["step", "time", "phase", "axial_strain", "stress_ratio", "volumetric_strain", "coordination_number",
            "anisotropy", "sliding_fraction", "vertical_reaction", "vertical_stress", "mean_sigma11", "mean_sigma22",
-           "newton_iterations", "force_ratio", "dem_steps", "points_without_contacts", "cuts", "wall_time"]
+           "newton_iterations", "force_ratio", "accepted", "dem_steps", "points_without_contacts", "cuts", "wall_time"]
 history = CsvLog(comm, os.path.join(args.out, "history.csv"), columns)
 gauss_log = CsvLog(comm, os.path.join(args.out, "gauss_points.csv"), ["step", "axial_strain", "point", "x", "y", "stress_ratio"])
 per_point = []        # (axial_strain, stress ratios in the rank-independent order), rank 0
@@ -228,6 +231,7 @@ summary = {
     "newton_iterations_mean_before_peak": float(np.mean(iterations[:i_peak + 1])) if rows else None,
     "newton_iterations_mean_after_peak": float(np.mean(iterations[i_peak + 1:])) if rows and i_peak + 1 < len(rows) else None,
     "newton_force_ratios": [info.force_ratios for info in test.solver.infos_converged()],
+    "steps_accepted_above_force_rtol": int(sum(r["accepted"] for r in test.history)),
     "dem_steps_total": float(sum(r["dem_steps"] for r in test.history)),
     "steps": len(test.history), "cut_backs": int(test.history[-1]["cuts"]) if test.history else 0,
     "completed": not stopped, "stopped": stopped,

@@ -811,3 +811,34 @@ def test_invalid_force_rtol(force_rtol):
     problem = scene(LinearElasticMaterial(ELASTIC), plate())
     with pytest.raises(ValueError, match="force_rtol"):
         NewtonSolver(problem, force_rtol=force_rtol)
+
+
+class Overshooting(Plain):
+    tangent_factor = 0.45     # |1 - 1/0.45| = 1.2: the iteration diverges after the first update
+
+
+def test_accept_rtol_ends_a_stagnating_solve_at_its_best_iterate():
+    """A diverging iteration (tangent too soft) never reaches force_rtol; with accept_rtol
+    above its best FNORM/RNORM the solve ends at that iterate, re-evaluated (the reported
+    ratio is the one of the final fields), and says so; below it, the solve fails."""
+    mesh_data = plate()
+    for accept, expect in ((None, False), (1e-6, False), (10.0, True)):
+        problem = scene(Overshooting(ELASTIC), mesh_data)
+        solver = NewtonSolver(problem, options=dict(BASIC, snes_max_it=5), force_rtol=1e-9,
+                              accept_rtol=accept)
+        problem.set_time(1.0)
+        info = solver.solve()
+        ratios = info.force_ratios
+        iterates = ratios[1:6]                    # after iteration 1 .. 5
+        best = int(np.argmin(iterates))
+        assert min(iterates) > 1e-3 and best < len(iterates) - 1     # never converging, best not last
+        assert info.converged == expect and info.accepted == expect
+        if expect:
+            assert info.reason == "ACCEPTED_AT_STAGNATION" and len(ratios) == 7
+            assert ratios[-1] == pytest.approx(iterates[best], rel=1e-9)      # re-evaluated best iterate
+            assert ratios[-1] == pytest.approx(force_ratio(problem, solver), rel=1e-6)
+    for bad in (1e-10, float("nan")):          # below force_rtol, or not a number
+        with pytest.raises(ValueError, match="accept_rtol"):
+            NewtonSolver(scene(Overshooting(ELASTIC), mesh_data), force_rtol=1e-9, accept_rtol=bad)
+    with pytest.raises(ValueError, match="accept_rtol"):
+        NewtonSolver(scene(Overshooting(ELASTIC), mesh_data), accept_rtol=1e-2)   # needs force_rtol

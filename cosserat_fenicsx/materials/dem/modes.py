@@ -52,16 +52,20 @@ def place_cell_tangent(C, out):
     out[np.ix_(CELL_TO_CALLBACK, CELL_TO_CALLBACK)] = C
 
 
-class ClassicalMode:
-    """Cauchy continuum: the cell gives the whole stress (000, 001)."""
-    name = "classical"
-    micropolar_scene = False
+class _SymmetricDrive:
+    """A cell of force stress only, driven by F = I + sym(eps)."""
 
     def deformation(self, gradients):
         return deformation_gradient(gradients)
 
     def drive(self, cell, gradients):
         cell.set_deformation(self.deformation(gradients))
+
+
+class ClassicalMode(_SymmetricDrive):
+    """Cauchy continuum: the cell gives the whole stress (000, 001)."""
+    name = "classical"
+    micropolar_scene = False
 
     def fluxes(self, homogenized, gradients, out):
         s = homogenized.cauchy
@@ -76,7 +80,7 @@ class ClassicalMode:
         return {"mode": self.name}
 
 
-class HybridMode:
+class HybridMode(_SymmetricDrive):
     """The cell gives the symmetric stress; skew and couple stress are elastic (eq. 2.74):
 
         sigma = sym(sigma_cell(I + sym eps)) + 2 mu_c skw(eps),   m = 2 mu_c l_c^2 kappa
@@ -99,12 +103,6 @@ class HybridMode:
         skew[1, 1] = skew[2, 2] = mu_c
         skew[1, 2] = skew[2, 1] = -mu_c
         self._skew = skew
-
-    def deformation(self, gradients):
-        return deformation_gradient(gradients)
-
-    def drive(self, cell, gradients):
-        cell.set_deformation(self.deformation(gradients))
 
     def fluxes(self, homogenized, gradients, out):
         s = homogenized.cauchy

@@ -38,11 +38,11 @@ def add_material_options(parser, mu=1.0e8, lmbda=1.0e8, mu_c=None, l_c=1.0e-2):
     g.add_argument("--cauchy", action="store_true", help="classical (Cauchy) continuum: no rotation field")
 
 
-def add_mesh_options(parser, cell_size=None):
-    """--cell-size (unless cell_size is None: the scene has its own mesh option),
-    --cell-type, --degree-u, --degree-phi."""
+def add_mesh_options(parser, cell_size=None, with_cell_size=True):
+    """--cell-size (default cell_size; left out when with_cell_size is False because the
+    scene has its own mesh option), --cell-type, --degree-u, --degree-phi."""
     g = parser.add_argument_group("discretization")
-    if cell_size is not None:
+    if with_cell_size:
         g.add_argument("--cell-size", type=float, default=cell_size, help="target element size [m] (default %(default)s)")
     g.add_argument("--cell-type", choices=("triangle", "quadrilateral"), default="triangle")
     g.add_argument("--degree-u", type=int, default=2, help="displacement degree (default 2, Taylor-Hood)")

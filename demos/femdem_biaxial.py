@@ -65,7 +65,7 @@ from cosserat_fenicsx.shear_band import band_verdict
 from cosserat_fenicsx.stepping import LoadSteppingError
 
 parser = cli.make_parser(__doc__)
-cli.add_mesh_options(parser)
+cli.add_mesh_options(parser, with_cell_size=False)
 cli.add_output_options(parser, "results/femdem_biaxial")
 cli.add_stepping_options(parser, steps=100)
 g = parser.add_argument_group("specimen and loading (000 section 4.1)")

@@ -1,12 +1,16 @@
 """Shared runner of the FEM x DEM benchmarks: one case = one FemDemBiaxial run.
 
 `run_case(comm, out, label, settings)` runs the case (unless `out/label.json` exists: long
-studies resume where they stopped) and writes, as soon as it ends, a JSON record with the
+studies resume where they stopped; or a run of the same settings is in the shared store
+`cases_dir(out)`, by default `femdem_cases/` beside `out`: the benchmarks share their runs,
+e.g. the hybrid meshes of the regularisation are the mesh family of the convergence study;
+results do not depend on the number of ranks) and writes, as soon as it ends, a JSON record with the
 history, the peak, the band fit and its verdict, the Newton iterations, the DEM steps, wall
 and CPU seconds (CPU summed over the ranks), where the time went (slowest rank), the memory
 of the cells and the load average before and after (the machine may be shared: compare
 times within one run of a study only).
 """
+import hashlib
 import json
 import os
 import resource
@@ -34,12 +38,25 @@ def cpu_seconds():
     return r.ru_utime + r.ru_stime
 
 
+def cases_dir(out):
+    return os.environ.get("FEMDEM_CASES", os.path.join(os.path.dirname(os.path.abspath(out)), "femdem_cases"))
+
+
+def settings_key(s):
+    """A digest of every setting of a run (the dataclass repr lists them all)."""
+    return hashlib.sha1(repr(s).encode()).hexdigest()[:16]
+
+
 def run_case(comm, out, label, s, log=print):
     """Run one case (or read its record); returns the record (every rank)."""
     path = os.path.join(out, f"{label}.json")
-    if os.path.isfile(path):
-        with open(path) as f:
-            return json.load(f)
+    shared = os.path.join(cases_dir(out), f"{settings_key(s)}.json")
+    for known in (path, shared):
+        if os.path.isfile(known):
+            with open(known) as f:
+                record = json.load(f)
+            record["label"] = label
+            return record
     load_before = os.getloadavg()
     start, cpu0 = time.perf_counter(), cpu_seconds()
     if comm.rank == 0:
@@ -95,6 +112,10 @@ def run_case(comm, out, label, s, log=print):
         with open(path + ".tmp", "w") as f:
             json.dump(record, f, indent=1)
         os.replace(path + ".tmp", path)
+        os.makedirs(os.path.dirname(shared), exist_ok=True)
+        with open(shared + ".tmp", "w") as f:
+            json.dump(dict(record, settings=repr(s)), f, indent=1)
+        os.replace(shared + ".tmp", shared)
         log(f"{label}: peak {record['peak_stress_ratio']:.4f} at {record['axial_strain_at_peak']:.4f}, "
             f"band {verdict if verdict != 'band' else f'H = {fit.thickness * 1e3:.3f} mm'}, "
             f"{sum(iterations)} Newton iterations, {wall:.0f} s wall, {cpu:.0f} s CPU"

@@ -169,8 +169,13 @@ def test_hybrid_tends_to_the_classical_mode(demo, tmp_path):
 
 @pytest.mark.serial
 def test_one_and_two_ranks_give_the_same_history(demo, tmp_path):
-    """The partition changes the order of the assembly sums only (round-off); the cells are
-    deterministic (measured: the histories are identical in all written digits)."""
+    """The partition changes the order of the assembly sums and of the linear solve only
+    (round-off in the macro fields, 1e-16); a cell turns that into a difference only when it
+    moves a relaxation decision (the step at which the unbalanced-force check passes), and such a
+    difference is bounded by the relaxation tolerance (1e-3 of the stress: docs/femdem.md).
+    Measured: 1 rank run twice is identical in all written digits; 1 against 2 ranks
+    differ by 1e-7 of the stress ratio after one step, 1e-4 after four (checks moved). A partition error (a point missing, a ghost added twice, a rank's
+    cells driven by another's gradients) gives differences of order 1."""
     args = ("--mesh", "2x2", "--particles", 100, "--axial-strain", 0.004, "--steps", 4,
             "--weak-size", 0.005, "--weak-friction", 0.8, "--fields", "displacement")
     runs = {}
@@ -179,8 +184,12 @@ def test_one_and_two_ranks_give_the_same_history(demo, tmp_path):
         runs[ranks] = (history(tmp_path / f"np{ranks}"),
                        np.genfromtxt(tmp_path / f"np{ranks}" / "gauss_points.csv", delimiter=",", names=True))
     (h1, g1), (h2, g2) = runs[1], runs[2]
+    tol = 1e-3                                                  # the cells' relaxation tolerance
     assert len(h1) == len(h2)
-    for key in ("stress_ratio", "vertical_stress", "volumetric_strain", "coordination_number", "newton_iterations"):
-        assert np.allclose(h1[key], h2[key], rtol=1e-9, atol=1e-12), key
+    for key in ("stress_ratio", "vertical_stress", "volumetric_strain", "coordination_number"):
+        scale = np.abs(h1[key]).max()
+        assert np.allclose(h1[key], h2[key], rtol=0, atol=tol * scale), key
+    assert np.abs(h1["newton_iterations"] - h2["newton_iterations"]).max() <= 1
     assert np.allclose(g1["x"], g2["x"]) and np.allclose(g1["y"], g2["y"])
-    assert np.allclose(g1["stress_ratio"], g2["stress_ratio"], rtol=1e-8, atol=1e-9)   # 10 digits in the CSV
+    # a stress error tol |sigma| in each component moves the ratio (s1 - s2) / (s1 + s2) by at most tol
+    assert np.allclose(g1["stress_ratio"], g2["stress_ratio"], rtol=0, atol=tol)

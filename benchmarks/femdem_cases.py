@@ -14,10 +14,12 @@ import hashlib
 import json
 import os
 import resource
+import signal
 import sys
 import time
 
 import numpy as np
+from mpi4py import MPI
 
 sys.path.insert(0, os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
 
@@ -36,6 +38,21 @@ def settings(mesh=(2, 4), particles=228, cell=None, **kw):
 def cpu_seconds():
     r = resource.getrusage(resource.RUSAGE_SELF)
     return r.ru_utime + r.ru_stime
+
+
+class Interrupted(Exception):
+    """SIGTERM during a run: the step under way ends, and the record is written with what the
+    run reached (a study that must end by a deadline keeps its partial curves). The signal is
+    looked at after a converged step, on every rank together (a rank that got it tells the
+    others), so no rank waits in a collective. Delete the record to run the case again."""
+
+
+class _SigtermFlag:
+    def __init__(self):
+        self.raised = False
+
+    def __call__(self, signum, frame):
+        self.raised = True
 
 
 def cases_dir(out):
@@ -63,10 +80,19 @@ def run_case(comm, out, label, s, log=print):
         log(f"{label}: running ({s.mode}, {s.nx}x{s.ny}, {s.cell.particles} discs, {s.tangent})")
     test = FemDemBiaxial(comm, s, verbose=True)    # one line per step: a long study shows progress
     stopped = ""
+    flag = _SigtermFlag()
+    previous = signal.signal(signal.SIGTERM, flag)
+
+    def after_step(row):
+        if comm.allreduce(flag.raised, op=MPI.LOR):
+            raise Interrupted(f"interrupted by SIGTERM after step {row['step']}")
+
     try:
-        test.run()
-    except LoadSteppingError as error:
+        test.run(on_step=after_step)
+    except (LoadSteppingError, Interrupted) as error:
         stopped = str(error)
+    finally:
+        signal.signal(signal.SIGTERM, previous)
     wall = time.perf_counter() - start
     cpu = comm.allreduce(cpu_seconds() - cpu0)
     rows = [r for r in test.history if r["phase"] == 2]

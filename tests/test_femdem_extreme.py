@@ -331,7 +331,7 @@ no_paraview = shutil.which("pvbatch") is None or shutil.which("xvfb-run") is Non
 @pytest.mark.serial
 @pytest.mark.skipif(no_paraview, reason="ParaView (python3-paraview) or xvfb-run not installed")
 def test_femdem_output_in_paraview(demo, tmp_path):
-    from test_paraview import paraview_read
+    from test_paraview import paraview_read, pvbatch_json
     from conftest import read_summary
     strain, p0 = 0.002, 10.0
     demo("femdem_biaxial", "--mesh", "1x2", "--particles", 100, "--axial-strain", strain, "--steps", 2,
@@ -370,11 +370,7 @@ def test_femdem_output_in_paraview(demo, tmp_path):
     script = tmp_path / "vtk_check.py"
     script.write_text(VTK_SCRIPT)
     snap = tmp_path / "snapshots" / "highest_stress_ratio"
-    proc = subprocess.run(["xvfb-run", "-a", "pvbatch", str(script), str(snap / "particles_0000.vtk"),
-                           str(snap / "contacts_0000.vtk")], capture_output=True, text=True, timeout=300)
-    lines = [line for line in proc.stdout.splitlines() if line.startswith("PARAVIEW_JSON ")]
-    assert lines, f"pvbatch failed ({proc.returncode}):\n{proc.stdout[-2000:]}\n{proc.stderr[-2000:]}"
-    vtk = json.loads(lines[-1][len("PARAVIEW_JSON "):])
+    vtk = pvbatch_json(script, snap / "particles_0000.vtk", snap / "contacts_0000.vtk")
     particles, contacts = vtk["particles"], vtk["contacts"]
     n = summary["particles_per_cell"]
     assert n == 100 and particles["points"] == n and particles["cells"] == n     # one vertex per disc

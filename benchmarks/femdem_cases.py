@@ -149,6 +149,22 @@ def run_case(comm, out, label, s, log=print):
     return record
 
 
+def time_split(record):
+    """Where the Newton time went (slowest rank), in % of it: cell solves (and homogenisation),
+    cell tangents, assembly (residual and Jacobian), linear solve and SNES."""
+    t = record["time_max_over_ranks"]
+    parts = {"solves %": t["cell_solves"] + t.get("cell_homogenisation", 0.0), "tangents %": t["cell_tangents"],
+             "assembly %": t["residual_assembly"] + t["jacobian_assembly"],
+             # records made before the accepted iterate's re-evaluation was timed inside the
+             # solve can come out negative here: that part was cell time, not linear solve
+             "linear %": max(t["linear_solve_and_snes"], 0.0)}
+    total = max(sum(parts.values()), 1e-300)
+    return {k: 100 * v / total for k, v in parts.items()}
+
+
+TIME_COLUMNS = [(k, (lambda r, k=k: time_split(r)[k]), ".2f") for k in ("solves %", "tangents %", "assembly %", "linear %")]
+
+
 def table(records, columns):
     """Fixed-width text table of records (list of dicts) for `columns` [(title, key, fmt)]."""
     head = " ".join(f"{t:>{max(len(t), 10)}}" for t, _, _ in columns)

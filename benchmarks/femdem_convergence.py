@@ -73,6 +73,7 @@ def main():
             rows.append(r)
     if comm.rank != 0:
         return
+    os.makedirs(a.out, exist_ok=True)
     for r in rows:
         r["H_fit_mm"] = r["band_fit"]["thickness"] * 1e3 if r["band_fit"] else None
         r["it"] = int(sum(r["newton_iterations"]))

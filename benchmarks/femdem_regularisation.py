@@ -22,7 +22,7 @@ import os
 import numpy as np
 from mpi4py import MPI
 
-from femdem_cases import run_case, settings, table
+from femdem_cases import TIME_COLUMNS, run_case, settings, table
 
 
 def main():
@@ -56,6 +56,7 @@ def main():
     records = [run_case(comm, a.out, label, settings(**kw), log=log) for label, kw in cases]
     if comm.rank != 0:
         return
+    os.makedirs(a.out, exist_ok=True)
     for r in records:
         r["h_mm"] = 10.0 / r["mesh"][0]
         r["lc_mm"] = r["l_c"] * 1e3 if r["l_c"] else None
@@ -71,7 +72,7 @@ def main():
                            ("H [mm]", "H_mm", ".3f"), ("fit H [mm]", "H_fit_mm", ".3f"), ("A/e0", "contrast", ".2f"),
                            ("Newton", "it", "d"), ("cuts", "cuts", "d"), ("DEM steps", "dem", ".3g"),
                            ("wall [s]", "wall_time", ".0f"), ("CPU [s]", "cpu_time", ".0f"),
-                           ("load", "load_average_before", ".1f")])
+                           ("load", "load_average_before", ".1f")] + TIME_COLUMNS)
     verdicts = "\n".join(f"  {r['label']}: {r['band_verdict']}" + (f"; stopped: {r['stopped']}" if r["stopped"] else "")
                          for r in records)
     head = (f"FEM x DEM biaxial 10 x 20 mm, weak corner {a.weak_size * 1e3:g} mm (friction x {a.weak_friction:g}), "

@@ -36,6 +36,7 @@ def main():
                                 log=lambda t: comm.rank == 0 and print(t, flush=True)))
     if comm.rank != 0:
         return
+    os.makedirs(a.out, exist_ok=True)
     for r, name in zip(records, ("free", "locked")):
         r["rotations"] = name
     ratio = records[0]["peak_stress_ratio"] / records[1]["peak_stress_ratio"]

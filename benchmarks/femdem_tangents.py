@@ -31,18 +31,22 @@ def main():
     p.add_argument("--axial-strain", type=float, default=0.02)
     p.add_argument("--steps", type=int, default=20)
     p.add_argument("--tangents", nargs="+", default=["pstlo", "demqo", "kruyt", "cto"])
+    p.add_argument("--weak-size", type=float, default=5e-3, help="weak lower left corner [m] (000 has none)")
+    p.add_argument("--weak-friction", type=float, default=0.8)
     a = p.parse_args()
     comm = MPI.COMM_WORLD
     nx, ny = (int(v) for v in a.mesh.split("x"))
     records = []
     for tangent in a.tangents:
-        # a weaker lower left element (friction 0.8 x) breaks the symmetry; 000 has none
+        # a weaker corner breaks the symmetry, so that the post-peak response is not homogeneous
         s = settings(mesh=(nx, ny), particles=a.particles, mode="classical", tangent=tangent,
-                     axial_strain=a.axial_strain, steps=a.steps, weak_size=0.01 / nx, weak_friction_factor=0.8)
+                     axial_strain=a.axial_strain, steps=a.steps, weak_size=a.weak_size,
+                     weak_friction_factor=a.weak_friction)
         records.append(run_case(comm, a.out, f"{tangent}_{a.mesh}_{a.particles}", s,
                                 log=lambda t: comm.rank == 0 and print(t, flush=True)))
     if comm.rank != 0:
         return
+    os.makedirs(a.out, exist_ok=True)
     ref = next((r for r in records if r["tangent"] == "pstlo"), records[0])
 
     def split(r):

@@ -93,12 +93,17 @@ def initial_guess(points, values):
 
 
 def _wrap(alpha):
-    """Same band line for alpha and alpha +- pi: keep alpha in (-pi/2, pi/2]."""
-    while alpha > math.pi / 2:
-        alpha -= math.pi
-    while alpha <= -math.pi / 2:
-        alpha += math.pi
-    return alpha
+    """Same band line for alpha and alpha +- pi: keep alpha in (-pi/2, pi/2]. In one
+    operation, not by repeated subtraction: a fit with no band to find can drift to a huge
+    alpha (1e300 - pi == 1e300 loops forever)."""
+    if not math.isfinite(alpha):
+        return math.nan
+    if -math.pi / 2 < alpha <= math.pi / 2:
+        return alpha
+    wrapped = math.fmod(alpha + math.pi / 2, math.pi)
+    wrapped = wrapped + math.pi if wrapped < 0 else wrapped      # in [0, pi)
+    wrapped -= math.pi / 2                                        # in [-pi/2, pi/2)
+    return math.pi / 2 if wrapped <= -math.pi / 2 else wrapped
 
 
 def fit_band(points, values, r0=None, max_iter=200, tol=1e-10):
@@ -149,6 +154,7 @@ def fit_band(points, values, r0=None, max_iter=200, tol=1e-10):
             break
     r[4] = _wrap(r[4])
     r[2] = abs(r[2])
+    converged = converged and bool(np.isfinite(r).all())
     return BandFit(thickness=float(r[2]), inclination_deg=math.degrees(r[4]), offset=float(r[0]),
                    amplitude=float(r[1]), x10=float(r[3]), rms_residual=math.sqrt(f / len(values)),
                    iterations=it, converged=converged)

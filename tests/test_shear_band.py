@@ -71,3 +71,19 @@ def test_bad_input_is_named():
         fit_band(points, np.r_[np.nan, np.ones(19)])
     with pytest.raises(ValueError, match="at least 6"):
         fit_band(points[:3], np.arange(3.0))
+
+
+def test_wrap_keeps_the_band_line_and_ends_for_any_angle():
+    """A fit with no band can drift to a huge inclination; wrapping it into (-pi/2, pi/2]
+    used to subtract pi until done, which never ends once alpha - pi == alpha (seen: a
+    benchmark hung there)."""
+    import math
+    from cosserat_fenicsx.shear_band import _wrap
+    for alpha in (0.3, math.pi / 2, -math.pi / 2, math.pi, 2.0, -2.0, 7 * math.pi + 0.1, 1e300, -1e300):
+        w = _wrap(alpha)
+        assert -math.pi / 2 < w <= math.pi / 2
+        if abs(alpha) < 1e3:     # the same line: alpha - w is a multiple of pi
+            k = (alpha - w) / math.pi
+            assert abs(k - round(k)) < 1e-12
+    assert _wrap(0.3) == 0.3
+    assert math.isnan(_wrap(math.inf))

@@ -61,7 +61,10 @@ def main():
         r["h_mm"] = 10.0 / r["mesh"][0]
         r["lc_mm"] = r["l_c"] * 1e3 if r["l_c"] else None
         r["H_mm"] = r["band_thickness"] * 1e3 if r["band_thickness"] else None
-        r["H_fit_mm"] = r["band_fit"]["thickness"] * 1e3 if r["band_fit"] else None
+        fit = r["band_fit"]
+        # the fitted bell where the fit converged to something inside the specimen (a fit with
+        # no band to find can drift anywhere): shown beside the verdict
+        r["H_fit_mm"] = (fit["thickness"] * 1e3 if fit and fit["converged"] and fit["thickness"] < 0.02 else None)
         r["contrast"] = r["band_fit"]["amplitude"] / max(r["band_fit"]["offset"], 1e-300) if r["band_fit"] else None
         r["final"] = r["stress_ratio"][-1]
         r["dem"] = float(sum(r["dem_steps"]))

@@ -59,7 +59,7 @@ benchmark: deps
 	$(PYTHON) benchmarks/biaxial_convergence.py --out $(OUT)/benchmarks/biaxial_convergence
 	$(PYTHON) benchmarks/biaxial_profile.py --out $(OUT)/benchmarks/biaxial_profile
 	$(MPIRUN) -n $(NP) $(PYTHON) benchmarks/biaxial_profile.py --out $(OUT)/benchmarks/biaxial_profile_np$(NP)
-	$(MPIRUN) -n $(NP) $(PYTHON) benchmarks/femdem_tangents.py --out $(OUT)/benchmarks/femdem_tangents
+	$(MPIRUN) -n $(NP) $(PYTHON) benchmarks/femdem_tangents.py --mesh 1x2 --out $(OUT)/benchmarks/femdem_tangents
 	$(MPIRUN) -n $(NP) $(PYTHON) benchmarks/femdem_regularisation.py --out $(OUT)/benchmarks/femdem_regularisation
 	$(MPIRUN) -n $(NP) $(PYTHON) benchmarks/femdem_convergence.py --out $(OUT)/benchmarks/femdem_convergence
 	$(MPIRUN) -n $(NP) $(PYTHON) benchmarks/femdem_rotation.py --out $(OUT)/benchmarks/femdem_rotation

@@ -24,7 +24,7 @@ from mpi4py import MPI
 sys.path.insert(0, os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
 
 from cosserat_fenicsx.materials.dem import CellOptions  # noqa: E402
-from cosserat_fenicsx.scenes.femdem_biaxial import FemDemBiaxial, FemDemSettings, max_over_ranks  # noqa: E402
+from cosserat_fenicsx.scenes.femdem_biaxial import FemDemBiaxial, FemDemSettings, max_over_ranks, parse_mesh  # noqa: E402,F401
 from cosserat_fenicsx.shear_band import band_verdict  # noqa: E402
 from cosserat_fenicsx.stepping import LoadSteppingError  # noqa: E402
 
@@ -163,6 +163,15 @@ def time_split(record):
 
 
 TIME_COLUMNS = [(k, (lambda r, k=k: time_split(r)[k]), ".2f") for k in ("solves %", "tangents %", "assembly %", "linear %")]
+
+
+def write_report(out, name, text):
+    """Print a study's report and write it to out/name (rank 0; creates out, which is still
+    missing when every record came from the shared store)."""
+    print(text)
+    os.makedirs(out, exist_ok=True)
+    with open(os.path.join(out, name), "w") as f:
+        f.write(text.rstrip("\n") + "\n")
 
 
 def table(records, columns):

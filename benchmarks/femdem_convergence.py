@@ -23,7 +23,7 @@ import os
 import numpy as np
 from mpi4py import MPI
 
-from femdem_cases import run_case, settings, table
+from femdem_cases import run_case, settings, table, write_report
 
 # the settings of the hybrid runs of benchmarks/femdem_regularisation.py, on 1x2, to 3 %
 BASE = dict(mesh=(1, 2), particles=228, mode="hybrid", tangent="pstlo", l_c=1e-3, weak_size=5e-3,
@@ -74,7 +74,6 @@ def main():
             rows.append(r)
     if comm.rank != 0:
         return
-    os.makedirs(a.out, exist_ok=True)
     for r in rows:
         r["H_mm"] = r["band_thickness"] * 1e3 if r["band_thickness"] else None    # a band only
         r["it"] = int(sum(r["newton_iterations"]))
@@ -88,9 +87,7 @@ def main():
                         ("CPU [s]", "cpu_time", ".0f"), ("load", "load_average_before", ".1f")])
     head = (f"FEM x DEM biaxial (hybrid, l_c = 1 mm, 5 mm weak corner), to {a.axial_strain:g} in {a.steps} steps, "
             f"{comm.size} ranks; peak error relative to the most accurate member of the family\n")
-    print(head + text)
-    with open(os.path.join(a.out, "convergence.txt"), "w") as f:
-        f.write(head + text + "\n")
+    write_report(a.out, "convergence.txt", head + text)
     plot(rows, os.path.join(a.out, "convergence.png"))
 
 

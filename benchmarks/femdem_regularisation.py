@@ -22,7 +22,7 @@ import os
 import numpy as np
 from mpi4py import MPI
 
-from femdem_cases import TIME_COLUMNS, run_case, settings, table
+from femdem_cases import TIME_COLUMNS, parse_mesh, run_case, settings, table, write_report
 
 
 def main():
@@ -45,18 +45,17 @@ def main():
                   weak_friction_factor=a.weak_friction)
     cases = []
     for mesh in a.meshes:
-        nx, ny = (int(v) for v in mesh.split("x"))
+        nx, ny = parse_mesh(mesh)
         for mode in a.modes:
             extra = {"l_c": a.l_c} if mode == "hybrid" else {}
             cases.append((f"{mode}_{mesh}", dict(common, mesh=(nx, ny), mode=mode, **extra)))
-    nx, ny = (int(v) for v in a.lc_mesh.split("x"))
+    nx, ny = parse_mesh(a.lc_mesh)
     for factor in a.lc_factors:
         cases.append((f"hybrid_{a.lc_mesh}_lc{factor:g}",
                       dict(common, mesh=(nx, ny), mode="hybrid", l_c=a.l_c * factor)))
     records = [run_case(comm, a.out, label, settings(**kw), log=log) for label, kw in cases]
     if comm.rank != 0:
         return
-    os.makedirs(a.out, exist_ok=True)
     for r in records:
         r["h_mm"] = 10.0 / r["mesh"][0]
         r["lc_mm"] = r["l_c"] * 1e3 if r["l_c"] else None
@@ -80,9 +79,7 @@ def main():
                          for r in records)
     head = (f"FEM x DEM biaxial 10 x 20 mm, weak corner {a.weak_size * 1e3:g} mm (friction x {a.weak_friction:g}), "
             f"{a.particles} discs per cell, to {a.axial_strain:g} in {a.steps} steps, {comm.size} ranks\n")
-    print(head + text + "\nband verdicts:\n" + verdicts)
-    with open(os.path.join(a.out, "regularisation.txt"), "w") as f:
-        f.write(head + text + "\nband verdicts:\n" + verdicts + "\n")
+    write_report(a.out, "regularisation.txt", head + text + "\nband verdicts:\n" + verdicts)
     plot(records, a, os.path.join(a.out, "regularisation.png"))
 
 

@@ -15,7 +15,7 @@ import os
 import numpy as np
 from mpi4py import MPI
 
-from femdem_cases import run_case, settings, table
+from femdem_cases import parse_mesh, run_case, settings, table, write_report
 
 
 def main():
@@ -27,7 +27,7 @@ def main():
     p.add_argument("--steps", type=int, default=100)
     a = p.parse_args()
     comm = MPI.COMM_WORLD
-    nx, ny = (int(v) for v in a.mesh.split("x"))
+    nx, ny = parse_mesh(a.mesh)
     records = []
     for rotation in (True, False):
         s = settings(mesh=(nx, ny), particles=a.particles, mode="classical", axial_strain=a.axial_strain,
@@ -36,7 +36,6 @@ def main():
                                 log=lambda t: comm.rank == 0 and print(t, flush=True)))
     if comm.rank != 0:
         return
-    os.makedirs(a.out, exist_ok=True)
     for r, name in zip(records, ("free", "locked")):
         r["rotations"] = name
     ratio = records[0]["peak_stress_ratio"] / records[1]["peak_stress_ratio"]
@@ -44,9 +43,7 @@ def main():
                            ("at strain", "axial_strain_at_peak", ".4f"), ("wall [s]", "wall_time", ".0f"),
                            ("CPU [s]", "cpu_time", ".0f"), ("cuts", "cuts", "d")])
     text += f"\nfree / locked peak: {ratio:.3f} (000: 0.39 / 0.48 = 0.81)\n"
-    print(text)
-    with open(os.path.join(a.out, "rotation.txt"), "w") as f:
-        f.write(text)
+    write_report(a.out, "rotation.txt", text)
     import matplotlib
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt

@@ -18,7 +18,7 @@ import os
 import numpy as np
 from mpi4py import MPI
 
-from femdem_cases import run_case, settings, table
+from femdem_cases import parse_mesh, run_case, settings, table, write_report
 
 INTEGRATIONS = {"cto": 5, "demqo": 1, "kruyt": 1, "pstlo": 1}
 
@@ -35,7 +35,7 @@ def main():
     p.add_argument("--weak-friction", type=float, default=0.8)
     a = p.parse_args()
     comm = MPI.COMM_WORLD
-    nx, ny = (int(v) for v in a.mesh.split("x"))
+    nx, ny = parse_mesh(a.mesh)
     records = []
     for tangent in a.tangents:
         # a weaker corner breaks the symmetry, so that the post-peak response is not homogeneous
@@ -46,7 +46,6 @@ def main():
                                 log=lambda t: comm.rank == 0 and print(t, flush=True)))
     if comm.rank != 0:
         return
-    os.makedirs(a.out, exist_ok=True)
     ref = next((r for r in records if r["tangent"] == "pstlo"), records[0])
 
     def split(r):
@@ -75,9 +74,7 @@ def main():
             f"{a.particles} discs, to {a.axial_strain:g} in {a.steps} steps, FNORM/RNORM <= 1e-2, {comm.size} ranks\n"
             "V_i, V_p: 001's convergence velocity before / after the peak (1 / integrations of the loading path, "
             "5 per CTO iteration), relative to pstlo\n")
-    print(head + text)
-    with open(os.path.join(a.out, "tangents.txt"), "w") as f:
-        f.write(head + text + "\n")
+    write_report(a.out, "tangents.txt", head + text)
     plot(records, os.path.join(a.out, "tangents.png"))
 
 

@@ -21,7 +21,10 @@ snes_max_it but whose best iterate reached FNORM/RNORM <= accept_rtol ends at th
 (re-evaluated, so the material's state is the one of that iterate) and is reported as
 accepted (`SolveInfo.accepted`, reason ACCEPTED_AT_STAGNATION): the residual of a DEM-backed
 material stagnates near the peak at a floor set by the cells' slips, and a step there is as
-converged as the cells allow.
+converged as the cells allow. With `stagnation_its` = k as well, such a solve does not wait for
+snes_max_it: it ends as soon as its best FNORM/RNORM is <= accept_rtol and has improved by less
+than 10 % over the last k iterations (past the peak a DEM-backed step otherwise spends most of
+its cap wandering at its floor: docs/femdem.md, "Past the peak").
 """
 from dataclasses import dataclass, field
 import time
@@ -68,13 +71,23 @@ class NewtonSolver:
 
     _count = 0
 
-    def __init__(self, problem, options=None, prefix="cosserat_", force_rtol=None, accept_rtol=None):
+    #: a best FNORM/RNORM that fell by less than this factor's complement over the last
+    #: stagnation_its iterations has stagnated
+    STAGNATION_GAIN = 0.9
+
+    def __init__(self, problem, options=None, prefix="cosserat_", force_rtol=None, accept_rtol=None,
+                 stagnation_its=None):
         if force_rtol is not None and not (np.isfinite(force_rtol) and force_rtol > 0):
             raise ValueError(f"force_rtol must be a positive number, got {force_rtol!r}")
         if accept_rtol is not None and not (force_rtol is not None and np.isfinite(accept_rtol)
                                             and accept_rtol >= force_rtol):
             raise ValueError(f"accept_rtol must be a number >= force_rtol (and needs force_rtol), got {accept_rtol!r}")
+        if stagnation_its is not None and not (accept_rtol is not None and isinstance(stagnation_its, (int, np.integer))
+                                               and stagnation_its >= 1):
+            raise ValueError(f"stagnation_its must be an integer >= 1 (and needs accept_rtol), got {stagnation_its!r}")
         self.problem = problem
+        self.stagnation_its = stagnation_its
+        self._best_by_it = []
         self.force_rtol = force_rtol
         self.accept_rtol = accept_rtol
         self._best = (np.inf, None)
@@ -129,6 +142,12 @@ class NewtonSolver:
             return PETSc.SNES.ConvergedReason.DIVERGED_FNORM_NAN
         if it >= 1 and ratio <= self.force_rtol:
             return PETSc.SNES.ConvergedReason.CONVERGED_FNORM_RELATIVE
+        self._best_by_it.append(self._best[0])
+        k = self.stagnation_its
+        if k is not None and it > k:
+            best, before = self._best_by_it[-1], self._best_by_it[-1 - k]
+            if best <= self.accept_rtol and best > self.STAGNATION_GAIN * before:
+                return PETSc.SNES.ConvergedReason.DIVERGED_MAX_IT   # solve() ends at the best iterate
         if it >= snes.getTolerances()[3]:
             return PETSc.SNES.ConvergedReason.DIVERGED_MAX_IT
         return PETSc.SNES.ConvergedReason.ITERATING
@@ -227,6 +246,7 @@ class NewtonSolver:
         self._force_ratios = []
         self._first_residual = True
         self._best = (np.inf, None)
+        self._best_by_it = []
         self._residual_calls = 0
         start = time.perf_counter()
         try:

@@ -842,3 +842,47 @@ def test_accept_rtol_ends_a_stagnating_solve_at_its_best_iterate():
             NewtonSolver(scene(Overshooting(ELASTIC), mesh_data), force_rtol=1e-9, accept_rtol=bad)
     with pytest.raises(ValueError, match="accept_rtol"):
         NewtonSolver(scene(Overshooting(ELASTIC), mesh_data), accept_rtol=1e-2)   # needs force_rtol
+
+
+class TooStiff(Plain):
+    tangent_factor = 40.0     # |1 - 1/40| = 0.975: converges, 2.5 % a step (a stagnating step)
+
+
+class Stiffer(Plain):
+    tangent_factor = 2.0      # |1 - 1/2| = 0.5: converges at a steady rate
+
+
+def test_stagnation_its_ends_a_stagnating_solve_early():
+    """With stagnation_its = k a solve whose best FNORM/RNORM (<= accept_rtol) gained less
+    than 10 % in k iterations ends there at its best iterate, not at snes_max_it; a solve
+    that keeps gaining more than that is left to converge."""
+    mesh_data = plate()
+    options = dict(BASIC, snes_max_it=25)
+    # diverging after the first update: the best is iterate 1, nothing is gained after it
+    problem = scene(Overshooting(ELASTIC), mesh_data)
+    solver = NewtonSolver(problem, options=options, force_rtol=1e-9, accept_rtol=10.0, stagnation_its=2)
+    problem.set_time(1.0)
+    info = solver.solve()
+    assert info.accepted and info.reason == "ACCEPTED_AT_STAGNATION" and info.iterations == 3
+    assert info.force_ratios[-1] == pytest.approx(min(info.force_ratios[1:4]), rel=1e-9)
+    # 2.5 % gained per iteration: 7 % in 3 iterations is stagnation; without the option the
+    # same solve runs to the cap
+    ratios = {}
+    for k in (3, None):
+        problem = scene(TooStiff(ELASTIC), mesh_data)
+        solver = NewtonSolver(problem, options=options, force_rtol=1e-9, accept_rtol=10.0, stagnation_its=k)
+        problem.set_time(1.0)
+        info = solver.solve()
+        assert info.accepted
+        ratios[k] = info.force_ratios
+        assert info.iterations == (25 if k is None else pytest.approx(5, abs=1)), info.force_ratios
+    assert ratios[3][-1] > ratios[None][-1]        # it did stop before it had got as far
+    # 50 % gained per iteration: never stagnation, converges to force_rtol
+    problem = scene(Stiffer(ELASTIC), mesh_data)
+    solver = NewtonSolver(problem, options=options, force_rtol=1e-4, accept_rtol=10.0, stagnation_its=1)
+    problem.set_time(1.0)
+    info = solver.solve()
+    assert info.converged and not info.accepted and info.force_ratios[-1] <= 1e-4
+    for bad, accept in ((0, 1e-2), (1.5, 1e-2), (3, None)):
+        with pytest.raises(ValueError, match="stagnation_its"):
+            NewtonSolver(scene(Plain(ELASTIC), mesh_data), force_rtol=1e-3, accept_rtol=accept, stagnation_its=bad)

@@ -110,6 +110,9 @@ g.add_argument("--force-rtol", type=float, default=1e-2, help="Newton stops at F
 g.add_argument("--accept-rtol", type=float, default=3e-2,
                help="a step whose Newton stagnates ends at its best iterate if FNORM/RNORM <= this, reported as "
                     "accepted (default %(default)g; 0: never)")
+g.add_argument("--stagnation-its", type=int, default=4,
+               help="... and ends it as soon as its best FNORM/RNORM gained less than 10 %% in this many "
+                    "iterations (default %(default)s; 0: only at -snes_max_it)")
 g.add_argument("--write-every", type=int, default=1, help="XDMF every N steps and at the end (default %(default)s)")
 args = cli.parse(parser)
 comm = MPI.COMM_WORLD
@@ -128,6 +131,7 @@ try:
         mu_c=args.mu_c, l_c=args.l_c, grain_diameter=args.grain_diameter, axial_strain=args.axial_strain,
         steps=args.steps, weak_size=args.weak_size, weak_friction_factor=args.weak_friction,
         force_rtol=args.force_rtol, accept_rtol=args.accept_rtol if args.accept_rtol != 0 else None,
+        stagnation_its=args.stagnation_its if args.stagnation_its != 0 else None,
         cell=CellOptions(particles=args.particles, seed=args.seed, packing=args.packing, friction=args.friction,
                          pressure=args.pressure, kn=args.kn, ks=args.ks, rotation=not args.no_rotation,
                          relaxation_tol=args.relaxation_tol, criterion=args.criterion,

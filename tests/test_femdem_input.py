@@ -89,6 +89,7 @@ CASES = [   # (id, args, pattern the error line must match)
     ("relaxation-tol-zero", ["--relaxation-tol", 0], r"relaxation[-_]tol"),
     ("weak-friction-zero", ["--weak-friction", 0], r"weak[-_]friction"),
     ("force-rtol-zero", ["--force-rtol", 0], r"force[-_]rtol"),
+    ("stagnation-its-negative", ["--stagnation-its", -1], r"stagnation[-_]its"),
 ]
 
 
@@ -167,6 +168,8 @@ API_CASES = [   # (id, settings, pattern of the ValueError)
     ("nx-zero", dict(nx=0), r"\bnx\b"),
     ("steps-zero", dict(steps=0), r"\bsteps\b"),
     ("force-rtol-zero", dict(force_rtol=0.0), r"force_rtol"),
+    ("stagnation-its-zero", dict(stagnation_its=0), r"stagnation_its"),
+    ("stagnation-its-float", dict(stagnation_its=2.5), r"stagnation_its"),
     ("weak-friction-zero", dict(weak_friction_factor=0.0), r"weak_friction_factor"),
     ("kn-zero", dict(cell=CellOptions(kn=0.0)), r"\bkn\b"),
     ("ks-negative", dict(cell=CellOptions(ks=-1.0)), r"\bks\b"),

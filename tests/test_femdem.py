@@ -193,3 +193,30 @@ def test_one_and_two_ranks_give_the_same_history(demo, tmp_path):
     assert np.allclose(g1["x"], g2["x"]) and np.allclose(g1["y"], g2["y"])
     # a stress error tol |sigma| in each component moves the ratio (s1 - s2) / (s1 + s2) by at most tol
     assert np.allclose(g1["stress_ratio"], g2["stress_ratio"], rtol=0, atol=tol)
+
+
+@pytest.mark.serial
+def test_band_is_fitted_outside_the_imperfection():
+    """The weak cells strain more whether or not a band forms: band() fits the bell to the
+    unweakened cells only. A strain field that is a band at 45 deg outside the weak corner and
+    a strain ten times the band's inside it: band() finds the band; a fit through every
+    point is pulled to the corner."""
+    from cosserat_fenicsx.materials.dem import CellOptions
+    from cosserat_fenicsx.scenes.femdem_biaxial import FemDemBiaxial, FemDemSettings
+    from cosserat_fenicsx.shear_band import fit_band
+    s = FemDemSettings(nx=4, ny=8, steps=1, weak_size=5e-3, weak_friction_factor=0.5, mode="classical",
+                       cell=CellOptions(particles=20))
+    test = FemDemBiaxial(MPI.COMM_SELF, s, verbose=False)
+    x, y = test.points[:, 0], test.points[:, 1]
+    weak = (x < 5e-3) & (y < 5e-3)
+    assert np.array_equal(test.in_imperfection, weak) and weak.sum() == 8 * 3   # whole elements
+    d = (y - 4e-3) * np.cos(np.pi / 4) - x * np.sin(np.pi / 4)
+    e = 0.01 + 0.04 * np.exp(-d ** 2 / (2 * 2e-3 ** 2)) + np.where(weak, 0.5, 0.0)
+    grads = test.callback.gradients
+    grads[:] = 0.0
+    grads[:, 0] = e                                # |sym(eps)| = eps_11
+    fit = test.band()
+    assert fit.converged and fit.thickness == pytest.approx(2e-3, rel=1e-3)
+    assert fit.inclination_deg == pytest.approx(45.0, abs=0.1)
+    everywhere = fit_band(test.points, e)
+    assert abs(everywhere.thickness - 2e-3) > 2e-4 or abs(everywhere.inclination_deg - 45.0) > 2.0

@@ -83,7 +83,16 @@ def run_case(comm, out, label, s, log=print):
     flag = _SigtermFlag()
     previous = signal.signal(signal.SIGTERM, flag)
 
+    band_history = []   # the band fit after every step of phase 2: runs stopped at different
+                        # strains are compared at a strain they all reached
+
     def after_step(row):
+        if row["phase"] == 2:
+            try:
+                fit = test.band().as_dict()
+            except ValueError:
+                fit = None
+            band_history.append({"axial_strain": row["axial_strain"], "fit": fit})
         if comm.allreduce(flag.raised, op=MPI.LOR):
             raise Interrupted(f"interrupted by SIGTERM after step {row['step']}")
 
@@ -124,6 +133,7 @@ def run_case(comm, out, label, s, log=print):
         "axial_strain_at_peak": float(rows[i_peak]["axial_strain"]) if rows else None,
         "band_thickness": fit.thickness if fit is not None and verdict == "band" else None,
         "band_fit": fit.as_dict() if fit is not None else None, "band_verdict": verdict,
+        "band_history": band_history,
         "wall_time": wall, "cpu_time": cpu, "preparation_time": test.preparation_time,
         "time_max_over_ranks": {k: max_over_ranks(comm, v) for k, v in test.timing().items()},
         "memory_per_cell_bytes": comm.allreduce(test.material.memory_bytes()) / comm.allreduce(len(test.points)),

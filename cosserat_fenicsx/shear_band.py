@@ -106,11 +106,21 @@ def _wrap(alpha):
     return math.pi / 2 if wrapped <= -math.pi / 2 else wrapped
 
 
-def fit_band(points, values, r0=None, max_iter=200, tol=1e-10):
-    """Levenberg-Marquardt fit of eq 4.22 to `values` (n,) at `points` (n, 2) = (x, y).
+#: inclinations [deg] of the restarts of a fit whose first start did not converge
+RESTART_INCLINATIONS = (45.0, -45.0, 30.0, -30.0, 60.0, -60.0)
 
-    Returns a BandFit. Raises ValueError on input that cannot define a band (fewer
-    points than parameters, non-finite values, no strain contrast)."""
+
+def fit_band(points, values, r0=None, max_iter=200, tol=1e-10):
+    """Levenberg-Marquardt fit of eq 4.22 to `values` (n,) at `points` (n, 2) = (x, y),
+    from r0 (default: `initial_guess`).
+
+    If that start does not converge (the principal axis of the top decile can point along
+    a broad band's normal when the strongest strains sit in a corner, and the fit then
+    drifts off the specimen), the fit restarts from bands at RESTART_INCLINATIONS through
+    the centroid of the top decile, a tenth of the specimen thick, and returns the converged
+    fit with the smallest residual (a fit that converged from its first start is returned
+    as it is). Returns a BandFit. Raises ValueError on input that cannot define a band
+    (fewer points than parameters, non-finite values, no strain contrast)."""
     points = np.asarray(points, dtype=float)
     values = np.asarray(values, dtype=float)
     if points.ndim != 2 or points.shape[1] != 2 or len(points) != len(values):
@@ -122,6 +132,25 @@ def fit_band(points, values, r0=None, max_iter=200, tol=1e-10):
     if not values.max() > values.min():
         raise ValueError("band fit: the strain norm is uniform, there is no band to measure")
     r = np.array(r0, dtype=float) if r0 is not None else initial_guess(points, values)
+    first = _fit_from(points, values, r, max_iter, tol)
+    if first.converged:
+        return first
+    e0 = float(np.median(values))
+    top = values >= np.quantile(values, 0.9)
+    cx, cy = points[top].mean(axis=0)
+    length = float(np.ptp(points, axis=0).max())
+    fits = []
+    for deg in RESTART_INCLINATIONS:
+        alpha = math.radians(deg)
+        start = np.array([e0, float(values.max()) - e0, 0.1 * length, cy - cx * math.tan(alpha), alpha])
+        fits.append(_fit_from(points, values, start, max_iter, tol))
+    fits = [f for f in fits if f.converged]
+    return min(fits, key=lambda f: f.rms_residual) if fits else first
+
+
+def _fit_from(points, values, r, max_iter, tol):
+    """One Levenberg-Marquardt run from r."""
+    r = np.array(r, dtype=float)
     # scale the unknowns so that the damped normal equations are well conditioned
     length = float(np.ptp(points, axis=0).max())
     scale = np.array([max(abs(values).max(), 1e-300)] * 2 + [length, length, 1.0])

@@ -87,3 +87,18 @@ def test_wrap_keeps_the_band_line_and_ends_for_any_angle():
             assert abs(k - round(k)) < 1e-12
     assert _wrap(0.3) == 0.3
     assert math.isnan(_wrap(math.inf))
+
+
+def test_a_start_that_drifts_off_the_specimen_is_restarted():
+    """A broad band (H = 6.7 mm on a 10 mm wide specimen, as the FEM x DEM hybrid band) fitted
+    from a start that drifts (axis vertical, 17 m off: where the default guess sent a fit of
+    measured FEM x DEM data) does not converge; the restarts find the band."""
+    from cosserat_fenicsx.shear_band import _fit_from
+    r = (0.0084, 0.065, 6.7e-3, -1.8e-3, math.radians(29.4))
+    points, values = synthetic(r, n=400, noise=0.002, seed=3, size=(0.01, 0.02))
+    bad = np.array([0.02, 0.02, 2.8e-3, 17.26, math.radians(-89.97)])
+    assert not _fit_from(points, values, bad, 200, 1e-10).converged
+    fit = fit_band(points, values, r0=bad)
+    assert fit.converged
+    assert fit.thickness == pytest.approx(6.7e-3, rel=0.05)
+    assert fit.inclination_deg == pytest.approx(29.4, abs=1.0)

@@ -91,11 +91,13 @@ def main():
         r["H_fit_mm"] = (fit["thickness"] * 1e3 if fit and fit["converged"] and fit["thickness"] < 0.02 else None)
         r["contrast"] = r["band_fit"]["amplitude"] / max(r["band_fit"]["offset"], 1e-300) if r["band_fit"] else None
         r["final"] = r["stress_ratio"][-1]
+        r["reached"] = -100.0 * r["axial_strain"][-1] if r["axial_strain"] else None
         r["dem"] = float(sum(r["dem_steps"]))
         r["it"] = int(sum(r["newton_iterations"]))
     text = table(records, [("run", "label", "s"), ("h [mm]", "h_mm", ".3f"), ("l_c [mm]", "lc_mm", ".3f"),
                            ("points", "n_gauss_points", "d"), ("peak", "peak_stress_ratio", ".4f"),
-                           ("at strain", "axial_strain_at_peak", ".4f"), ("final", "final", ".4f"),
+                           ("at strain", "axial_strain_at_peak", ".4f"), ("reached [%]", "reached", ".2f"),
+                           ("final", "final", ".4f"),
                            ("H [mm]", "H_mm", ".3f"), ("fit H [mm]", "H_fit_mm", ".3f"), ("A/e0", "contrast", ".2f"),
                            ("Newton", "it", "d"), ("cuts", "cuts", "d"), ("DEM steps", "dem", ".3g"),
                            ("wall [s]", "wall_time", ".0f"), ("CPU [s]", "cpu_time", ".0f"),

@@ -64,16 +64,24 @@ def settings_key(s):
     return hashlib.sha1(repr(s).encode()).hexdigest()[:16]
 
 
-def run_case(comm, out, label, s, log=print):
-    """Run one case (or read its record); returns the record (every rank)."""
-    path = os.path.join(out, f"{label}.json")
-    shared = os.path.join(cases_dir(out), f"{settings_key(s)}.json")
-    for known in (path, shared):
+def stored_record(out, label, s):
+    """The record of a case if it was run (in `out` or the shared store), else None."""
+    for known in (os.path.join(out, f"{label}.json"), os.path.join(cases_dir(out), f"{settings_key(s)}.json")):
         if os.path.isfile(known):
             with open(known) as f:
                 record = json.load(f)
             record["label"] = label
             return record
+    return None
+
+
+def run_case(comm, out, label, s, log=print):
+    """Run one case (or read its record); returns the record (every rank)."""
+    path = os.path.join(out, f"{label}.json")
+    shared = os.path.join(cases_dir(out), f"{settings_key(s)}.json")
+    record = stored_record(out, label, s)
+    if record is not None:
+        return record
     load_before = os.getloadavg()
     start, cpu0 = time.perf_counter(), cpu_seconds()
     if comm.rank == 0:

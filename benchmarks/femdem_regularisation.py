@@ -23,7 +23,7 @@ import os
 import numpy as np
 from mpi4py import MPI
 
-from femdem_cases import TIME_COLUMNS, parse_mesh, run_case, settings, table, write_report
+from femdem_cases import TIME_COLUMNS, parse_mesh, run_case, settings, stored_record, table, write_report
 
 from cosserat_fenicsx.shear_band import band_verdict, fit_band
 
@@ -64,6 +64,7 @@ def main():
     p.add_argument("--weak-size", type=float, default=5e-3)
     p.add_argument("--weak-friction", type=float, default=0.5)
     p.add_argument("--modes", nargs="+", default=["classical", "hybrid"])
+    p.add_argument("--report-only", action="store_true", help="tabulate the runs that have records, run nothing")
     a = p.parse_args()
     comm = MPI.COMM_WORLD
     log = lambda t: comm.rank == 0 and print(t, flush=True)  # noqa: E731
@@ -79,7 +80,11 @@ def main():
     for factor in a.lc_factors:
         cases.append((f"hybrid_{a.lc_mesh}_lc{factor:g}",
                       dict(common, mesh=(nx, ny), mode="hybrid", l_c=a.l_c * factor)))
-    records = [run_case(comm, a.out, label, settings(**kw), log=log) for label, kw in cases]
+    if a.report_only:
+        records = [r for r in (stored_record(a.out, label, settings(**kw)) for label, kw in cases) if r is not None]
+        log(f"report only: {len(records)} of {len(cases)} runs have records")
+    else:
+        records = [run_case(comm, a.out, label, settings(**kw), log=log) for label, kw in cases]
     if comm.rank != 0:
         return
     for r in records:

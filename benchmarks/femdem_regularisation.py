@@ -39,6 +39,8 @@ def outside_weak_corner(record, weak_size):
 
 def band_outside_weak_corner(record, weak_size, width=0.01, height=0.02):
     """(fit, verdict) of the bell over the unweakened cells (refitted from the record)."""
+    if not record["points"]:
+        return None, "no step"
     pts, e = outside_weak_corner(record, weak_size)
     try:
         fit = fit_band(pts, e)

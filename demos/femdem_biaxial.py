@@ -36,7 +36,7 @@ anisotropy, sliding_fraction, stress_ratio, equivalent_strain and
 incremental_equivalent_strain (000 Fig. 7), dem_steps); at the end snapshots/ (particles and
 contact forces of the Gauss points with the highest and lowest stress ratio, 000 Fig. 6
 insets), summary.json (peak_stress_ratio, axial_strain_at_peak, n_gauss_points,
-band_thickness and band_inclination_deg from the section 4.4 fit, Newton iterations, DEM
+band_thickness and band_inclination_deg from the section 4.4 fit outside the weak corner, Newton iterations, DEM
 steps, where the time went) and femdem_biaxial.png (the curves of 000 Figs 4-5).
 Tension positive: the axial strain and a contracting volume are negative.
 

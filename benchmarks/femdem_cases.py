@@ -64,9 +64,14 @@ def settings_key(s):
     return hashlib.sha1(repr(s).encode()).hexdigest()[:16]
 
 
+def record_paths(out, label, s):
+    """Where a case's record lives: the study's own `out/label.json` and the shared store."""
+    return os.path.join(out, f"{label}.json"), os.path.join(cases_dir(out), f"{settings_key(s)}.json")
+
+
 def stored_record(out, label, s):
     """The record of a case if it was run (in `out` or the shared store), else None."""
-    for known in (os.path.join(out, f"{label}.json"), os.path.join(cases_dir(out), f"{settings_key(s)}.json")):
+    for known in record_paths(out, label, s):
         if os.path.isfile(known):
             with open(known) as f:
                 record = json.load(f)
@@ -77,8 +82,7 @@ def stored_record(out, label, s):
 
 def run_case(comm, out, label, s, log=print):
     """Run one case (or read its record); returns the record (every rank)."""
-    path = os.path.join(out, f"{label}.json")
-    shared = os.path.join(cases_dir(out), f"{settings_key(s)}.json")
+    path, shared = record_paths(out, label, s)
     record = stored_record(out, label, s)
     if record is not None:
         return record

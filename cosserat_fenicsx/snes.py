@@ -71,8 +71,8 @@ class NewtonSolver:
 
     _count = 0
 
-    #: a best FNORM/RNORM that fell by less than this factor's complement over the last
-    #: stagnation_its iterations has stagnated
+    #: a best FNORM/RNORM still above this fraction of the best of stagnation_its iterations
+    #: before (it gained less than 10 %) has stagnated
     STAGNATION_GAIN = 0.9
 
     def __init__(self, problem, options=None, prefix="cosserat_", force_rtol=None, accept_rtol=None,

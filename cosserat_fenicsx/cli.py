@@ -4,6 +4,10 @@ Material: --mu --lmbda --mu-c --l-c (SI units; m = 2 mu_c l_c^2 kappa, eq 2.74),
 --cauchy. Mesh: --cell-size H [m], --cell-type, --degree-u, --degree-phi.
 Output: --out DIR, --fields. Stepping: --steps. PETSc options (-snes_*, -ksp_*, -pc_*,
 -mat_*) pass through to the solver.
+
+Every numeric option declares its range (`validation.number`), so a bad value is refused
+while parsing, in one line with exit status 2 (`validation.Parser`); checks that need
+several options (`parse(..., check=...)`) run before the output directory is created.
 """
 import argparse
 import logging
@@ -13,6 +17,7 @@ from petsc4py import PETSc
 
 from .elasticity import MicropolarElasticity
 from .output import FIELDS
+from .validation import COUNT, NON_NEGATIVE, POSITIVE, Parser, Range, number
 
 PETSC_PREFIXES = ("-snes_", "-ksp_", "-pc_", "-mat_", "-log_view")
 
@@ -20,7 +25,7 @@ PETSC_PREFIXES = ("-snes_", "-ksp_", "-pc_", "-mat_", "-log_view")
 def make_parser(description):
     # the JIT compilers log every C build at INFO level: keep the demos' output readable
     logging.getLogger().setLevel(logging.WARNING)
-    parser = argparse.ArgumentParser(
+    parser = Parser(
         description=description, allow_abbrev=False,
         formatter_class=argparse.RawDescriptionHelpFormatter,
         epilog="PETSc options such as -snes_monitor, -snes_rtol 1e-12, -ksp_type gmres, "
@@ -30,12 +35,17 @@ def make_parser(description):
 
 def add_material_options(parser, mu=1.0e8, lmbda=1.0e8, mu_c=None, l_c=1.0e-2):
     g = parser.add_argument_group("material (linear micropolar elasticity, SI units)")
-    g.add_argument("--mu", type=float, default=mu, help="shear modulus [Pa] (default %(default)g)")
-    g.add_argument("--lmbda", type=float, default=lmbda, help="Lame constant lambda [Pa] (default %(default)g)")
-    g.add_argument("--mu-c", type=float, default=mu_c,
+    g.add_argument("--mu", type=number(POSITIVE), default=mu, help="shear modulus [Pa] (default %(default)g)")
+    g.add_argument("--lmbda", type=number(), default=lmbda,
+                   help="Lame constant lambda [Pa], lambda + 2 mu / 3 > 0 (default %(default)g)")
+    g.add_argument("--mu-c", type=number(NON_NEGATIVE), default=mu_c,
                    help="Cosserat coupling modulus [Pa]; default mu_c = mu (eq 2.75)")
-    g.add_argument("--l-c", type=float, default=l_c, help="internal length [m] (default %(default)g)")
+    g.add_argument("--l-c", type=number(NON_NEGATIVE), default=l_c,
+                   help="internal length [m]; 0: no couple stress (default %(default)g)")
     g.add_argument("--cauchy", action="store_true", help="classical (Cauchy) continuum: no rotation field")
+
+
+DEGREE = Range(1, 4, integer=True)
 
 
 def add_mesh_options(parser, cell_size=None, with_cell_size=True):
@@ -43,10 +53,11 @@ def add_mesh_options(parser, cell_size=None, with_cell_size=True):
     scene has its own mesh option), --cell-type, --degree-u, --degree-phi."""
     g = parser.add_argument_group("discretization")
     if with_cell_size:
-        g.add_argument("--cell-size", type=float, default=cell_size, help="target element size [m] (default %(default)s)")
+        g.add_argument("--cell-size", type=number(POSITIVE), default=cell_size,
+                       help="target element size [m] (default %(default)s)")
     g.add_argument("--cell-type", choices=("triangle", "quadrilateral"), default="triangle")
-    g.add_argument("--degree-u", type=int, default=2, help="displacement degree (default 2, Taylor-Hood)")
-    g.add_argument("--degree-phi", type=int, default=1, help="rotation degree (default 1)")
+    g.add_argument("--degree-u", type=number(DEGREE), default=2, help="displacement degree 1-4 (default 2, Taylor-Hood)")
+    g.add_argument("--degree-phi", type=number(DEGREE), default=1, help="rotation degree 1-4 (default 1)")
 
 
 def add_output_options(parser, out):
@@ -58,24 +69,26 @@ def add_output_options(parser, out):
 
 def add_stepping_options(parser, steps=1):
     g = parser.add_argument_group("load stepping")
-    g.add_argument("--steps", type=int, default=steps, help="load increments (default %(default)s)")
+    g.add_argument("--steps", type=number(COUNT), default=steps, help="load increments (default %(default)s)")
 
 
-def parse(parser, argv=None):
-    """Parse; forward PETSc options; reject anything else unknown before any work."""
+def parse(parser, argv=None, check=None):
+    """Parse; forward PETSc options; reject anything else unknown before any work.
+
+    `check(args)` (optional) runs the checks that need several options or the scene's
+    settings; a ValueError it raises is refused like a bad option (one line, exit 2).
+    The output directory is created only when everything passed."""
     args, unknown = parser.parse_known_args(argv)
     forward_petsc_options(parser, unknown)
-    if getattr(args, "cell_size", None) is not None and not args.cell_size > 0:
-        parser.error(f"--cell-size must be positive, got {args.cell_size}")
-    if hasattr(args, "steps") and args.steps < 1:
-        parser.error(f"--steps must be >= 1, got {args.steps}")
-    if hasattr(args, "mu"):
-        try:
+    try:
+        if hasattr(args, "mu"):
             args.elasticity = MicropolarElasticity(mu=args.mu, lmbda=args.lmbda, mu_c=args.mu_c, l_c=args.l_c)
             if not args.cauchy:
                 args.elasticity.check_micropolar()
-        except ValueError as error:
-            parser.error(str(error))
+        if check is not None:
+            check(args)
+    except ValueError as error:
+        parser.refuse(error)
     if hasattr(args, "out"):
         os.makedirs(args.out, exist_ok=True)
     return args

@@ -2,9 +2,10 @@
 
 XDMF holds P1 and DG0 data only: the P2 displacement is interpolated to P1, stresses
 (UFL expressions or Gauss-point data) become cell values (DG0; for linear stress fields
-on triangles the centroid value equals the cell mean). Each step is written and flushed
-when it converges, so an interrupted run keeps what it computed. Only requested fields
-are written. Rank 0 alone writes the CSV/JSON files and prints.
+on triangles the centroid value equals the cell mean). Each step is written when it
+converges and the HDF5 file is closed after it (reopened in append mode for the next), so
+an interrupted or killed run keeps a readable file of what it computed (`run_guard` defers
+SIGINT/SIGTERM while a step is written). Only requested fields are written. Rank 0 alone writes the CSV/JSON files and prints.
 """
 import csv
 import json
@@ -65,10 +66,12 @@ class FieldWriter:
             raise ValueError(f"unknown output field(s) {sorted(unknown)}; known: {FIELDS}")
         if not problem.micropolar:
             fields = [f for f in fields if f not in ("rotation", "couple_stress")]
-        self.problem, self.fields = problem, list(fields)
+        self.problem, self.fields, self.path = problem, list(fields), path
         mesh = problem.mesh
-        self.file = dolfinx.io.XDMFFile(mesh.comm, path, "w")
-        self.file.write_mesh(mesh)
+        # the file is open only while a step is written (mode "a" after the mesh): an
+        # interrupted or killed run leaves an HDF5 file closed after its last step
+        with dolfinx.io.XDMFFile(mesh.comm, path, "w") as file:
+            file.write_mesh(mesh)
         gdim = mesh.geometry.dim
         self.outputs = {}
         if "displacement" in self.fields:
@@ -101,6 +104,11 @@ class FieldWriter:
 
     def _interpolate_dg0(self, name, expr):
         function = self.outputs[name]
+        if isinstance(expr, ufl.constantvalue.Zero):
+            # e.g. the couple stress 2 mu_c l_c^2 kappa with l_c = 0: UFL folds it to a
+            # zero without a mesh, which no Expression can be built from
+            function.x.array[:] = 0.0
+            return
         if name not in self._expressions:
             points = function.function_space.element.interpolation_points
             points = points() if callable(points) else points
@@ -132,8 +140,9 @@ class FieldWriter:
                 self._interpolate_dg0("couple_stress", problem.couple_stress())
         for function, values in self.extra.values():
             self._set_cell_values(function, values())
-        for function in list(self.outputs.values()) + [f for f, _ in self.extra.values()]:
-            self.file.write_function(function, t)
+        with dolfinx.io.XDMFFile(self.problem.mesh.comm, self.path, "a") as file:
+            for function in list(self.outputs.values()) + [f for f, _ in self.extra.values()]:
+                file.write_function(function, t)
 
     def close(self):
-        self.file.close()
+        """Nothing left open (each write closes the file); kept for symmetry with CsvLog."""

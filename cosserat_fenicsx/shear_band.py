@@ -224,3 +224,37 @@ def band_verdict(fit, element_size, specimen_width, min_contrast=0.5):
     if 2.355 * fit.thickness > specimen_width:
         return False, f"diffuse: FWHM 2.355 H = {2.355 * fit.thickness:.3g} m exceeds the specimen width"
     return True, ""
+
+
+def resolution_warning(element_size, specimen_width, specimen_height, min_elements=4):
+    """'' or why the mesh cannot resolve a band in the specimen: fewer than `min_elements`
+    elements across its narrower side (a band of thickness H needs H >= h / 2 and room on
+    both sides of it)."""
+    across = min(specimen_width, specimen_height) / element_size
+    if across < min_elements:
+        return (f"the mesh cannot resolve a band: {across:.3g} element(s) across the specimen "
+                f"(element size {element_size:.3g} m; at least {min_elements} needed)")
+    return ""
+
+
+def assess_band(fit, element_size, specimen_width, specimen_height):
+    """The band entries of a summary.json: `fit` is a callable returning a BandFit (or
+    raising ValueError). A band is reported only when band_verdict accepts it; otherwise
+    `band` is None and `no_band_reason` says why, and `mesh_warning` says when the mesh is
+    too coarse for the specimen. Returns (band or None, dict of summary entries)."""
+    warning = resolution_warning(element_size, specimen_width, specimen_height)
+    result, band, reason = None, None, ""
+    try:
+        result = fit()
+        is_band, reason = band_verdict(result, element_size, specimen_width)
+        band = result if is_band else None
+    except ValueError as error:
+        reason = str(error)
+    if warning and not reason:
+        reason = warning
+        band = None
+    return band, {"band": band is not None,
+                  "band_thickness": band.thickness if band else None,
+                  "band_inclination_deg": band.inclination_deg if band else None,
+                  "band_fit": result.as_dict() if result else None,
+                  "no_band_reason": reason, "mesh_warning": warning}

@@ -47,8 +47,9 @@ from mpi4py import MPI
 from cosserat_fenicsx import cli
 from cosserat_fenicsx.output import FieldWriter, CsvLog, write_json, print0
 from cosserat_fenicsx.scenes.biaxial import BiaxialSettings, BiaxialTest, convergence_orders
-from cosserat_fenicsx.shear_band import bell
+from cosserat_fenicsx.shear_band import assess_band, bell
 from cosserat_fenicsx.stepping import LoadSteppingError
+from cosserat_fenicsx.validation import COUNT, NON_NEGATIVE, POSITIVE, number
 
 parser = cli.make_parser(__doc__)
 cli.add_material_options(parser, mu=91.0e6, lmbda=49.4e6, l_c=3.0e-3)
@@ -56,36 +57,39 @@ cli.add_mesh_options(parser, cell_size=2.5e-3)
 cli.add_output_options(parser, "results/biaxial")
 cli.add_stepping_options(parser, steps=50)
 g = parser.add_argument_group("biaxial test")
-g.add_argument("--classical", action="store_true",
+g.add_argument("--classical", action="store_true", dest="cauchy",
                help="classical (Cauchy) continuum: no rotation field, micropolar terms off (same as --cauchy)")
-g.add_argument("--width", type=float, default=0.05, help="specimen width W [m] (default %(default)g)")
-g.add_argument("--height", type=float, default=0.10, help="specimen height H [m] (default %(default)g)")
-g.add_argument("--confining", type=float, default=100e3, help="confining pressure p [Pa] (default %(default)g)")
-g.add_argument("--axial-strain", type=float, default=0.05,
-               help="platen displacement / H in phase 2 (default %(default)g)")
-g.add_argument("--consolidation-steps", type=int, default=5, help="steps of phase 1 (default %(default)s)")
-g.add_argument("--k-sigma", type=float, default=10.0, help="skew-stress weight k_sigma in F, G (default %(default)g)")
-g.add_argument("--k-mu", type=float, default=0.0, help="couple-stress weight k_mu [1/m^2] (default %(default)g)")
-g.add_argument("--eta", type=float, default=0.1, help="Perzyna time eta [s] (2.81), 1 s per step (default %(default)g)")
-g.add_argument("--weak-size", type=float, default=5e-3,
+g.add_argument("--width", type=number(POSITIVE), default=0.05, help="specimen width W [m] (default %(default)g)")
+g.add_argument("--height", type=number(POSITIVE), default=0.10, help="specimen height H [m] (default %(default)g)")
+g.add_argument("--confining", type=number(POSITIVE), default=100e3, help="confining pressure p [Pa] (default %(default)g)")
+g.add_argument("--axial-strain", type=number(low=0.0, high=0.5, low_open=True, high_open=True), default=0.05,
+               help="platen displacement / H in phase 2, in (0, 0.5) (default %(default)g)")
+g.add_argument("--consolidation-steps", type=number(COUNT), default=5, help="steps of phase 1 (default %(default)s)")
+g.add_argument("--k-sigma", type=number(NON_NEGATIVE), default=10.0, help="skew-stress weight k_sigma in F, G (default %(default)g)")
+g.add_argument("--k-mu", type=number(NON_NEGATIVE), default=0.0, help="couple-stress weight k_mu [1/m^2] (default %(default)g)")
+g.add_argument("--eta", type=number(POSITIVE), default=0.1, help="Perzyna time eta [s] (2.81), 1 s per step (default %(default)g)")
+g.add_argument("--weak-size", type=number(NON_NEGATIVE), default=5e-3,
                help="side of the weakened square at the lower left corner [m], 0: none (default %(default)g)")
-g.add_argument("--weak-factor", type=float, default=0.8,
-               help="beta0 and beta* of the weakened square relative to the rest (default %(default)g)")
-g.add_argument("--write-every", type=int, default=5, help="XDMF every N steps and at the end (default %(default)s)")
-args = cli.parse(parser)
+g.add_argument("--weak-factor", type=number(low=0.0, high=1.0, low_open=True), default=0.8,
+               help="beta0 and beta* of the weakened square relative to the rest, in (0, 1] (default %(default)g)")
+g.add_argument("--write-every", type=number(COUNT), default=5, help="XDMF every N steps and at the end (default %(default)s)")
+
+
+def biaxial_settings(args):
+    e = args.elasticity
+    return BiaxialSettings(
+        width=args.width, height=args.height, confining=args.confining, axial_strain=args.axial_strain,
+        consolidation_steps=args.consolidation_steps, steps=args.steps, cell_size=args.cell_size,
+        cell_type=args.cell_type, micropolar=not args.cauchy, weak_size=args.weak_size,
+        weak_beta_factor=args.weak_factor, eta=args.eta, degree_u=args.degree_u, degree_phi=args.degree_phi,
+        material=dict(mu=e.mu, lmbda=e.lmbda, mu_c=e.mu_c, l_c=e.l_c, k_sigma=args.k_sigma, k_mu=args.k_mu))
+
+
+args = cli.parse(parser, check=lambda args: biaxial_settings(args).check())
 comm = MPI.COMM_WORLD
-classical = args.classical or args.cauchy
+classical = args.cauchy
 e = args.elasticity
-settings = BiaxialSettings(
-    width=args.width, height=args.height, confining=args.confining, axial_strain=args.axial_strain,
-    consolidation_steps=args.consolidation_steps, steps=args.steps, cell_size=args.cell_size,
-    cell_type=args.cell_type, micropolar=not classical, weak_size=args.weak_size,
-    weak_beta_factor=args.weak_factor, eta=args.eta, degree_u=args.degree_u, degree_phi=args.degree_phi,
-    material=dict(mu=e.mu, lmbda=e.lmbda, mu_c=e.mu_c, l_c=e.l_c, k_sigma=args.k_sigma, k_mu=args.k_mu))
-try:
-    test = BiaxialTest(comm, settings)
-except ValueError as error:
-    parser.error(str(error))
+test = BiaxialTest(comm, biaxial_settings(args))
 print0(comm, f"biaxial: {'classical' if classical else 'micropolar'} {test.material!r}, "
              f"{comm.allreduce(len(test.points))} Gauss points, {test.n_weak_cells} weakened cells, "
              f"{comm.size} rank(s)")
@@ -126,22 +130,18 @@ rows = test.history
 stress = np.array([r["vertical_stress"] for r in rows])
 axial = np.array([r["axial_strain"] for r in rows])
 i_peak = int(np.argmin(stress))
-band = None
-try:
-    band = test.band()
-except ValueError as error:
-    print0(comm, f"biaxial: no band fitted: {error}")
+band, band_entries = assess_band(test.band, args.cell_size, args.width, args.height)
+if band_entries["no_band_reason"]:
+    print0(comm, f"biaxial: no band: {band_entries['no_band_reason']}")
 plastic_infos = [(r["step"], info) for r, info in zip(rows, test.solver.infos_converged()) if r["phase"] == 2]
 longest = max(plastic_infos, key=lambda x: len(x[1].residual_history), default=(None, None))
 summary = {
     "peak_vertical_stress": float(stress[i_peak]), "axial_strain_at_peak": float(axial[i_peak]),
     "final_vertical_stress": float(stress[-1]), "final_axial_strain": float(axial[-1]),
     "vertical_stress_end_of_consolidation": float([r for r in rows if r["phase"] == 1][-1]["vertical_stress"]),
-    "band_thickness": band.thickness if band else None,
+    **band_entries,
     "band_thickness_definition": "H = standard deviation of the fitted bell (thesis 4.22); FWHM = 2.355 H",
-    "band_inclination_deg": band.inclination_deg if band else None,
     "band_inclination_definition": "angle between band axis and horizontal, positive rising to +x",
-    "band_fit": band.as_dict() if band else None,
     "max_yield_function_final": rows[-1]["max_yield_function"],
     # a band exists when the wedges outside it unload (section 6.2.1): without that the
     # fit only measures a diffuse strain gradient

@@ -67,7 +67,7 @@ from mpi4py import MPI
 from cosserat_fenicsx import cli
 from cosserat_fenicsx.output import CsvLog, FieldWriter, print0, write_json
 from cosserat_fenicsx.scenes.femdem_biaxial import FemDemBiaxial, FemDemSettings, max_over_ranks, parse_mesh
-from cosserat_fenicsx.shear_band import band_verdict
+from cosserat_fenicsx.shear_band import assess_band
 from cosserat_fenicsx.stepping import LoadSteppingError
 
 parser = cli.make_parser(__doc__)
@@ -211,16 +211,12 @@ for label, pick in (("highest_stress_ratio", np.argmax), ("lowest_stress_ratio",
 
 # --- summary --------------------------------------------------------------------------------
 rows = [r for r in test.history if r["phase"] == 2]
-fit, band, no_band = None, None, ""
+band, band_entries = None, {"band": False, "band_thickness": None, "band_inclination_deg": None,
+                            "band_fit": None, "no_band_reason": "no compression step", "mesh_warning": ""}
 if rows:
-    try:
-        fit = test.band()
-        is_band, no_band = band_verdict(fit, min(args.width / nx, args.height / ny), args.width)
-        band = fit if is_band else None
-    except ValueError as error:
-        no_band = str(error)
-    if no_band:
-        print0(comm, f"femdem: no band: {no_band}")
+    band, band_entries = assess_band(test.band, min(args.width / nx, args.height / ny), args.width, args.height)
+    if band_entries["no_band_reason"]:
+        print0(comm, f"femdem: no band: {band_entries['no_band_reason']}")
 ratio = np.array([r["stress_ratio"] for r in rows]) if rows else np.zeros(0)
 i_peak = int(np.argmax(ratio)) if len(ratio) else None
 iterations = [r["newton_iterations"] for r in rows]
@@ -233,10 +229,8 @@ summary = {
     "final_stress_ratio": float(ratio[-1]) if rows else None,
     "final_axial_strain": float(rows[-1]["axial_strain"]) if rows else None,
     "n_gauss_points": n_points, "particles_per_cell": test.packing_info["n_particles"],
-    "band_thickness": band.thickness if band else None,
+    **band_entries,
     "band_thickness_definition": "H = standard deviation of the bell fitted to the equivalent strain (thesis 4.22); FWHM = 2.355 H",
-    "band_inclination_deg": band.inclination_deg if band else None,
-    "band_fit": fit.as_dict() if fit else None, "no_band_reason": no_band,
     "newton_iterations_total": int(sum(iterations)),
     "newton_iterations_mean_before_peak": float(np.mean(iterations[:i_peak + 1])) if rows else None,
     "newton_iterations_mean_after_peak": float(np.mean(iterations[i_peak + 1:])) if rows and i_peak + 1 < len(rows) else None,

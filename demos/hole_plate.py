@@ -29,21 +29,34 @@ from mpi4py import MPI
 from cosserat_fenicsx import CosseratProblem, NewtonSolver, LoadStepper, analytic, cli, meshes
 from cosserat_fenicsx.output import FieldWriter, CsvLog, write_json, print0
 from cosserat_fenicsx.probes import sample_line, stress_component_at
+from cosserat_fenicsx.validation import POSITIVE, InputError, number
 
 parser = cli.make_parser(__doc__)
 cli.add_material_options(parser, mu=1.0e8, lmbda=1.0e8, l_c=1.0e-2)
 cli.add_mesh_options(parser, cell_size=None)
 cli.add_output_options(parser, "results/hole_plate")
-parser.add_argument("--radius", type=float, default=1.0e-2, help="hole radius a [m] (default %(default)g)")
-parser.add_argument("--half-side", type=float, default=None, help="half side L of the plate [m] (default 20 a)")
-parser.add_argument("--traction", type=float, default=1.0e6, help="remote tension T [Pa] (default %(default)g)")
-parser.add_argument("--hole-cell-size", type=float, default=None,
+parser.add_argument("--radius", type=number(POSITIVE), default=1.0e-2, help="hole radius a [m] (default %(default)g)")
+parser.add_argument("--half-side", type=number(POSITIVE), default=None,
+                    help="half side L > a of the plate [m] (default 20 a)")
+parser.add_argument("--traction", type=number(), default=1.0e6,
+                    help="remote tension T [Pa], nonzero (default %(default)g)")
+parser.add_argument("--hole-cell-size", type=number(POSITIVE), default=None,
                     help="element size on the hole [m] (default a/16, or --cell-size/4)")
 parser.add_argument("--sweep", action="store_true",
                     help="also solve for a = l_c x (0.25, 0.5, 1, 2, 4, 8) and plot them all")
-args = cli.parse(parser)
-if not args.radius > 0 or (args.half_side is not None and not args.half_side > args.radius):
-    parser.error("need --radius > 0 and --half-side > --radius")
+
+
+def check(args):
+    if args.half_side is not None and not args.half_side > args.radius:
+        raise InputError(f"--half-side must be > --radius ({args.radius:g}), got {args.half_side:g}")
+    if args.traction == 0:
+        # the stress concentration factor is sigma_max / T: a zero load defines none
+        raise InputError("--traction must be nonzero (the stress concentration is measured against it), got 0")
+    if args.sweep and args.l_c == 0:
+        raise InputError("--sweep varies a/l_c: it needs --l-c > 0, got 0")
+
+
+args = cli.parse(parser, check=check)
 comm = MPI.COMM_WORLD
 e = args.elasticity
 micropolar = not args.cauchy

@@ -22,21 +22,21 @@ import numpy as np
 from mpi4py import MPI
 
 from cosserat_fenicsx import CosseratProblem, NewtonSolver, LoadStepper, analytic, cli, meshes
-from cosserat_fenicsx.output import FieldWriter, CsvLog, write_json, print0
+from cosserat_fenicsx.validation import POSITIVE, number
+from cosserat_fenicsx.output import FieldWriter, CsvLog, print0
 from cosserat_fenicsx.probes import sample_line
+from cosserat_fenicsx.run_guard import RunGuard
 
 parser = cli.make_parser(__doc__)
 cli.add_material_options(parser, mu=1.0e8, lmbda=1.0e8, l_c=1.0e-2)
 cli.add_mesh_options(parser, cell_size=2.5e-3)
 cli.add_output_options(parser, "results/shear_layer")
 cli.add_stepping_options(parser, steps=1)
-parser.add_argument("--height", type=float, default=0.1, help="layer height H [m] (default %(default)g)")
-parser.add_argument("--width", type=float, default=None, help="strip width [m] (default H/4)")
-parser.add_argument("--shift", type=float, default=1.0e-3, help="top displacement in x1 [m] (default %(default)g)")
+parser.add_argument("--height", type=number(POSITIVE), default=0.1, help="layer height H [m] (default %(default)g)")
+parser.add_argument("--width", type=number(POSITIVE), default=None, help="strip width [m] (default H/4)")
+parser.add_argument("--shift", type=number(), default=1.0e-3, help="top displacement in x1 [m] (default %(default)g)")
 parser.add_argument("--top-rotation", choices=("fixed", "free"), default="fixed")
 args = cli.parse(parser)
-if not args.height > 0:
-    parser.error("--height must be positive")
 comm = MPI.COMM_WORLD
 width = args.width or args.height / 4
 
@@ -52,6 +52,7 @@ if not args.cauchy:
     if args.top_rotation == "fixed":
         problem.add_dirichlet("top", "phi", 0.0)
 
+guard = RunGuard(comm, os.path.join(args.out, "summary.json"), label="shear_layer")
 writer = FieldWriter(problem, os.path.join(args.out, "fields.xdmf"), args.fields)
 history = CsvLog(comm, os.path.join(args.out, "history.csv"),
                  ["time", "shift", "reaction_x_top", "reaction_y_top", "shear_stress_top"])
@@ -66,7 +67,8 @@ def record(step):
 
 solver = NewtonSolver(problem)
 try:
-    LoadStepper(problem, solver, dt=1.0 / args.steps, on_step=record).run()
+    LoadStepper(problem, solver, dt=1.0 / args.steps,
+                on_step=guard.protect(record, lambda step: {"time": step.time})).run()
 finally:
     writer.close()
     history.close()
@@ -102,6 +104,6 @@ summary = {"shear_stress_exact": tau, "shear_stress_fe": problem.reaction("top",
            "max_error_phi_relative": float(abs(phi - phi_ex).max() / scale_phi) if problem.micropolar else 0.0,
            "l_c": e.l_c, "mu_c": mu_c, "mu": e.mu, "top_rotation": args.top_rotation,
            "cell_size": args.cell_size, "ranks": comm.size}
-write_json(comm, os.path.join(args.out, "summary.json"), summary)
+guard.finish(summary)
 print0(comm, f"max relative error: u1 {summary['max_error_u1_relative']:.2e}, "
              f"phi {summary['max_error_phi_relative']:.2e}")

@@ -54,6 +54,7 @@ from ..problem import CosseratProblem
 from ..shear_band import fit_band_collective, strain_norm
 from ..snes import NewtonSolver
 from ..stepping import LoadStepper
+from ..validation import COUNT, POSITIVE, InputError, Range, check
 
 
 @dataclass
@@ -79,18 +80,21 @@ class BiaxialSettings:
     dt_min_fraction: float = 2.0 ** -10   # smallest step after cut-backs, in nominal steps
 
     def check(self):
-        for name in ("width", "height", "confining", "cell_size", "step_time"):
-            if not getattr(self, name) > 0:
-                raise ValueError(f"biaxial: {name} must be positive, got {getattr(self, name)!r}")
-        if not 0 < self.axial_strain < 0.5:
-            raise ValueError(f"biaxial: axial_strain must be in (0, 0.5), got {self.axial_strain!r}")
+        """Every setting in range and the material overrides valid (InputError, a
+        ValueError, naming the setting), before any mesh, form or kernel exists."""
+        for name in ("width", "height", "confining", "cell_size", "step_time", "eta"):
+            check(f"biaxial: {name}", getattr(self, name), POSITIVE)
+        check("biaxial: axial_strain", self.axial_strain, Range(0.0, 0.5, low_open=True, high_open=True))
         for name in ("consolidation_steps", "steps"):
-            if int(getattr(self, name)) < 1:
-                raise ValueError(f"biaxial: {name} must be >= 1, got {getattr(self, name)!r}")
-        if not 0 <= self.weak_size < min(self.width, self.height):
-            raise ValueError(f"biaxial: weak_size must be in [0, min(W, H)), got {self.weak_size!r}")
-        if not 0 < self.weak_beta_factor <= 1:
-            raise ValueError(f"biaxial: weak_beta_factor must be in (0, 1], got {self.weak_beta_factor!r}")
+            check(f"biaxial: {name}", getattr(self, name), COUNT)
+        check("biaxial: weak_size", self.weak_size, Range(0.0, min(self.width, self.height), high_open=True))
+        check("biaxial: weak_beta_factor", self.weak_beta_factor, Range(0.0, 1.0, low_open=True))
+        check("biaxial: dt_min_fraction", self.dt_min_fraction, Range(0.0, 1.0, low_open=True))
+        from ..materials.ehlers.parameters import hostun   # no Numba: the parameters only
+        try:
+            hostun(**dict(self.material, eta=self.material.get("eta", self.eta) / self.step_time))
+        except ValueError as error:
+            raise InputError(f"biaxial: {error}") from None
 
 
 class ZonedMaterial(Constitutive):

@@ -1,0 +1,158 @@
+"""Input validation shared by the demos and the Python APIs (no dolfinx, no PETSc here).
+
+Every number a user gives is checked against a declared `Range` before any form is
+compiled or any cell is created; a refusal is an `InputError` whose message is one line
+naming the option, the value and the allowed range:
+
+    --height must be > 0, got -1
+    biaxial: axial_strain must be in (0, 0.5), got 0.7
+
+The command-line side (`Parser`, `number`) declares the range on the option itself, so
+argparse refuses the value while parsing and the property tests can read every numeric
+option of a demo and its range from the parser (`numeric_options`). `Parser.error` prints
+one line (no usage block), on rank 0 only, and exits with status 2 on every rank.
+"""
+import argparse
+from dataclasses import dataclass
+import math
+import os
+import re
+import sys
+
+EXIT_BAD_INPUT = 2
+
+
+class InputError(ValueError):
+    """Bad input, found before any work: one line naming the option, the value and the range."""
+
+
+@dataclass(frozen=True)
+class Range:
+    """Allowed values of a number: finite, between `low` and `high` (each bound open or
+    closed, None: unbounded), optionally an integer. `infinite` admits +inf (e.g. a
+    friction coefficient: no sliding)."""
+    low: float = None
+    high: float = None
+    low_open: bool = False
+    high_open: bool = False
+    integer: bool = False
+    infinite: bool = False
+
+    def describe(self):
+        """'> 0', 'in (0, 0.5)', 'an integer >= 1', 'a finite number', ..."""
+        if self.low is not None and self.high is not None:
+            text = (f"in {'(' if self.low_open else '['}{self.low:g}, "
+                    f"{self.high:g}{')' if self.high_open else ']'}")
+        elif self.low is not None:
+            text = f"{'>' if self.low_open else '>='} {self.low:g}"
+        elif self.high is not None:
+            text = f"{'<' if self.high_open else '<='} {self.high:g}"
+        else:
+            text = "a number" if self.infinite else "a finite number"
+        if self.integer:
+            text = "an integer" if text == "a finite number" else f"an integer {text}"
+        return text + (" (inf allowed)" if self.infinite else "")
+
+    def contains(self, value):
+        if isinstance(value, bool) or not isinstance(value, (int, float)) and not hasattr(value, "__float__"):
+            return False
+        v = float(value)
+        if math.isnan(v) or (math.isinf(v) and not (self.infinite and v > 0)):
+            return False
+        if self.integer and (math.isinf(v) or v != int(v)):
+            return False
+        if self.low is not None and (v < self.low or (self.low_open and v == self.low)):
+            return False
+        if self.high is not None and (v > self.high or (self.high_open and v == self.high)):
+            return False
+        return True
+
+    def check(self, name, value):
+        """`value` if it lies in the range (as int or float), else InputError naming `name`."""
+        if not self.contains(value):
+            raise InputError(f"{name} must be {self.describe()}, got {value!r}")
+        return int(value) if self.integer else float(value)
+
+
+ANY = Range()
+POSITIVE = Range(low=0.0, low_open=True)
+NON_NEGATIVE = Range(low=0.0)
+COUNT = Range(low=1, integer=True)
+NON_NEGATIVE_INTEGER = Range(low=0, integer=True)
+UNIT_OPEN = Range(0.0, 1.0, low_open=True, high_open=True)
+
+
+def check(name, value, allowed=ANY):
+    """Shorthand for allowed.check(name, value)."""
+    return allowed.check(name, value)
+
+
+def check_optional(name, value, allowed=ANY):
+    """None passes (the option's default applies); anything else must lie in `allowed`."""
+    return None if value is None else allowed.check(name, value)
+
+
+# --- command line --------------------------------------------------------------------
+
+class Number:
+    """argparse `type` of a numeric option with its allowed range; the parser keeps it, so
+    `numeric_options(parser)` lists every numeric option with its range."""
+
+    def __init__(self, allowed=ANY):
+        self.allowed = allowed
+        self.__name__ = "integer" if allowed.integer else "number"   # argparse's "invalid %s value"
+
+    def __call__(self, text):
+        try:
+            value = float(text)
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"not a number: {text!r}") from None
+        if self.allowed.integer and math.isfinite(value) and value == int(value):
+            value = int(value)
+        if not self.allowed.contains(value):
+            raise argparse.ArgumentTypeError(f"must be {self.allowed.describe()}, got {text}")
+        return value
+
+    def __repr__(self):
+        return f"Number({self.allowed.describe()})"
+
+
+def number(allowed=ANY, **range_kwargs):
+    """The argparse type of a number in `allowed` (or in Range(**range_kwargs))."""
+    return Number(Range(**range_kwargs) if range_kwargs else allowed)
+
+
+def numeric_options(parser):
+    """{option string: Range} of every option whose type is a `Number`."""
+    return {a.option_strings[-1]: a.type.allowed for a in parser._actions
+            if isinstance(a.type, Number) and a.option_strings}
+
+
+def _rank():
+    """The MPI rank without importing mpi4py (a dolfinx-free demo must stay light)."""
+    for key in ("OMPI_COMM_WORLD_RANK", "PMI_RANK", "PMIX_RANK"):
+        if key in os.environ:
+            return int(os.environ[key])
+    return 0
+
+
+class Parser(argparse.ArgumentParser):
+    """An ArgumentParser whose errors are one line (no usage block), printed by rank 0
+    only, with exit status 2 on every rank (collective: every rank parses the same argv).
+    Negative numbers in scientific notation (`--lmbda -1e9`, `--shift -inf`) are values,
+    not options (argparse's own pattern knows only -12 and -1.5)."""
+
+    def __init__(self, *args, **kwargs):
+        super().__init__(*args, **kwargs)
+        self._negative_number_matcher = re.compile(r"^-(\d+\.?\d*|\.\d+)([eE][-+]?\d+)?$|^-inf(inity)?$",
+                                                   re.IGNORECASE)
+
+    def error(self, message):
+        if _rank() == 0:
+            sys.stderr.write(f"{self.prog}: error: {message}\n")
+            sys.stderr.flush()
+        sys.exit(EXIT_BAD_INPUT)
+
+    def refuse(self, error):
+        """An InputError or ValueError found after parsing, still before any work."""
+        self.error(" ".join(str(error).split()) or type(error).__name__)

@@ -27,12 +27,21 @@ from . import compat
 from .constitutive import Constitutive
 from .elasticity import MicropolarElasticity
 from .kinematics import strain, curvature, gradient_vector
+from .validation import check
 
 COMPONENTS = ("u1", "u2", "phi")
 
 
 def linear_ramp(t):
     return t
+
+
+def _check_finite(name, value):
+    """Numbers in a load (a number or a sequence of them) must be finite: a NaN would
+    reach the form compiler as a C literal. UFL expressions pass unchecked."""
+    for item in (value if isinstance(value, (list, tuple, np.ndarray)) else (value,)):
+        if isinstance(item, numbers.Real):
+            check(name, item)
 
 
 class _Scaled:
@@ -213,17 +222,21 @@ class CosseratProblem:
         """Prescribe u1, u2 or phi (a number) at the node(s) located at `point` (x, y):
         a pin that removes a rigid-body mode without constraining a whole boundary."""
         self._check_component(component)
+        _check_finite(f"point value of {component}", value)
+        _check_finite(f"point of the {component} pin", point)
         self._dirichlet.append(_PointDirichlet(self, point, component, value, scale))
         self._compiled = None
 
     def add_traction(self, boundary, traction, scale=None):
         """Traction t_i = sigma_ij n_j [Pa] on a named boundary (pair of numbers or UFL)."""
+        _check_finite(f"traction on '{boundary}'", traction)
         self._add_surface_load(boundary, "traction", ("u1", "u2"), ufl.as_vector(traction), scale)
 
     def add_surface_couple(self, boundary, couple, scale=None):
         """Surface couple m_3j n_j [N/m] on a named boundary."""
         if not self.micropolar:
             raise ValueError("a Cauchy scene has no rotation field: no surface couple")
+        _check_finite(f"surface couple on '{boundary}'", couple)
         self._add_surface_load(boundary, "surface couple", ("phi",), couple, scale)
 
     def _add_surface_load(self, boundary, kind, comps, value, scale):
@@ -238,11 +251,13 @@ class CosseratProblem:
 
     def set_body_force(self, force, scale=None):
         """Body force per unit volume f [N/m^3] (pair of numbers or UFL)."""
+        _check_finite("body force", force)
         self._body_force = _Scaled(self.mesh, ufl.as_vector(force), scale)
         self._compiled = None
 
     def set_body_couple(self, couple, scale=None):
         """Body couple per unit volume c [N/m^2]."""
+        _check_finite("body couple", couple)
         if not self.micropolar:
             raise ValueError("a Cauchy scene has no rotation field: no body couple")
         self._body_couple = _Scaled(self.mesh, couple, scale)

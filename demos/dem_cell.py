@@ -44,7 +44,6 @@ Open ``contacts_..vtk``, colour the lines by ``normal_force`` (compression > 0) 
 peak is approached, and the shear bands of rotation after it.
 """
 import argparse
-import json
 import math
 import os
 import sys
@@ -57,19 +56,26 @@ sys.path.insert(0, os.path.join(os.path.dirname(os.path.abspath(__file__)), ".."
 import demcell as dc  # noqa: E402
 from demcell.interface import RelaxationOptions  # noqa: E402
 from demcell.io import CsvLog  # noqa: E402
+from cosserat_fenicsx.validation import Range  # noqa: E402
+
+PARTICLES_RANGE = Range(10, 100_000, integer=True)
 
 
 def parse(argv=None):
-    p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0],
-                                formatter_class=argparse.RawDescriptionHelpFormatter,
-                                epilog="See the module docstring (head of this file) for details.")
-    p.add_argument("--particles", type=int, default=228, help="number of discs (default 228, 000 Table 3)")
-    p.add_argument("--friction", type=float, default=0.4, help="Coulomb friction mu (default 0.4)")
+    from cosserat_fenicsx.validation import (NON_NEGATIVE, NON_NEGATIVE_INTEGER, POSITIVE, UNIT_OPEN, COUNT,
+                                             InputError, Parser, Range, number)
+    p = Parser(description=__doc__.split("\n\n")[0], formatter_class=argparse.RawDescriptionHelpFormatter,
+               allow_abbrev=False, epilog="See the module docstring (head of this file) for details.")
+    p.add_argument("--particles", type=number(PARTICLES_RANGE), default=228,
+                   help=f"number of discs, {PARTICLES_RANGE.describe()} (default 228, 000 Table 3)")
+    p.add_argument("--friction", type=number(Range(0.0, infinite=True)), default=0.4,
+                   help="Coulomb friction mu >= 0, inf: no sliding (default 0.4)")
     p.add_argument("--no-rotation", action="store_true", help="lock particle rotations (000 section 4.3.2)")
-    p.add_argument("--seed", type=int, default=0, help="packing seed (default 0)")
-    p.add_argument("--axial-strain", type=float, default=0.1,
-                   help="final axial shortening |F_11 - 1| (default 0.1, 000 Table 3)")
-    p.add_argument("--increment", type=float, default=1e-3, help="axial strain per increment (default 1e-3)")
+    p.add_argument("--seed", type=number(NON_NEGATIVE_INTEGER), default=0, help="packing seed (default 0)")
+    p.add_argument("--axial-strain", type=number(low=0.0, high=0.5, low_open=True, high_open=True), default=0.1,
+                   help="final axial shortening |F_11 - 1|, in (0, 0.5) (default 0.1, 000 Table 3)")
+    p.add_argument("--increment", type=number(POSITIVE), default=1e-3,
+                   help="axial strain per increment, at most --axial-strain (default 1e-3)")
     p.add_argument("--lateral-control", choices=("servo", "strain"), default="servo",
                    help="servo (default): the stress servo holds sigma_lat during the relaxation; strain: "
                         "each increment is a straight path in F from the committed state with F_lat found "
@@ -77,14 +83,15 @@ def parse(argv=None):
     p.add_argument("--axial-direction", type=int, choices=(1, 2), default=1,
                    help="axis shortened: 1 (e1, default) or 2 (e2, the vertical of demos/femdem_biaxial.py); "
                         "the other is held at sigma = -p0 by the servo")
-    p.add_argument("--pressure", type=float, default=10.0, help="confining pressure p0 [N/m] (default 10)")
-    p.add_argument("--kn", type=float, default=1e4, help="normal stiffness [N/m] (default 1e4)")
-    p.add_argument("--ks", type=float, default=2e3, help="tangential stiffness [N/m] (default 2e3)")
-    p.add_argument("--snapshot-every", type=int, default=10, help="increments between VTK snapshots")
-    p.add_argument("--anisotropy", type=float, default=None,
-                   help="target initial fabric anisotropy A0 (000 section 4.3.3: 0.02, 0.05, 0.08)")
-    p.add_argument("--relaxation-tol", type=float, default=1e-3,
-                   help="relaxation tolerance (default 1e-3, 000 Table 3)")
+    p.add_argument("--pressure", type=number(POSITIVE), default=10.0,
+                   help="confining pressure p0 [N/m], with p0/kn in [1e-8, 0.1] (default 10)")
+    p.add_argument("--kn", type=number(POSITIVE), default=1e4, help="normal stiffness [N/m] (default 1e4)")
+    p.add_argument("--ks", type=number(NON_NEGATIVE), default=2e3, help="tangential stiffness [N/m] (default 2e3)")
+    p.add_argument("--snapshot-every", type=number(COUNT), default=10, help="increments between VTK snapshots")
+    p.add_argument("--anisotropy", type=number(low=0.0, high=1.0, high_open=True), default=None,
+                   help="target initial fabric anisotropy A0 in [0, 1) (000 section 4.3.3: 0.02, 0.05, 0.08)")
+    p.add_argument("--relaxation-tol", type=number(UNIT_OPEN), default=1e-3,
+                   help="relaxation tolerance in (0, 1) (default 1e-3, 000 Table 3)")
     p.add_argument("--criterion", choices=("energy", "force"), default="energy",
                    help="convergence test: E_kin/E_pot (000 eq. 31, default) or unbalanced-force ratio (001)")
     p.add_argument("--relaxation", choices=["local", "fire"], default="local",
@@ -92,21 +99,30 @@ def parse(argv=None):
     p.add_argument("--packing", default=None, help="start from a packing file (.npz from a previous run)")
     p.add_argument("--out", default="results/dem_cell", help="output directory")
     a = p.parse_args(argv)
-    if a.particles < 10:
-        p.error("--particles must be >= 10")
-    if not (0.0 < a.axial_strain < 0.5):
-        p.error("--axial-strain must be in (0, 0.5)")
-    if not (0.0 < a.increment <= a.axial_strain):
-        p.error("--increment must be in (0, axial strain]")
-    if a.friction < 0 or a.pressure <= 0 or a.kn <= 0 or a.ks < 0 or a.snapshot_every < 1:
-        p.error("friction >= 0, pressure > 0, kn > 0, ks >= 0, snapshot-every >= 1 required")
-    if not (0.0 < a.relaxation_tol < 1.0):
-        p.error("--relaxation-tol must be in (0, 1)")
-    if a.anisotropy is not None and not (0.0 <= a.anisotropy < 1.0):
-        p.error("--anisotropy must be in [0, 1)")
-    if a.packing is not None and not os.path.isfile(a.packing):
-        p.error(f"packing file not found: {a.packing}")
+    try:
+        if a.increment > a.axial_strain:
+            raise InputError(f"--increment must be <= --axial-strain ({a.axial_strain:g}), got {a.increment:g}")
+        check_stiffness_ratio(a.pressure, a.kn)
+        dc.ContactLaw(kn=a.kn, ks=a.ks, friction=a.friction, rotations=not a.no_rotation)
+        if a.packing is not None:
+            dc.load_packing(a.packing)        # missing, truncated or inconsistent: refused now
+    except ValueError as error:
+        p.refuse(error)
     return a
+
+
+def check_stiffness_ratio(pressure, kn):
+    """p0/kn sets the overlap (about 2 p0/kn radii in 2D): below 1e-8 the contact forces
+    are at round-off of the positions, above 0.1 the discs overlap by a fifth of a radius
+    and the packing is no longer granular (docs/demcell.md)."""
+    from cosserat_fenicsx.validation import InputError
+    ratio = pressure / kn
+    if not STIFFNESS_RATIO[0] <= ratio <= STIFFNESS_RATIO[1]:
+        raise InputError(f"--pressure / --kn must be in [{STIFFNESS_RATIO[0]:g}, {STIFFNESS_RATIO[1]:g}] "
+                         f"(overlap ~ 2 p0/kn radii), got {ratio:.3g}")
+
+
+STIFFNESS_RATIO = (1e-8, 1e-1)
 
 
 def strain_path_step(cell, F, lat, lateral_stress, rtol=1e-4, max_iterations=30):
@@ -158,9 +174,19 @@ def plot(history, path):
     plt.close(fig)
 
 
+def stop(guard, stage, error):
+    """A stage that cannot produce a state ends the run cleanly: summary.json says why."""
+    reason = f"{stage}: {error}"
+    print(f"[demcell] stopped: {reason}", file=sys.stderr)
+    guard.finish(dict(guard.entries, completed=False, reason=reason))
+    sys.exit(1)
+
+
 def main(argv=None):
+    from cosserat_fenicsx.run_guard import RunGuard
     a = parse(argv)
     os.makedirs(a.out, exist_ok=True)
+    guard = RunGuard(None, os.path.join(a.out, "summary.json"), dict(options=vars(a)), label="demcell")
     t0 = time.time()
     law = dc.ContactLaw(kn=a.kn, ks=a.ks, friction=a.friction, rotations=not a.no_rotation)
     if a.packing:
@@ -168,8 +194,11 @@ def main(argv=None):
         state, info = dc.load_packing(a.packing)
     else:
         print(f"[demcell] packing: {a.particles} discs, seed {a.seed}, compaction to {a.pressure} N/m")
-        state, info = dc.generate_packing(a.particles, pressure=a.pressure, law=law, seed=a.seed,
-                                          anisotropy=a.anisotropy)
+        try:
+            state, info = dc.generate_packing(a.particles, pressure=a.pressure, law=law, seed=a.seed,
+                                              anisotropy=a.anisotropy)
+        except dc.DemCellError as error:
+            stop(guard, "packing", error)
     dc.save_packing(os.path.join(a.out, "packing.npz"), state, info)
     print(f"[demcell]   solid fraction {info['solid_fraction']:.3f}, coordination {info['coordination_number']:.2f}, "
           f"A0 {info['anisotropy']:.3f}, R_min/L {info['r_min_over_L']:.4f}")
@@ -177,8 +206,8 @@ def main(argv=None):
     cell = dc.DemCell(state, law, opts)
     try:
         dc.isotropic_stage(cell, a.pressure)   # friction on, sigma = -p0 I (000 section 4.1)
-    except dc.SolveError as error:
-        raise SystemExit(str(error))
+    except dc.DemCellError as error:
+        stop(guard, "isotropic stage", error)
     F = cell.deformation_gradient()
     F_iso = F.copy()
     J_iso = np.linalg.det(F_iso)
@@ -197,6 +226,11 @@ def main(argv=None):
     lat = 1 - ax
 
     def record(h, res_steps, converged):
+        with guard.deferred():
+            write_row(h, res_steps, converged)
+            guard.progress(final_axial_strain=history[-1][0])
+
+    def write_row(h, res_steps, converged):
         eps_a = F[ax, ax] / F_iso[ax, ax] - 1.0
         eps_v = np.linalg.det(cell.deformation_gradient()) / J_iso - 1.0
         row = [eps_a, h.stress_ratio, eps_v, h.coordination_number, h.anisotropy]
@@ -246,8 +280,7 @@ def main(argv=None):
                    increments=n_inc, increments_not_converged=n_bad, dem_steps=int(steps_total),
                    time_step_s=cell.dt, wall_time_s=time.time() - t0, packing=info,
                    options=vars(a), sign_convention="tension positive; axial_strain = F_aa/F_aa_iso - 1 (a = axial direction)")
-    with open(os.path.join(a.out, "summary.json"), "w") as f:
-        json.dump(summary, f, indent=2, default=str)
+    guard.finish(summary)
     print(f"[demcell] peak stress ratio {summary['peak_stress_ratio']:.3f} at axial strain "
           f"{summary['axial_strain_at_peak']:+.4f}; outputs in {a.out}")
     return summary

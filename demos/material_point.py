@@ -48,47 +48,53 @@ TABLE_6_2 = {"triaxial_100kPa": dict(sigma0=500e3, epsV0=0.1), "triaxial_300kPa"
 
 
 def build_parser():
-    p = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter,
-                                allow_abbrev=False)
+    from cosserat_fenicsx.validation import COUNT, NON_NEGATIVE, POSITIVE, Parser, number
+    p = Parser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter, allow_abbrev=False)
     p.add_argument("--test", choices=("hydrostatic", "triaxial", "biaxial", "all", "readings"), default="triaxial")
-    p.add_argument("--confining", type=float, default=100e3,
+    p.add_argument("--confining", type=number(POSITIVE), default=100e3,
                    help="confining pressure P > 0 [Pa] (hydrostatic: final pressure) (default %(default)g)")
     p.add_argument("--out", default="out/material_point", help="output directory (default %(default)s)")
     g = p.add_argument_group("material (SI units; Hostun defaults, Tables 6.1/6.4)")
-    g.add_argument("--mu", type=float, default=91.0e6, help="shear modulus [Pa] (default %(default)g)")
-    g.add_argument("--lmbda", type=float, default=49.4e6, help="Lame constant lambda [Pa] (default %(default)g)")
-    g.add_argument("--mu-c", type=float, default=None, help="Cosserat modulus [Pa] (default mu_c = mu)")
-    g.add_argument("--l-c", type=float, default=3e-3, help="internal length [m] (default %(default)g)")
+    g.add_argument("--mu", type=number(POSITIVE), default=91.0e6, help="shear modulus [Pa] (default %(default)g)")
+    g.add_argument("--lmbda", type=number(), default=49.4e6, help="Lame constant lambda [Pa] (default %(default)g)")
+    g.add_argument("--mu-c", type=number(NON_NEGATIVE), default=None, help="Cosserat modulus [Pa] (default mu_c = mu)")
+    g.add_argument("--l-c", type=number(NON_NEGATIVE), default=3e-3, help="internal length [m] (default %(default)g)")
     g.add_argument("--hardening-rows", choices=("uniform", "table3.1"), default="uniform",
                    help="uniform (2.82), reading H1 (default), or the delta/epsilon signs of Table 3.1")
     n = p.add_argument_group("numerics")
-    n.add_argument("--steps", type=int, default=600, help="load steps of the deviatoric phase (default %(default)s)")
-    n.add_argument("--consolidation-steps", type=int, default=40, help="steps of the isotropic phase (default %(default)s)")
-    n.add_argument("--axial-strain", type=float, default=0.15, help="axial compression strain (default %(default)g)")
-    n.add_argument("--eta", type=float, default=1e-4, help="Perzyna relaxation time [s] (2.81) (default %(default)g)")
-    n.add_argument("--dt", type=float, default=1.0, help="time per load step [s] (default %(default)g)")
+    n.add_argument("--steps", type=number(COUNT), default=600, help="load steps of the deviatoric phase (default %(default)s)")
+    n.add_argument("--consolidation-steps", type=number(COUNT), default=40, help="steps of the isotropic phase (default %(default)s)")
+    n.add_argument("--axial-strain", type=number(low=0.0, high=0.5, low_open=True, high_open=True), default=0.15,
+                   help="axial compression strain, in (0, 0.5) (default %(default)g)")
+    n.add_argument("--eta", type=number(NON_NEGATIVE), default=1e-4, help="Perzyna relaxation time [s] (2.81) (default %(default)g)")
+    n.add_argument("--dt", type=number(POSITIVE), default=1.0, help="time per load step [s] (default %(default)g)")
     return p
 
 
 def run_test(material, test, confining, args):
     from cosserat_fenicsx.materials.ehlers import material_point as mp
     if test == "hydrostatic":
-        h = mp.hydrostatic_test(material, confining, n_steps=args.steps, dt=args.dt)
+        h = mp.hydrostatic_test(material, confining, n_steps=args.steps, dt=args.dt, stop_on_failure=True)
     elif test == "triaxial":
-        h = mp.triaxial_test(material, confining, args.axial_strain, args.steps, args.consolidation_steps, args.dt)
+        h = mp.triaxial_test(material, confining, args.axial_strain, args.steps, args.consolidation_steps, args.dt,
+                             stop_on_failure=True)
     else:
-        h = mp.biaxial_test(material, confining, args.axial_strain, args.steps, args.consolidation_steps, args.dt)
+        h = mp.biaxial_test(material, confining, args.axial_strain, args.steps, args.consolidation_steps, args.dt,
+                            stop_on_failure=True)
     s = mp.summarize(h)
-    s.update(test=test, confining_pressure=confining)
+    s.update(test=test, confining_pressure=confining, completed=not h["stopped"], reason=h["stopped"])
+    if h["stopped"]:
+        print(f"material_point: {test}: {h['stopped']}", file=sys.stderr)
     if test == "hydrostatic":
         for p in (0.1e6, 0.3e6, 0.6e6, 1.0e6):
-            if confining >= p * (1 - 1e-9):
+            if -h["mean_stress"].min() >= p * (1 - 1e-9):
                 s[f"volumetric_strain_at_{p / 1e6:.1f}MPa"] = float(np.interp(-p, h["mean_stress"][::-1],
                                                                                h["volumetric_strain"][::-1]))
     return h, s
 
 
 def write_outputs(h, s, out, title):
+    """history.csv and material_point.png (summary.json is the RunGuard's)."""
     os.makedirs(out, exist_ok=True)
     cols = ["axial_strain", "axial_stress", "volumetric_strain", "sig22", "sig33", "mean_stress",
             "eps22", "eps33", "eps_p_vol", "beta", "delta", "epsilon", "gamma", "yield_function"]
@@ -97,8 +103,6 @@ def write_outputs(h, s, out, title):
         w.writerow(cols)
         for i in range(len(h["axial_strain"])):
             w.writerow([f"{h[c][i]:.10g}" for c in cols])
-    with open(os.path.join(out, "summary.json"), "w") as f:
-        json.dump(s, f, indent=2)
     import matplotlib
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
@@ -153,34 +157,45 @@ def run_readings(args):
 
 
 def main(argv=None):
-    args = build_parser().parse_args(argv)
-    if not args.confining > 0:
-        raise SystemExit(f"--confining must be > 0 (a pressure, Pa), got {args.confining}")
-    if args.steps < 1 or args.consolidation_steps < 1:
-        raise SystemExit("--steps and --consolidation-steps must be >= 1")
-    from cosserat_fenicsx.materials.ehlers import EhlersMaterial
+    parser = build_parser()
+    args = parser.parse_args(argv)
+    from cosserat_fenicsx.materials.ehlers.parameters import hostun   # no Numba: the parameters only
+    material_options = dict(mu=args.mu, lmbda=args.lmbda, mu_c=args.mu_c, l_c=args.l_c, eta=args.eta,
+                            hardening_rows=args.hardening_rows)
     try:
-        material = EhlersMaterial.hostun(mu=args.mu, lmbda=args.lmbda, mu_c=args.mu_c, l_c=args.l_c,
-                                         eta=args.eta, hardening_rows=args.hardening_rows)
-    except ValueError as e:
-        raise SystemExit(f"invalid material parameter: {e}")
+        hostun(**material_options)
+    except ValueError as error:
+        parser.refuse(error)
+    from cosserat_fenicsx.materials.ehlers import EhlersMaterial
+    from cosserat_fenicsx.run_guard import RunGuard
+    material = EhlersMaterial.hostun(**material_options)
     t0 = time.perf_counter()
+    os.makedirs(args.out, exist_ok=True)
     if args.test == "readings":
         return run_readings(args)
     if args.test != "all":
+        guard = RunGuard(None, os.path.join(args.out, "summary.json"), dict(test=args.test), label="material_point")
         h, s = run_test(material, args.test, args.confining, args)
         s["wall_time_s"] = time.perf_counter() - t0
         write_outputs(h, s, args.out, f"{args.test}, P = {args.confining / 1e3:g} kPa")
+        guard.finish(s)
         print(json.dumps(s, indent=2))
+        if not s["completed"]:
+            sys.exit(1)
         return s
     table = {}
+    completed = True
     for test, p in (("hydrostatic", 1.0e6), ("triaxial", 100e3), ("triaxial", 300e3), ("triaxial", 600e3),
                     ("biaxial", 100e3)):
         key = "hydrostatic" if test == "hydrostatic" else f"{test}_{p / 1e3:.0f}kPa"
+        os.makedirs(os.path.join(args.out, key), exist_ok=True)
+        guard = RunGuard(None, os.path.join(args.out, key, "summary.json"), dict(test=test), label="material_point")
         h, s = run_test(material, test, p, args)
         write_outputs(h, s, os.path.join(args.out, key), key)
+        guard.finish(s)
+        completed &= s["completed"]
         ref = SPEC_H1[key]
-        table[key] = {k: dict(model=s[k], spec_H1=v, rel_diff=(s[k] - v) / abs(v)) for k, v in ref.items()}
+        table[key] = {k: dict(model=s[k], spec_H1=v, rel_diff=(s[k] - v) / abs(v)) for k, v in ref.items() if k in s}
         table[key]["table_6_2"] = TABLE_6_2[key]
     table["wall_time_s"] = time.perf_counter() - t0
     with open(os.path.join(args.out, "h1_comparison.json"), "w") as f:
@@ -191,6 +206,8 @@ def main(argv=None):
         for k, r in rows.items():
             if k != "table_6_2":
                 print(f"{key:18s} {k:32s} model {r['model']:+.4g}  spec {r['spec_H1']:+.4g}  ({100 * r['rel_diff']:+.1f} %)")
+    if not completed:
+        sys.exit(1)
     return table
 
 

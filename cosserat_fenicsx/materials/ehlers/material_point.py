@@ -113,14 +113,15 @@ def _as_arrays(records, pt=None):
     return h
 
 
-def consolidate(pt, sigma, n_steps=40, plane_strain=False, dt=1.0):
+def consolidate(pt, sigma, n_steps=40, plane_strain=False, dt=1.0, records=None):
     """Stress-controlled proportional loading from the current state to diagonal ``sigma``
     (sig11, sig22, sig33) [Pa]; with plane_strain the total eps33 stays 0 instead and
-    only sig11, sig22 are prescribed (sig33 follows from the model)."""
+    only sig11, sig22 are prescribed (sig33 follows from the model). Returns the records
+    of the steps (appended to `records` when given, so a caller keeps them on failure)."""
     sigma = np.broadcast_to(np.asarray(sigma, dtype=float), (3,))
     mask = np.array([True, True, not plane_strain, False, False, False, False])
     s0 = pt.stress.copy()
-    recs = []
+    recs = [] if records is None else records
     for k in range(1, n_steps + 1):
         tgt = np.zeros(7)
         tgt[:3] = s0[:3] + k / n_steps * (sigma - s0[:3])
@@ -148,48 +149,89 @@ def consolidate_state(material, sigma0, n_steps=40):
     return st
 
 
-def hydrostatic_test(material, p_max=1.0e6, n_steps=200, dt=1.0):
+def compression_point_ratio(pt):
+    """eps_e^V / eps_crit of the committed state (both < 0 in compression; 1 at the
+    compression point, eqs. 2.67, 2.70)."""
+    st = pt.state[0]
+    p = pt.material.parameters
+    eps_p_vol = st[S_EPS_P:S_EPS_P + 3].sum()
+    eps_crit = 1.0 - p.n_max / (p.n0 * (1.0 - eps_p_vol - st[S_EPV_OFFSET]))
+    eps_e_vol = st[S_STRAIN:S_STRAIN + 3].sum() - eps_p_vol
+    return float(eps_e_vol / eps_crit)
+
+
+def _run_test(pt, recs, load, stop_on_failure):
+    """Run load() (which appends a record per converged step to recs) and return the
+    history arrays with h["stopped"]: "" when every step converged. A MaterialPointError
+    is raised, or with stop_on_failure ends the test at the last converged step, its
+    message (the cause, e.g. the compression point) in h["stopped"]."""
+    stopped = ""
+    try:
+        load()
+    except MaterialPointError as error:
+        if not stop_on_failure:
+            raise
+        ratio = compression_point_ratio(pt)
+        near = (f"; its elastic volumetric strain is at {100 * ratio:.1f} % of the compression point "
+                f"eps_crit (eq. 2.70), where the elastic law stiffens without bound" if ratio > 0.5 else "")
+        stopped = (f"stopped at the last converged state (mean stress {pt.stress[:3].mean() / 1e3:.6g} kPa, "
+                   f"axial strain {pt.strain[0]:.6g}){near}: {error}")
+    if not recs:                      # failed in the first step: the initial state
+        _record(pt, recs, pt.strain.copy())
+    h = _as_arrays(recs, pt)
+    h["stopped"] = stopped
+    return h
+
+
+def hydrostatic_test(material, p_max=1.0e6, n_steps=200, dt=1.0, stop_on_failure=False):
     """Hydrostatic compression to mean stress -p_max (A.1): sig11 = sig22 = sig33 = -p."""
     pt = MaterialPoint(material)
-    recs = consolidate(pt, -p_max, n_steps=n_steps, dt=dt)
-    return _as_arrays(recs, pt)
+    recs = []
+    return _run_test(pt, recs, lambda: consolidate(pt, -p_max, n_steps=n_steps, dt=dt, records=recs),
+                     stop_on_failure)
 
 
-def triaxial_test(material, confining=100e3, axial_strain=0.15, n_steps=600, n_consolidation=40, dt=1.0):
+def _compression(pt, recs, mask, lateral, confining, axial_strain, n_steps, dt):
+    """The deviatoric phase of the triaxial and biaxial tests: eps11 decreased by
+    axial_strain in n_steps from the consolidated state, -confining on the `lateral`
+    components; strains counted from the start of the phase."""
+    e_ref = pt.strain.copy()
+    _record(pt, recs, e_ref)
+    for k in range(1, n_steps + 1):
+        tgt = np.zeros(7)
+        tgt[0] = e_ref[0] - axial_strain * k / n_steps
+        tgt[lateral] = -confining
+        pt.advance(mask, tgt, dt)
+        _record(pt, recs, e_ref)
+
+
+def triaxial_test(material, confining=100e3, axial_strain=0.15, n_steps=600, n_consolidation=40, dt=1.0,
+                  stop_on_failure=False):
     """Triaxial compression (A.1): isotropic consolidation to -p, then eps11 decreased by
     ``axial_strain`` at constant lateral stress sig22 = sig33 = -p (eps22 = eps33 free).
     Axial and volumetric strains are counted from the start of the deviatoric phase."""
     pt = MaterialPoint(material)
-    consolidate(pt, -confining, n_steps=n_consolidation, dt=dt)
-    e_ref = pt.strain.copy()
     recs = []
-    _record(pt, recs, e_ref)
-    mask = np.array([False, True, True, False, False, False, False])
-    for k in range(1, n_steps + 1):
-        tgt = np.zeros(7)
-        tgt[0] = e_ref[0] - axial_strain * k / n_steps
-        tgt[1] = tgt[2] = -confining
-        pt.advance(mask, tgt, dt)
-        _record(pt, recs, e_ref)
-    return _as_arrays(recs, pt)
+
+    def load():
+        consolidate(pt, -confining, n_steps=n_consolidation, dt=dt)
+        mask = np.array([False, True, True, False, False, False, False])
+        _compression(pt, recs, mask, [1, 2], confining, axial_strain, n_steps, dt)
+    return _run_test(pt, recs, load, stop_on_failure)
 
 
-def biaxial_test(material, confining=100e3, axial_strain=0.15, n_steps=600, n_consolidation=40, dt=1.0):
+def biaxial_test(material, confining=100e3, axial_strain=0.15, n_steps=600, n_consolidation=40, dt=1.0,
+                 stop_on_failure=False):
     """Homogeneous plane-strain biaxial test (A.2): consolidation sig11 = sig22 = -p with
     eps33 = 0, then eps11 decreased at sig22 = -p, eps33 = 0 (sig33 from the model)."""
     pt = MaterialPoint(material)
-    consolidate(pt, -confining, n_steps=n_consolidation, plane_strain=True, dt=dt)
-    e_ref = pt.strain.copy()
     recs = []
-    _record(pt, recs, e_ref)
-    mask = np.array([False, True, False, False, False, False, False])
-    for k in range(1, n_steps + 1):
-        tgt = np.zeros(7)
-        tgt[0] = e_ref[0] - axial_strain * k / n_steps
-        tgt[1] = -confining
-        pt.advance(mask, tgt, dt)
-        _record(pt, recs, e_ref)
-    return _as_arrays(recs, pt)
+
+    def load():
+        consolidate(pt, -confining, n_steps=n_consolidation, plane_strain=True, dt=dt)
+        mask = np.array([False, True, False, False, False, False, False])
+        _compression(pt, recs, mask, [1], confining, axial_strain, n_steps, dt)
+    return _run_test(pt, recs, load, stop_on_failure)
 
 
 def summarize(h):

@@ -45,7 +45,8 @@ import numpy as np
 from mpi4py import MPI
 
 from cosserat_fenicsx import cli
-from cosserat_fenicsx.output import FieldWriter, CsvLog, write_json, print0
+from cosserat_fenicsx.output import FieldWriter, CsvLog, print0
+from cosserat_fenicsx.run_guard import RunGuard
 from cosserat_fenicsx.scenes.biaxial import BiaxialSettings, BiaxialTest, convergence_orders
 from cosserat_fenicsx.shear_band import assess_band, bell
 from cosserat_fenicsx.stepping import LoadSteppingError
@@ -94,6 +95,7 @@ print0(comm, f"biaxial: {'classical' if classical else 'micropolar'} {test.mater
              f"{comm.allreduce(len(test.points))} Gauss points, {test.n_weak_cells} weakened cells, "
              f"{comm.size} rank(s)")
 
+guard = RunGuard(comm, os.path.join(args.out, "summary.json"), label="biaxial")
 writer = FieldWriter(test.problem, os.path.join(args.out, "fields.xdmf"), args.fields)
 for name, shape, values in test.cell_fields():
     writer.add_cell_field(name, shape, values)
@@ -115,7 +117,8 @@ def record(row):
 start = time.perf_counter()
 stopped = ""
 try:
-    test.run(record)
+    test.run(guard.protect(record, lambda row: {"final_axial_strain": row["axial_strain"],
+                                                "final_vertical_stress": row["vertical_stress"]}))
 except LoadSteppingError as error:
     stopped = str(error)   # keep what was computed: summary and plot of the part before
     print0(comm, f"biaxial: stopped early: {stopped}")
@@ -150,13 +153,13 @@ summary = {
     "newton_orders_longest_plastic_step": convergence_orders(longest[1].residual_history) if longest[1] else [],
     "newton_longest_plastic_step": longest[0],
     "steps": len(rows), "cut_backs": int(rows[-1]["cuts"]) if rows else 0,
-    "completed": not stopped, "stopped": stopped,
+    "completed": not stopped, "stopped": stopped, "reason": stopped,
     "wall_time": wall, "kernel_time_rank0": test.zoned.kernel_time, "ranks": comm.size,
     "classical": classical, "l_c": e.l_c, "mu_c": e.mu_c if not classical else 0.0, "k_sigma": args.k_sigma,
     "k_mu": args.k_mu, "eta": args.eta, "cell_size": args.cell_size, "width": args.width,
     "height": args.height, "confining": args.confining, "weak_size": args.weak_size,
     "weak_factor": args.weak_factor}
-write_json(comm, os.path.join(args.out, "summary.json"), summary)
+guard.finish(summary)
 
 # --- figure: load-displacement and the band profile --------------------------------------
 values = np.concatenate(comm.allgather(test.strain_norm()))

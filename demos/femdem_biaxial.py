@@ -65,10 +65,13 @@ import numpy as np
 from mpi4py import MPI
 
 from cosserat_fenicsx import cli
-from cosserat_fenicsx.output import CsvLog, FieldWriter, print0, write_json
+from cosserat_fenicsx.output import CsvLog, FieldWriter, print0
 from cosserat_fenicsx.scenes.femdem_biaxial import FemDemBiaxial, FemDemSettings, max_over_ranks, parse_mesh
 from cosserat_fenicsx.shear_band import assess_band
+from cosserat_fenicsx.run_guard import RunGuard
 from cosserat_fenicsx.stepping import LoadSteppingError
+from cosserat_fenicsx.validation import (COUNT, NON_NEGATIVE, NON_NEGATIVE_INTEGER, POSITIVE, UNIT_OPEN, Range,
+                                         number)
 
 parser = cli.make_parser(__doc__)
 cli.add_mesh_options(parser, with_cell_size=False)
@@ -76,56 +79,52 @@ cli.add_output_options(parser, "results/femdem_biaxial")
 cli.add_stepping_options(parser, steps=100)
 g = parser.add_argument_group("specimen and loading (000 section 4.1)")
 g.add_argument("--mesh", default="2x4", help="NXxNY rectangles (000: 1x1, 1x2, 2x4, 4x8; default %(default)s)")
-g.add_argument("--width", type=float, default=0.01, help="specimen width W [m] (default %(default)g)")
-g.add_argument("--height", type=float, default=0.02, help="specimen height H [m] (default %(default)g)")
-g.add_argument("--axial-strain", type=float, default=0.10, help="platen displacement / H (default %(default)g)")
-g.add_argument("--weak-size", type=float, default=0.0, help="side of the weak square at the lower left corner [m] (default 0: none)")
-g.add_argument("--weak-friction", type=float, default=1.0,
-               help="contact friction of the weak cells / --friction (default %(default)g)")
+g.add_argument("--width", type=number(POSITIVE), default=0.01, help="specimen width W [m] (default %(default)g)")
+g.add_argument("--height", type=number(POSITIVE), default=0.02, help="specimen height H [m] (default %(default)g)")
+g.add_argument("--axial-strain", type=number(low=0.0, high=0.5, low_open=True, high_open=True), default=0.10,
+               help="platen displacement / H, in (0, 0.5) (default %(default)g)")
+g.add_argument("--weak-size", type=number(NON_NEGATIVE), default=0.0, help="side of the weak square at the lower left corner [m] (default 0: none)")
+g.add_argument("--weak-friction", type=number(low=0.0, high=1.0, low_open=True), default=1.0,
+               help="contact friction of the weak cells / --friction, in (0, 1] (default %(default)g)")
 g = parser.add_argument_group("the cell (as demos/dem_cell.py)")
-g.add_argument("--particles", type=int, default=228, help="number of discs (default 228, 000 Table 3)")
-g.add_argument("--seed", type=int, default=0, help="packing seed (default 0)")
+g.add_argument("--particles", type=number(Range(10, 100_000, integer=True)), default=228, help="number of discs (default 228, 000 Table 3)")
+g.add_argument("--seed", type=number(NON_NEGATIVE_INTEGER), default=0, help="packing seed (default 0)")
 g.add_argument("--packing", default=None, help="packing file (.npz from demos/dem_cell.py) instead of generating one")
-g.add_argument("--friction", type=float, default=0.4, help="Coulomb friction mu (default 0.4; inf: no sliding)")
-g.add_argument("--pressure", type=float, default=10.0, help="confining pressure p0 [N/m] (default 10)")
-g.add_argument("--kn", type=float, default=1e4, help="normal contact stiffness [N/m] (default 1e4)")
-g.add_argument("--ks", type=float, default=2e3, help="tangential contact stiffness [N/m] (default 2e3)")
+g.add_argument("--friction", type=number(Range(0.0, infinite=True)), default=0.4, help="Coulomb friction mu (default 0.4; inf: no sliding)")
+g.add_argument("--pressure", type=number(POSITIVE), default=10.0, help="confining pressure p0 [N/m] (default 10)")
+g.add_argument("--kn", type=number(POSITIVE), default=1e4, help="normal contact stiffness [N/m] (default 1e4)")
+g.add_argument("--ks", type=number(NON_NEGATIVE), default=2e3, help="tangential contact stiffness [N/m] (default 2e3)")
 g.add_argument("--no-rotation", action="store_true", help="lock particle rotations (000 section 4.3.2)")
-g.add_argument("--relaxation-tol", type=float, default=1e-3, help="cell relaxation tolerance of --criterion (default 1e-3: 001 section 2, 000 Table 3)")
+g.add_argument("--relaxation-tol", type=number(UNIT_OPEN), default=1e-3, help="cell relaxation tolerance of --criterion (default 1e-3: 001 section 2, 000 Table 3)")
 g.add_argument("--criterion", choices=("energy", "force"), default="force",
                help="cell convergence test: unbalanced-force ratio (001, default) or E_kin/E_pot (000 eq. 31; "
                     "near the peak it leaves a residual floor above --force-rtol, docs/femdem.md)")
-g.add_argument("--max-dem-steps", type=int, default=200_000, help="DEM steps allowed per cell solve (default %(default)s)")
+g.add_argument("--max-dem-steps", type=number(COUNT), default=200_000, help="DEM steps allowed per cell solve (default %(default)s)")
 g = parser.add_argument_group("coupling")
 g.add_argument("--mode", choices=("classical", "hybrid", "micropolar"), default="hybrid",
                help="classical: Cauchy continuum; hybrid (default): micropolar, elastic skew and couple stress; "
                     "micropolar: every flux from the cell (needs a micropolar cell)")
-g.add_argument("--mu-c", type=float, default=None, help="Cosserat modulus [N/m] (hybrid; default: the cell's initial shear modulus)")
-g.add_argument("--l-c", type=float, default=None, help="internal length [m] (hybrid; default: --grain-diameter)")
-g.add_argument("--grain-diameter", type=float, default=2.5e-4,
+g.add_argument("--mu-c", type=number(POSITIVE), default=None, help="Cosserat modulus [N/m] (hybrid; default: the cell's initial shear modulus)")
+g.add_argument("--l-c", type=number(NON_NEGATIVE), default=None, help="internal length [m] (hybrid; default: --grain-diameter)")
+g.add_argument("--grain-diameter", type=number(POSITIVE), default=2.5e-4,
                help="mean grain diameter in the specimen's units [m] (default %(default)g: W / 40)")
 g.add_argument("--tangent", choices=("cto", "demqo", "kruyt", "pstlo"), default="pstlo",
                help="cell operator of the macro Newton (default %(default)s; docs/femdem.md)")
-g.add_argument("--force-rtol", type=float, default=1e-2, help="Newton stops at FNORM/RNORM <= this (default %(default)g)")
-g.add_argument("--accept-rtol", type=float, default=3e-2,
+g.add_argument("--force-rtol", type=number(POSITIVE), default=1e-2, help="Newton stops at FNORM/RNORM <= this (default %(default)g)")
+g.add_argument("--accept-rtol", type=number(NON_NEGATIVE), default=3e-2,
                help="a step whose Newton stagnates ends at its best iterate if FNORM/RNORM <= this, reported as "
                     "accepted (default %(default)g; 0: never)")
-g.add_argument("--stagnation-its", type=int, default=4,
+g.add_argument("--stagnation-its", type=number(NON_NEGATIVE_INTEGER), default=4,
                help="... and ends it as soon as its best FNORM/RNORM gained less than 10 %% in this many "
                     "iterations (default %(default)s; 0: only at -snes_max_it)")
-g.add_argument("--write-every", type=int, default=1, help="XDMF every N steps and at the end (default %(default)s)")
-args = cli.parse(parser)
-comm = MPI.COMM_WORLD
-if args.mode == "classical" and (args.mu_c is not None or args.l_c is not None):
-    parser.error("--mu-c and --l-c are micropolar options: a classical (Cauchy) scene has no rotation field")
-if args.write_every < 1:
-    parser.error(f"--write-every must be >= 1, got {args.write_every}")
+g.add_argument("--write-every", type=number(COUNT), default=1, help="XDMF every N steps and at the end (default %(default)s)")
 
-from cosserat_fenicsx.materials.dem import CellOptions  # noqa: E402  (imports demcell)
 
-try:
+def femdem_settings(args):
+    """The scene's settings from the options (imports demcell: only when they parsed)."""
+    from cosserat_fenicsx.materials.dem import CellOptions
     nx, ny = parse_mesh(args.mesh)
-    settings = FemDemSettings(
+    return FemDemSettings(
         width=args.width, height=args.height, nx=nx, ny=ny, cell_type=args.cell_type,
         degree_u=args.degree_u, degree_phi=args.degree_phi, mode=args.mode, tangent=args.tangent,
         mu_c=args.mu_c, l_c=args.l_c, grain_diameter=args.grain_diameter, axial_strain=args.axial_strain,
@@ -136,10 +135,27 @@ try:
                          pressure=args.pressure, kn=args.kn, ks=args.ks, rotation=not args.no_rotation,
                          relaxation_tol=args.relaxation_tol, criterion=args.criterion,
                          max_steps=args.max_dem_steps))
-    settings.check()                          # every option, before any cell exists
+
+
+def check(args):
+    if args.mode == "classical" and (args.mu_c is not None or args.l_c is not None):
+        raise ValueError("--mu-c and --l-c are micropolar options: a classical (Cauchy) scene has no rotation field")
+    femdem_settings(args).check()             # every option, before any cell exists
+
+
+args = cli.parse(parser, check=check)
+comm = MPI.COMM_WORLD
+settings = femdem_settings(args)
+nx, ny = settings.nx, settings.ny
+guard = RunGuard(comm, os.path.join(args.out, "summary.json"),
+                 {"options": {k: v for k, v in vars(args).items() if k != "elasticity"}}, label="femdem")
+try:
     test = FemDemBiaxial(comm, settings)
-except ValueError as error:
-    parser.error(str(error))
+except (ValueError, RuntimeError) as error:   # e.g. a packing that cannot be compacted (demcell errors)
+    reason = f"preparing the cells: {' '.join(str(error).split())}"
+    print0(comm, f"femdem: stopped: {reason}")
+    guard.finish(dict(guard.entries, completed=False, reason=reason))
+    sys.exit(1)
 n_points = comm.allreduce(len(test.points))
 print0(comm, f"femdem: {args.mode} mode, {args.tangent} tangent, mesh {nx}x{ny}, {n_points} Gauss points "
              f"({test.n_weak_cells} weak elements), {test.packing_info['n_particles']} discs per cell, "
@@ -182,7 +198,7 @@ def record(row):
 start = time.perf_counter()
 stopped = ""
 try:
-    test.run(record)
+    test.run(guard.protect(record, lambda row: {"final_axial_strain": row["axial_strain"]}))
 except LoadSteppingError as error:
     stopped = str(error)   # keep what was computed: summary, plot and snapshots of the part before
     print0(comm, f"femdem: stopped early: {stopped}")
@@ -238,14 +254,14 @@ summary = {
     "steps_accepted_above_force_rtol": int(sum(r["accepted"] for r in test.history)),
     "dem_steps_total": float(sum(r["dem_steps"] for r in test.history)),
     "steps": len(test.history), "cut_backs": int(test.history[-1]["cuts"]) if test.history else 0,
-    "completed": not stopped, "stopped": stopped,
+    "completed": not stopped, "stopped": stopped, "reason": stopped,
     "wall_time": wall, "cell_preparation_time": test.preparation_time, "ranks": comm.size,
     "time_max_over_ranks": timing,
     "memory_per_cell_bytes": memory / n_points, "snapshots": snapshots,
     "mode": test.material.describe(), "mu_c": test.mu_c, "l_c": test.l_c, "packing": test.packing_info,
     "options": {k: v for k, v in vars(args).items() if k != "elasticity"},
 }
-write_json(comm, os.path.join(args.out, "summary.json"), summary)
+guard.finish(summary)
 
 # --- figure: 000 Figs 4-6 -----------------------------------------------------------------------
 if comm.rank == 0 and rows:

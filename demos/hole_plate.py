@@ -27,7 +27,8 @@ import numpy as np
 from mpi4py import MPI
 
 from cosserat_fenicsx import CosseratProblem, NewtonSolver, LoadStepper, analytic, cli, meshes
-from cosserat_fenicsx.output import FieldWriter, CsvLog, write_json, print0
+from cosserat_fenicsx.output import FieldWriter, CsvLog, print0
+from cosserat_fenicsx.run_guard import RunGuard
 from cosserat_fenicsx.probes import sample_line, stress_component_at
 from cosserat_fenicsx.validation import POSITIVE, InputError, number
 
@@ -77,9 +78,13 @@ def solve(radius, write_fields):
         problem.add_dirichlet("bottom", "phi", 0.0)
     problem.add_traction("top", (0.0, args.traction))
     writer = FieldWriter(problem, os.path.join(args.out, "fields.xdmf"), args.fields) if write_fields else None
+
+    def write_step(record):
+        with guard.deferred():
+            writer.write(record.time)
     solver = NewtonSolver(problem)
     LoadStepper(problem, solver, dt=1.0, verbose=write_fields,
-                on_step=(lambda r: writer.write(r.time)) if writer else None).run()
+                on_step=write_step if writer else None).run()
     if writer:
         writer.close()
     sigma22 = stress_component_at(problem, (1, 1), np.array([radius, 0.0, 0.0]))
@@ -87,6 +92,7 @@ def solve(radius, write_fields):
     return sigma22 / args.traction, dofs, time.perf_counter() - start
 
 
+guard = RunGuard(comm, os.path.join(args.out, "summary.json"), label="hole_plate")
 radii = [args.radius]
 if args.sweep:
     radii += [f * e.l_c for f in (0.25, 0.5, 1.0, 2.0, 4.0, 8.0)]
@@ -97,14 +103,16 @@ for i, radius in enumerate(radii):
     exact = analytic.micropolar_hole_scf(radius, e.mu, e.lmbda, e.mu_c, e.l_c) if micropolar else 3.0
     row = {"radius": radius, "radius_over_l_c": radius / e.l_c if e.l_c > 0 else np.inf,
            "scf": scf, "scf_closed_form": exact, "dofs": dofs, "wall_time": wall}
-    log.write(row)
-    results.append(row)
+    with guard.deferred():
+        log.write(row)
+        results.append(row)
+        guard.progress(radii_solved=len(results))
     print0(comm, f"a = {radius:.4g} m, a/l_c = {row['radius_over_l_c']:.3g}: SCF = {scf:.4f} "
                  f"(closed form {exact:.4f}, Kirsch 3), {dofs} dofs")
 log.close()
 
 first = results[0]
-write_json(comm, os.path.join(args.out, "summary.json"), {
+guard.finish({
     "scf": first["scf"], "scf_closed_form": first["scf_closed_form"], "scf_kirsch": 3.0,
     "relative_error": abs(first["scf"] - first["scf_closed_form"]) / first["scf_closed_form"],
     "radius": args.radius, "l_c": e.l_c, "mu": e.mu, "lmbda": e.lmbda, "mu_c": e.mu_c,

@@ -92,6 +92,41 @@ def compact(cell, pressure, friction=0.0, deviator=0.0, max_steps=400_000):
     return res
 
 
+#: p0/kn for which generate_packing is verified (tests/test_demcell_extreme.py): below 1e-8
+#: the overlaps (about 2 p0/kn radii in 2D) approach the round-off of the positions; above
+#: 0.1 the discs overlap by a fifth of a radius and the packing is no longer granular.
+PRESSURE_RATIO_RANGE = (1e-8, 1e-1)
+#: below this p0/kn the compaction goes down in stages of a factor 10 from it: the servo
+#: moves a cell without contacts at dF = gain p0/kn per step, too slow to reach jamming
+STAGED_BELOW = 1e-4
+
+
+def check_pressure_ratio(pressure, kn):
+    """InputError unless p0/kn lies in PRESSURE_RATIO_RANGE."""
+    low, high = PRESSURE_RATIO_RANGE
+    if not low <= pressure / kn <= high:
+        raise InputError(f"pressure / kn must be in [{low:g}, {high:g}] (overlaps of about 2 p0/kn radii), "
+                         f"got {pressure / kn:.3g}")
+
+
+def compact_in_stages(cell, pressure, friction=0.0, deviator=0.0, max_steps=400_000):
+    """compact(), through pressures 1e-4 kn, 1e-5 kn, ... down to `pressure` when p0/kn is
+    below STAGED_BELOW (measured: 400 discs reach p0/kn = 1e-8 in 5 stages of 5e3-2e4
+    steps after the first; in one stage the servo runs out of steps). Returns the
+    SolveResult of the last stage, or of the first that did not converge."""
+    kn = cell.law.kn
+    stages = []
+    p = STAGED_BELOW * kn
+    while p > pressure * (1 + 1e-12):
+        stages.append(p)
+        p /= 10.0
+    for p in stages + [pressure]:
+        res = compact(cell, p, friction, deviator, max_steps)
+        if not res.converged:
+            return res
+    return res
+
+
 def compact_to_fraction(cell, solid_fraction, friction=0.0, max_steps=400_000):
     """Isotropic strain-controlled compression (or expansion) of ``cell`` to the solid
     fraction sum(pi R^2) / area, then relaxation, with the given preparation friction."""
@@ -128,6 +163,7 @@ def generate_packing(n_particles=228, pressure=10.0, law=None, r_min=0.01, radiu
     law = ContactLaw() if law is None else law
     if not pressure > 0:
         raise InputError(f"compaction pressure must be > 0 N/m, got {pressure}")
+    check_pressure_ratio(pressure, law.kn)
     if anisotropy is not None and not (0.0 <= anisotropy < 1.0):
         raise InputError(f"target anisotropy must be in [0, 1), got {anisotropy}")
     if solid_fraction is not None and not (0.3 < solid_fraction < 0.95):
@@ -143,10 +179,10 @@ def generate_packing(n_particles=228, pressure=10.0, law=None, r_min=0.01, radiu
             # frictional pre-compaction under a deviator, then isotropic with the same friction
             # (frictionless isotropic compaction would erase most of the induced fabric)
             mu_prep = prep_friction if prep_friction > 0 else 0.3
-            r = compact(cell, pressure, mu_prep, deviator=dev)
+            r = compact_in_stages(cell, pressure, mu_prep, deviator=dev)
             if not r.converged:
                 raise InputError(f"deviatoric pre-compaction did not converge: {r.message}")
-        r = compact(cell, pressure, mu_prep)
+        r = compact_in_stages(cell, pressure, mu_prep)
         if not r.converged:
             raise InputError(f"compaction did not converge: {r.message}")
         if solid_fraction is not None:

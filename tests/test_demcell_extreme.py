@@ -141,3 +141,21 @@ def test_fire_relaxation_reaches_the_same_equilibrium(packing60):
     assert np.abs(sig[0] - sig[1]).max() < 1e-3 * np.abs(sig[0]).max()
     with pytest.raises(dc.InputError, match="relaxation method"):
         RelaxationOptions(method="verlet")
+
+
+@pytest.mark.parametrize("ratio", [1e-8, 1e-6, 1e-1])
+def test_compaction_across_the_pressure_ratio_range(ratio):
+    """p0/kn from 1e-8 to 1e-1: the packing reaches p0 (below 1e-4 in stages; in one stage
+    the servo moves a cell without contacts at gain p0/kn per step and runs out of steps)."""
+    law = dc.ContactLaw(kn=1e4, ks=2e3)
+    state, info = dc.generate_packing(60, pressure=ratio * 1e4, law=law, seed=3)
+    cell = dc.DemCell(state, law)
+    pressure = cell.homogenized().pressure
+    assert abs(pressure / (ratio * 1e4) - 1.0) < 2e-2            # the servo's stress tolerance, 1e-2
+    assert info["coordination_number"] > 3.0                       # jammed, not a gas
+
+
+@pytest.mark.parametrize("ratio", [1e-9, 0.2])
+def test_pressure_ratio_outside_the_range_is_refused(ratio):
+    with pytest.raises(dc.InputError, match=r"pressure / kn must be in \[1e-08, 0.1\]"):
+        dc.generate_packing(60, pressure=ratio * 1e4, law=dc.ContactLaw(kn=1e4, ks=2e3))

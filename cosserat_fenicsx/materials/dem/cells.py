@@ -47,6 +47,8 @@ class CellOptions:
             v = getattr(self, name)
             if not (isinstance(v, (int, float)) and math.isfinite(v) and v > 0):
                 raise ValueError(f"{name} must be a positive number, got {v!r}")
+        from demcell.packing import check_pressure_ratio
+        check_pressure_ratio(self.pressure, self.kn)
         if not (isinstance(self.ks, (int, float)) and math.isfinite(self.ks) and self.ks >= 0):
             raise ValueError(f"ks must be a number >= 0, got {self.ks!r}")
         if not (isinstance(self.friction, (int, float)) and self.friction >= 0 and not math.isnan(self.friction)):

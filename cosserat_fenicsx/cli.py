@@ -17,7 +17,7 @@ from petsc4py import PETSc
 
 from .elasticity import MicropolarElasticity
 from .output import FIELDS
-from .validation import COUNT, NON_NEGATIVE, POSITIVE, Parser, Range, number
+from .validation import NON_NEGATIVE, POSITIVE, STEPS, Parser, Range, number
 
 PETSC_PREFIXES = ("-snes_", "-ksp_", "-pc_", "-mat_", "-log_view")
 
@@ -69,7 +69,7 @@ def add_output_options(parser, out):
 
 def add_stepping_options(parser, steps=1):
     g = parser.add_argument_group("load stepping")
-    g.add_argument("--steps", type=number(COUNT), default=steps, help="load increments (default %(default)s)")
+    g.add_argument("--steps", type=number(STEPS), default=steps, help="load increments (default %(default)s)")
 
 
 def parse(parser, argv=None, check=None):

@@ -43,6 +43,9 @@ class MicropolarElasticity:
             raise ValueError(f"Cosserat modulus mu_c must be >= 0, got {self.mu_c} Pa")
         if self.l_c < 0.0:
             raise ValueError(f"internal length l_c must be >= 0, got {self.l_c} m")
+        if not math.isfinite(self.bending_modulus):
+            raise ValueError(f"the bending modulus 2 mu_c l_c^2 overflows (mu_c = {self.mu_c:g} Pa, "
+                             f"l_c = {self.l_c:g} m)")
 
     @property
     def poisson_ratio(self):
@@ -51,7 +54,7 @@ class MicropolarElasticity:
     @property
     def bending_modulus(self):
         """2 mu_c l_c^2 [N], the factor of eq 2.74."""
-        return 2.0 * self.mu_c * self.l_c ** 2
+        return 2.0 * self.mu_c * self.l_c * self.l_c   # inf, not OverflowError, when too large
 
     @property
     def rotation_length(self):

@@ -6,9 +6,35 @@ import dolfinx.mesh
 import numpy as np
 
 from . import compat
+from .validation import POSITIVE, InputError, check
 
 MESH_DIR = os.path.join(os.path.dirname(os.path.dirname(os.path.abspath(__file__))), "meshes")
 RECTANGLE_BOUNDARIES = {"left": 1, "right": 2, "bottom": 3, "top": 4}
+
+
+#: more elements than this is not a mesh this solver (a direct linear solve on one machine)
+#: can handle: refused before gmsh or dolfinx is asked for it
+MAX_ELEMENTS = 10_000_000
+
+
+def rectangle_divisions(width, height, cell_size):
+    """(nx, ny) squares of about `cell_size` in a width x height rectangle; InputError when
+    that is more than MAX_ELEMENTS (e.g. a cell size of 1e-300 m)."""
+    for name, value in (("width", width), ("height", height), ("cell_size", cell_size)):
+        check(name, value, POSITIVE)
+    nx, ny = (max(1.0, float(np.ceil(extent / cell_size - 1e-9))) for extent in (width, height))   # floats: inf, not OverflowError
+    if not nx * ny <= MAX_ELEMENTS:
+        raise InputError(f"cell size {cell_size:g} m gives {nx * ny:.3g} elements in a {width:g} x {height:g} m "
+                         f"rectangle; at most {MAX_ELEMENTS:.0e}")
+    return int(nx), int(ny)
+
+
+def check_element_count(area, cell_size, what="the mesh"):
+    """InputError when about area / cell_size^2 elements exceed MAX_ELEMENTS."""
+    count = area / cell_size ** 2 if cell_size ** 2 > 0 else math.inf
+    if not count <= MAX_ELEMENTS:
+        raise InputError(f"element size {cell_size:g} m gives about {count:.3g} elements in {what}; "
+                         f"at most {MAX_ELEMENTS:.0e}")
 
 
 def rectangle(comm, width, height, cell_size=None, cell_type="triangle", origin=(0.0, 0.0), divisions=None):
@@ -18,18 +44,16 @@ def rectangle(comm, width, height, cell_size=None, cell_type="triangle", origin=
     left/right/bottom/top."""
     if (cell_size is None) == (divisions is None):
         raise ValueError("give exactly one of cell_size and divisions")
-    for name, value in (("width", width), ("height", height)) + ((("cell_size", cell_size),) if divisions is None else ()):
-        if not value > 0:
-            raise ValueError(f"{name} must be positive, got {value}")
     if cell_type not in ("triangle", "quadrilateral"):
         raise ValueError(f"cell_type must be 'triangle' or 'quadrilateral', got {cell_type!r}")
     if divisions is not None:
+        check("width", width, POSITIVE)
+        check("height", height, POSITIVE)
         nx, ny = divisions
         if not all(isinstance(n, (int, np.integer)) and n >= 1 for n in (nx, ny)):
             raise ValueError(f"divisions must be two integers >= 1, got {divisions!r}")
     else:
-        nx = max(1, int(math.ceil(width / cell_size - 1e-9)))
-        ny = max(1, int(math.ceil(height / cell_size - 1e-9)))
+        nx, ny = rectangle_divisions(width, height, cell_size)
     x0, y0 = origin
     mesh = dolfinx.mesh.create_rectangle(
         comm, [np.array([x0, y0]), np.array([x0 + width, y0 + height])], [nx, ny],
@@ -86,9 +110,11 @@ def hole_plate(comm, radius, half_side, cell_size, hole_cell_size=None,
     boundaries left, bottom (symmetry), right, top, hole."""
     if not 0 < radius < half_side:
         raise ValueError(f"need 0 < radius < half_side, got radius={radius}, half_side={half_side}")
-    if not cell_size > 0:
-        raise ValueError(f"cell_size must be positive, got {cell_size}")
+    check("cell_size", cell_size, POSITIVE)
     hole_cell_size = hole_cell_size or cell_size
+    check("hole_cell_size", hole_cell_size, POSITIVE)
+    check_element_count(2 * half_side ** 2, cell_size, "the plate")
+    check_element_count(2 * radius ** 2, hole_cell_size, "the ring around the hole")
     return from_gmsh_geo(comm, geo_path, {"R": radius, "L": half_side, "h": cell_size,
                                           "h_hole": hole_cell_size})
 

@@ -95,6 +95,16 @@ class RunGuard:
         self._write()
         self.release()
 
+    def stop(self, reason, **entries):
+        """A run that cannot go on (e.g. a load step that does not converge down to dt_min):
+        rank 0 prints the reason, summary.json says completed: false with it (and the
+        entries recorded so far), and every rank exits with status 1."""
+        reason = " ".join(str(reason).split())
+        if self.rank == 0:
+            print(f"{self.label + ': ' if self.label else ''}stopped: {reason}", file=sys.stderr, flush=True)
+        self.finish(dict(self.entries, **entries, completed=False, reason=reason))
+        sys.exit(1)
+
     def release(self):
         for sig, handler in self._previous.items():
             signal.signal(sig, handler)

@@ -9,11 +9,13 @@ naming the option, the value and the allowed range:
 
 The command-line side (`Parser`, `number`) declares the range on the option itself, so
 argparse refuses the value while parsing and the property tests can read every numeric
-option of a demo and its range from the parser (`numeric_options`). `Parser.error` prints
+option of a demo and its range from the parser (`describe_options`; a demo run with
+COSSERAT_DESCRIBE_OPTIONS=1 prints them as JSON and exits). `Parser.error` prints
 one line (no usage block), on rank 0 only, and exits with status 2 on every rank.
 """
 import argparse
 from dataclasses import dataclass
+import json
 import math
 import os
 import re
@@ -78,6 +80,7 @@ ANY = Range()
 POSITIVE = Range(low=0.0, low_open=True)
 NON_NEGATIVE = Range(low=0.0)
 COUNT = Range(low=1, integer=True)
+STEPS = Range(1, 1_000_000, integer=True)    # load steps: more than a million is a typo here
 NON_NEGATIVE_INTEGER = Range(low=0, integer=True)
 UNIT_OPEN = Range(0.0, 1.0, low_open=True, high_open=True)
 
@@ -96,7 +99,7 @@ def check_optional(name, value, allowed=ANY):
 
 class Number:
     """argparse `type` of a numeric option with its allowed range; the parser keeps it, so
-    `numeric_options(parser)` lists every numeric option with its range."""
+    `describe_options(parser)` lists every numeric option with its range."""
 
     def __init__(self, allowed=ANY):
         self.allowed = allowed
@@ -122,10 +125,14 @@ def number(allowed=ANY, **range_kwargs):
     return Number(Range(**range_kwargs) if range_kwargs else allowed)
 
 
-def numeric_options(parser):
-    """{option string: Range} of every option whose type is a `Number`."""
-    return {a.option_strings[-1]: a.type.allowed for a in parser._actions
-            if isinstance(a.type, Number) and a.option_strings}
+DESCRIBE_OPTIONS = "COSSERAT_DESCRIBE_OPTIONS"
+
+
+def describe_options(parser):
+    """{option: {low, high, low_open, high_open, integer, infinite, default}} of every
+    numeric option (printed by a demo run with COSSERAT_DESCRIBE_OPTIONS=1)."""
+    return {a.option_strings[-1]: dict(vars(a.type.allowed), default=a.default)
+            for a in parser._actions if isinstance(a.type, Number) and a.option_strings}
 
 
 def _rank():
@@ -146,6 +153,14 @@ class Parser(argparse.ArgumentParser):
         super().__init__(*args, **kwargs)
         self._negative_number_matcher = re.compile(r"^-(\d+\.?\d*|\.\d+)([eE][-+]?\d+)?$|^-inf(inity)?$",
                                                    re.IGNORECASE)
+
+    def parse_known_args(self, args=None, namespace=None):
+        if os.environ.get(DESCRIBE_OPTIONS):
+            # for tools and the property tests: the numeric options and their ranges, no run
+            if _rank() == 0:
+                print(json.dumps(describe_options(self)))
+            sys.exit(0)
+        return super().parse_known_args(args, namespace)
 
     def error(self, message):
         if _rank() == 0:

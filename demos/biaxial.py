@@ -50,7 +50,7 @@ from cosserat_fenicsx.run_guard import RunGuard
 from cosserat_fenicsx.scenes.biaxial import BiaxialSettings, BiaxialTest, convergence_orders
 from cosserat_fenicsx.shear_band import assess_band, bell
 from cosserat_fenicsx.stepping import LoadSteppingError
-from cosserat_fenicsx.validation import COUNT, NON_NEGATIVE, POSITIVE, number
+from cosserat_fenicsx.validation import COUNT, NON_NEGATIVE, POSITIVE, STEPS, number
 
 parser = cli.make_parser(__doc__)
 cli.add_material_options(parser, mu=91.0e6, lmbda=49.4e6, l_c=3.0e-3)
@@ -65,7 +65,7 @@ g.add_argument("--height", type=number(POSITIVE), default=0.10, help="specimen h
 g.add_argument("--confining", type=number(POSITIVE), default=100e3, help="confining pressure p [Pa] (default %(default)g)")
 g.add_argument("--axial-strain", type=number(low=0.0, high=0.5, low_open=True, high_open=True), default=0.05,
                help="platen displacement / H in phase 2, in (0, 0.5) (default %(default)g)")
-g.add_argument("--consolidation-steps", type=number(COUNT), default=5, help="steps of phase 1 (default %(default)s)")
+g.add_argument("--consolidation-steps", type=number(STEPS), default=5, help="steps of phase 1 (default %(default)s)")
 g.add_argument("--k-sigma", type=number(NON_NEGATIVE), default=10.0, help="skew-stress weight k_sigma in F, G (default %(default)g)")
 g.add_argument("--k-mu", type=number(NON_NEGATIVE), default=0.0, help="couple-stress weight k_mu [1/m^2] (default %(default)g)")
 g.add_argument("--eta", type=number(POSITIVE), default=0.1, help="Perzyna time eta [s] (2.81), 1 s per step (default %(default)g)")
@@ -88,6 +88,7 @@ def biaxial_settings(args):
 
 args = cli.parse(parser, check=lambda args: biaxial_settings(args).check())
 comm = MPI.COMM_WORLD
+guard = RunGuard(comm, os.path.join(args.out, "summary.json"), label="biaxial")
 classical = args.cauchy
 e = args.elasticity
 test = BiaxialTest(comm, biaxial_settings(args))
@@ -95,7 +96,6 @@ print0(comm, f"biaxial: {'classical' if classical else 'micropolar'} {test.mater
              f"{comm.allreduce(len(test.points))} Gauss points, {test.n_weak_cells} weakened cells, "
              f"{comm.size} rank(s)")
 
-guard = RunGuard(comm, os.path.join(args.out, "summary.json"), label="biaxial")
 writer = FieldWriter(test.problem, os.path.join(args.out, "fields.xdmf"), args.fields)
 for name, shape, values in test.cell_fields():
     writer.add_cell_field(name, shape, values)
@@ -122,6 +122,8 @@ try:
 except LoadSteppingError as error:
     stopped = str(error)   # keep what was computed: summary and plot of the part before
     print0(comm, f"biaxial: stopped early: {stopped}")
+    if not test.history:
+        guard.stop(stopped)     # not one step converged: nothing to summarise
 if test.history and test.history[-1]["time"] not in written:
     writer.write(test.history[-1]["time"])   # the last converged state (once)
 writer.close()

@@ -162,14 +162,6 @@ def plot(history, path):
     plt.close(fig)
 
 
-def stop(guard, stage, error):
-    """A stage that cannot produce a state ends the run cleanly: summary.json says why."""
-    reason = f"{stage}: {error}"
-    print(f"[demcell] stopped: {reason}", file=sys.stderr)
-    guard.finish(dict(guard.entries, completed=False, reason=reason))
-    sys.exit(1)
-
-
 def main(argv=None):
     from cosserat_fenicsx.run_guard import RunGuard
     a = parse(argv)
@@ -186,7 +178,7 @@ def main(argv=None):
             state, info = dc.generate_packing(a.particles, pressure=a.pressure, law=law, seed=a.seed,
                                               anisotropy=a.anisotropy)
         except dc.DemCellError as error:
-            stop(guard, "packing", error)
+            guard.stop(f"packing: {error}")
     dc.save_packing(os.path.join(a.out, "packing.npz"), state, info)
     print(f"[demcell]   solid fraction {info['solid_fraction']:.3f}, coordination {info['coordination_number']:.2f}, "
           f"A0 {info['anisotropy']:.3f}, R_min/L {info['r_min_over_L']:.4f}")
@@ -195,7 +187,7 @@ def main(argv=None):
     try:
         dc.isotropic_stage(cell, a.pressure)   # friction on, sigma = -p0 I (000 section 4.1)
     except dc.DemCellError as error:
-        stop(guard, "isotropic stage", error)
+        guard.stop(f"isotropic stage: {error}")
     F = cell.deformation_gradient()
     F_iso = F.copy()
     J_iso = np.linalg.det(F_iso)

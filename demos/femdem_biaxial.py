@@ -152,10 +152,7 @@ guard = RunGuard(comm, os.path.join(args.out, "summary.json"),
 try:
     test = FemDemBiaxial(comm, settings)
 except (ValueError, RuntimeError) as error:   # e.g. a packing that cannot be compacted (demcell errors)
-    reason = f"preparing the cells: {' '.join(str(error).split())}"
-    print0(comm, f"femdem: stopped: {reason}")
-    guard.finish(dict(guard.entries, completed=False, reason=reason))
-    sys.exit(1)
+    guard.stop(f"preparing the cells: {error}")
 n_points = comm.allreduce(len(test.points))
 print0(comm, f"femdem: {args.mode} mode, {args.tangent} tangent, mesh {nx}x{ny}, {n_points} Gauss points "
              f"({test.n_weak_cells} weak elements), {test.packing_info['n_particles']} discs per cell, "

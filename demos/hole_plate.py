@@ -26,7 +26,7 @@ import time
 import numpy as np
 from mpi4py import MPI
 
-from cosserat_fenicsx import CosseratProblem, NewtonSolver, LoadStepper, analytic, cli, meshes
+from cosserat_fenicsx import CosseratProblem, NewtonSolver, LoadStepper, LoadSteppingError, analytic, cli, meshes
 from cosserat_fenicsx.output import FieldWriter, CsvLog, print0
 from cosserat_fenicsx.run_guard import RunGuard
 from cosserat_fenicsx.probes import sample_line, stress_component_at
@@ -53,12 +53,18 @@ def check(args):
     if args.traction == 0:
         # the stress concentration factor is sigma_max / T: a zero load defines none
         raise InputError("--traction must be nonzero (the stress concentration is measured against it), got 0")
+    radius = args.radius
+    half_side = args.half_side or 20.0 * radius
+    meshes.check_element_count(2 * half_side ** 2, args.cell_size or half_side / 12, "the plate")
+    meshes.check_element_count(2 * radius ** 2, args.hole_cell_size or (args.cell_size / 4 if args.cell_size
+                                                                         else radius / 16), "the ring around the hole")
     if args.sweep and args.l_c == 0:
         raise InputError("--sweep varies a/l_c: it needs --l-c > 0, got 0")
 
 
 args = cli.parse(parser, check=check)
 comm = MPI.COMM_WORLD
+guard = RunGuard(comm, os.path.join(args.out, "summary.json"), label="hole_plate")
 e = args.elasticity
 micropolar = not args.cauchy
 
@@ -92,14 +98,16 @@ def solve(radius, write_fields):
     return sigma22 / args.traction, dofs, time.perf_counter() - start
 
 
-guard = RunGuard(comm, os.path.join(args.out, "summary.json"), label="hole_plate")
 radii = [args.radius]
 if args.sweep:
     radii += [f * e.l_c for f in (0.25, 0.5, 1.0, 2.0, 4.0, 8.0)]
 log = CsvLog(comm, os.path.join(args.out, "scf.csv"), ["radius", "radius_over_l_c", "scf", "scf_closed_form", "dofs", "wall_time"])
 results = []
 for i, radius in enumerate(radii):
-    scf, dofs, wall = solve(radius, write_fields=(i == 0))
+    try:
+        scf, dofs, wall = solve(radius, write_fields=(i == 0))
+    except LoadSteppingError as error:
+        guard.stop(f"a = {radius:g} m: {error}")
     exact = analytic.micropolar_hole_scf(radius, e.mu, e.lmbda, e.mu_c, e.l_c) if micropolar else 3.0
     row = {"radius": radius, "radius_over_l_c": radius / e.l_c if e.l_c > 0 else np.inf,
            "scf": scf, "scf_closed_form": exact, "dofs": dofs, "wall_time": wall}

@@ -21,7 +21,7 @@ sys.path.insert(0, os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
 import numpy as np
 from mpi4py import MPI
 
-from cosserat_fenicsx import CosseratProblem, NewtonSolver, LoadStepper, analytic, cli, meshes
+from cosserat_fenicsx import CosseratProblem, NewtonSolver, LoadStepper, LoadSteppingError, analytic, cli, meshes
 from cosserat_fenicsx.validation import POSITIVE, number
 from cosserat_fenicsx.output import FieldWriter, CsvLog, print0
 from cosserat_fenicsx.probes import sample_line
@@ -36,8 +36,9 @@ parser.add_argument("--height", type=number(POSITIVE), default=0.1, help="layer 
 parser.add_argument("--width", type=number(POSITIVE), default=None, help="strip width [m] (default H/4)")
 parser.add_argument("--shift", type=number(), default=1.0e-3, help="top displacement in x1 [m] (default %(default)g)")
 parser.add_argument("--top-rotation", choices=("fixed", "free"), default="fixed")
-args = cli.parse(parser)
+args = cli.parse(parser, check=lambda a: meshes.rectangle_divisions(a.width or a.height / 4, a.height, a.cell_size))
 comm = MPI.COMM_WORLD
+guard = RunGuard(comm, os.path.join(args.out, "summary.json"), label="shear_layer")
 width = args.width or args.height / 4
 
 mesh, facet_tags, boundaries = meshes.rectangle(comm, width, args.height, args.cell_size, args.cell_type)
@@ -52,7 +53,6 @@ if not args.cauchy:
     if args.top_rotation == "fixed":
         problem.add_dirichlet("top", "phi", 0.0)
 
-guard = RunGuard(comm, os.path.join(args.out, "summary.json"), label="shear_layer")
 writer = FieldWriter(problem, os.path.join(args.out, "fields.xdmf"), args.fields)
 history = CsvLog(comm, os.path.join(args.out, "history.csv"),
                  ["time", "shift", "reaction_x_top", "reaction_y_top", "shear_stress_top"])
@@ -69,6 +69,8 @@ solver = NewtonSolver(problem)
 try:
     LoadStepper(problem, solver, dt=1.0 / args.steps,
                 on_step=guard.protect(record, lambda step: {"time": step.time})).run()
+except LoadSteppingError as error:
+    guard.stop(error)
 finally:
     writer.close()
     history.close()

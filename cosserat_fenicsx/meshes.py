@@ -6,7 +6,7 @@ import dolfinx.mesh
 import numpy as np
 
 from . import compat
-from .validation import POSITIVE, InputError, check
+from .validation import POSITIVE, InputError, Range, check
 
 MESH_DIR = os.path.join(os.path.dirname(os.path.dirname(os.path.abspath(__file__))), "meshes")
 RECTANGLE_BOUNDARIES = {"left": 1, "right": 2, "bottom": 3, "top": 4}
@@ -31,10 +31,30 @@ def rectangle_divisions(width, height, cell_size):
 
 def check_element_count(area, cell_size, what="the mesh"):
     """InputError when about area / cell_size^2 elements exceed MAX_ELEMENTS."""
-    count = area / cell_size ** 2 if cell_size ** 2 > 0 else math.inf
+    count = area / (cell_size * cell_size) if cell_size * cell_size > 0 else math.inf   # inf, not OverflowError
     if not count <= MAX_ELEMENTS:
         raise InputError(f"element size {cell_size:g} m gives about {count:.3g} elements in {what}; "
                          f"at most {MAX_ELEMENTS:.0e}")
+
+
+#: lengths of a geometry [m] whose areas and Jacobians stay well inside double precision
+LENGTH = Range(1e-9, 1e9)
+#: the hole plate is meshed at unit size: the hole must stay above the mesher's tolerance
+HOLE_RATIO = Range(1e-4, 1.0, high_open=True)
+
+
+def check_hole_plate(radius, half_side, cell_size, hole_cell_size):
+    """InputError unless the hole plate can be meshed: lengths in GMSH_LENGTH, element sizes
+    no coarser than the plate and the hole, at most MAX_ELEMENTS elements."""
+    check("radius", radius, LENGTH)
+    check("half_side", half_side, LENGTH)
+    if not half_side > radius:
+        raise InputError(f"half_side must be > radius ({radius:g} m), got {half_side:g} m")
+    check("radius / half_side", radius / half_side, HOLE_RATIO)
+    check("cell_size", cell_size, Range(0.0, half_side, low_open=True))
+    check("hole_cell_size", hole_cell_size, Range(0.0, radius, low_open=True))
+    check_element_count(2 * half_side * half_side, cell_size, "the plate")
+    check_element_count(2 * radius * radius, hole_cell_size, "the ring around the hole")
 
 
 def rectangle(comm, width, height, cell_size=None, cell_type="triangle", origin=(0.0, 0.0), divisions=None):
@@ -90,14 +110,19 @@ def from_gmsh_geo(comm, geo_path, parameters, gdim=2):
     gmsh.option.setNumber("General.Terminal", 0)
     try:
         if comm.rank == 0:
-            gmsh.clear()
-            for name, value in parameters.items():
-                gmsh.onelab.setNumber(f"Parameters/{name}", [float(value)])
-            gmsh.open(geo_path)
-            gmsh.model.mesh.generate(gdim)
-            boundaries = {gmsh.model.getPhysicalName(gdim - 1, tag): tag
-                          for _, tag in gmsh.model.getPhysicalGroups(gdim - 1)}
+            try:
+                gmsh.clear()
+                for name, value in parameters.items():
+                    gmsh.onelab.setNumber(f"Parameters/{name}", [float(value)])
+                gmsh.open(geo_path)
+                gmsh.model.mesh.generate(gdim)
+                boundaries = {gmsh.model.getPhysicalName(gdim - 1, tag): tag
+                              for _, tag in gmsh.model.getPhysicalGroups(gdim - 1)}
+            except Exception as error:     # told to every rank: the others must not wait in bcast
+                boundaries = f"gmsh could not mesh {os.path.basename(geo_path)} with {parameters}: {error}"
         boundaries = comm.bcast(boundaries, root=0)
+        if isinstance(boundaries, str):
+            raise RuntimeError(boundaries)
         mesh, _, facet_tags = compat.gmsh_model_to_mesh(gmsh.model, comm, 0, gdim)
     finally:
         gmsh.finalize()
@@ -113,8 +138,11 @@ def hole_plate(comm, radius, half_side, cell_size, hole_cell_size=None,
     check("cell_size", cell_size, POSITIVE)
     hole_cell_size = hole_cell_size or cell_size
     check("hole_cell_size", hole_cell_size, POSITIVE)
-    check_element_count(2 * half_side ** 2, cell_size, "the plate")
-    check_element_count(2 * radius ** 2, hole_cell_size, "the ring around the hole")
-    return from_gmsh_geo(comm, geo_path, {"R": radius, "L": half_side, "h": cell_size,
-                                          "h_hole": hole_cell_size})
+    check_hole_plate(radius, half_side, cell_size, hole_cell_size)
+    # meshed at unit size and scaled: OpenCASCADE's absolute tolerance (1e-7) and the .geo's
+    # bounding boxes then see the same numbers at every scale of the plate
+    mesh, facet_tags, boundaries = from_gmsh_geo(comm, geo_path, {
+        "R": radius / half_side, "L": 1.0, "h": cell_size / half_side, "h_hole": hole_cell_size / half_side})
+    mesh.geometry.x[:, :2] *= half_side
+    return mesh, facet_tags, boundaries
 

@@ -91,7 +91,10 @@ comm = MPI.COMM_WORLD
 guard = RunGuard(comm, os.path.join(args.out, "summary.json"), label="biaxial")
 classical = args.cauchy
 e = args.elasticity
-test = BiaxialTest(comm, biaxial_settings(args))
+try:
+    test = BiaxialTest(comm, biaxial_settings(args))
+except RuntimeError as error:      # e.g. the consolidation of the material point (MaterialPointError)
+    guard.stop(f"consolidation: {error}")
 print0(comm, f"biaxial: {'classical' if classical else 'micropolar'} {test.material!r}, "
              f"{comm.allreduce(len(test.points))} Gauss points, {test.n_weak_cells} weakened cells, "
              f"{comm.size} rank(s)")

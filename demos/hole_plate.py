@@ -47,19 +47,29 @@ parser.add_argument("--sweep", action="store_true",
                     help="also solve for a = l_c x (0.25, 0.5, 1, 2, 4, 8) and plot them all")
 
 
+def sweep_radii(args):
+    radii = [args.radius]
+    if args.sweep:
+        radii += [f * args.l_c for f in (0.25, 0.5, 1.0, 2.0, 4.0, 8.0)]
+    return radii
+
+
+def plate_sizes(args, radius):
+    """(half side, element size, element size on the hole) [m] of the plate around `radius`."""
+    half_side = args.half_side or 20.0 * radius
+    h_hole = args.hole_cell_size or (args.cell_size / 4 if args.cell_size else radius / 16)
+    return half_side, args.cell_size or half_side / 12, h_hole
+
+
 def check(args):
-    if args.half_side is not None and not args.half_side > args.radius:
-        raise InputError(f"--half-side must be > --radius ({args.radius:g}), got {args.half_side:g}")
     if args.traction == 0:
         # the stress concentration factor is sigma_max / T: a zero load defines none
         raise InputError("--traction must be nonzero (the stress concentration is measured against it), got 0")
-    radius = args.radius
-    half_side = args.half_side or 20.0 * radius
-    meshes.check_element_count(2 * half_side ** 2, args.cell_size or half_side / 12, "the plate")
-    meshes.check_element_count(2 * radius ** 2, args.hole_cell_size or (args.cell_size / 4 if args.cell_size
-                                                                         else radius / 16), "the ring around the hole")
     if args.sweep and args.l_c == 0:
         raise InputError("--sweep varies a/l_c: it needs --l-c > 0, got 0")
+    for radius in sweep_radii(args):
+        half_side, h, h_hole = plate_sizes(args, radius)
+        meshes.check_hole_plate(radius, half_side, h, h_hole)
 
 
 args = cli.parse(parser, check=check)
@@ -71,9 +81,7 @@ micropolar = not args.cauchy
 
 def solve(radius, write_fields):
     start = time.perf_counter()
-    half_side = args.half_side or 20.0 * radius
-    h_hole = args.hole_cell_size or (args.cell_size / 4 if args.cell_size else radius / 16)
-    h = args.cell_size or half_side / 12
+    half_side, h, h_hole = plate_sizes(args, radius)
     mesh, facet_tags, boundaries = meshes.hole_plate(comm, radius, half_side, h, h_hole)
     problem = CosseratProblem(mesh, facet_tags, boundaries, elasticity=e, micropolar=micropolar,
                               degree_u=args.degree_u, degree_phi=args.degree_phi)
@@ -98,9 +106,7 @@ def solve(radius, write_fields):
     return sigma22 / args.traction, dofs, time.perf_counter() - start
 
 
-radii = [args.radius]
-if args.sweep:
-    radii += [f * e.l_c for f in (0.25, 0.5, 1.0, 2.0, 4.0, 8.0)]
+radii = sweep_radii(args)
 log = CsvLog(comm, os.path.join(args.out, "scf.csv"), ["radius", "radius_over_l_c", "scf", "scf_closed_form", "dofs", "wall_time"])
 results = []
 for i, radius in enumerate(radii):

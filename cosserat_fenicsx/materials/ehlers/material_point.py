@@ -69,7 +69,11 @@ class MaterialPoint:
                 self.strain, self.stress, self.tangent, self.state = E, S, C, s_new
                 self.newton_residuals.append(history)
                 return S
-            E[mask] -= np.linalg.solve(C[np.ix_(mask, mask)], r)
+            try:
+                E[mask] -= np.linalg.solve(C[np.ix_(mask, mask)], r)
+            except np.linalg.LinAlgError:
+                raise MaterialPointError("material-point driver: singular tangent of the stress-controlled "
+                                         "components (no stiffness left to find their strains)") from None
         raise MaterialPointError(f"material-point driver: mixed-control Newton did not converge "
                                  f"(residuals {history[-3:]} Pa)")
 

@@ -247,11 +247,19 @@ class DemCell(MicroCell):
         o = self.options
         crit = ENERGY_RATIO if o.criterion == "energy" else UNBALANCED_FORCE
         mask = None
+        if max_steps is not None and not (isinstance(max_steps, (int, np.integer)) and max_steps >= 1):
+            raise InputError(f"max_steps must be an integer >= 1, got {max_steps!r}")
         if stress_mask is not None:
-            mask = np.asarray(stress_mask, dtype=bool).reshape(2, 2)
+            mask = np.asarray(stress_mask)
+            if mask.shape != (2, 2) or mask.dtype != bool:
+                raise InputError(f"stress_mask must be a 2x2 array of booleans, got {stress_mask!r}")
             if stress_target is None:
                 raise InputError("stress_mask given without stress_target")
-            stress_target = np.asarray(stress_target, dtype=float).reshape(2, 2)
+            target = np.asarray(stress_target, dtype=float)
+            if target.shape != (2, 2) or not np.all(np.isfinite(target[mask])):
+                raise InputError(f"stress_target must be a 2x2 array, finite where stress_mask is set, "
+                                 f"got {stress_target!r}")
+            stress_target = target
         F0 = self.state.F
         if mask is None:
             path = deformation_path(F0, self._target, o.max_increment)
@@ -370,6 +378,6 @@ class DemCell(MicroCell):
 
 def create_cells(state, count=1, law=None, options=None):
     """``count`` independent DemCells starting from the same packing state."""
-    if int(count) < 1:
-        raise InputError("count must be >= 1")
+    if not (isinstance(count, (int, np.integer)) and not isinstance(count, bool) and count >= 1):
+        raise InputError(f"count must be an integer >= 1, got {count!r}")
     return [DemCell(state.copy(), law, options) for _ in range(int(count))]

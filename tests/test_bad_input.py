@@ -88,3 +88,29 @@ def test_demo_rejects_bad_options_before_work(demo, tmp_path, demo_name, args, m
     assert message in proc.stderr
     assert len(proc.stderr.strip().splitlines()) == 1, proc.stderr     # one line, no usage block
     assert not (tmp_path / "out").exists()                              # no output directory left behind
+
+
+@pytest.mark.parametrize("method, args, message", [
+    ("add_traction", ("top", (0.0, float("nan"))), "traction on 'top' must be a finite number, got nan"),
+    ("add_traction", ("top", (float("inf"), 0.0)), "traction on 'top' must be a finite number"),
+    ("add_surface_couple", ("top", float("nan")), "surface couple on 'top' must be a finite number"),
+    ("set_body_force", ((0.0, float("-inf")),), "body force must be a finite number"),
+    ("add_dirichlet", ("top", "u1", float("nan")), "not finite"),
+    ("add_point_dirichlet", ((0.5, float("nan")), "u1", 0.0), "point of the u1 pin must be a finite number"),
+])
+def test_non_finite_loads_are_refused_before_the_form_compiler(square, method, args, message):
+    p = CosseratProblem(*square, elasticity=MicropolarElasticity(1.0, 1.0, l_c=0.1))
+    with pytest.raises(ValueError, match=message):
+        getattr(p, method)(*args)
+
+
+def test_mesh_too_fine_is_refused_before_meshing():
+    with pytest.raises(ValueError, match="elements in a 1 x 1 m rectangle; at most 1e\\+07"):
+        meshes.rectangle(MPI.COMM_WORLD, 1.0, 1.0, 1e-300)
+    with pytest.raises(ValueError, match="radius / half_side must be in"):
+        meshes.hole_plate(MPI.COMM_WORLD, 1e-9, 1.0, 0.1)
+
+
+def test_overflowing_bending_modulus_is_refused():
+    with pytest.raises(ValueError, match="bending modulus 2 mu_c l_c\\^2 overflows"):
+        MicropolarElasticity(1e8, 1e8, l_c=1e300)

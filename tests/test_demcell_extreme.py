@@ -159,3 +159,25 @@ def test_compaction_across_the_pressure_ratio_range(ratio):
 def test_pressure_ratio_outside_the_range_is_refused(ratio):
     with pytest.raises(dc.InputError, match=r"pressure / kn must be in \[1e-08, 0.1\]"):
         dc.generate_packing(60, pressure=ratio * 1e4, law=dc.ContactLaw(kn=1e4, ks=2e3))
+
+
+@pytest.mark.parametrize("kwargs, message", [
+    (dict(stress_mask=[[1, 0], [0, 1]], stress_target=np.eye(2)), "2x2 array of booleans"),
+    (dict(stress_mask=[[True, False]], stress_target=np.eye(2)), "2x2 array of booleans"),
+    (dict(stress_mask=[[False, False], [False, True]], stress_target=np.diag([0.0, np.nan])), "finite where"),
+    (dict(stress_mask=[[False, False], [False, True]], stress_target=np.zeros(3)), "finite where"),
+    (dict(max_steps=0), "max_steps must be an integer >= 1"),
+    (dict(max_steps=1.5), "max_steps must be an integer >= 1"),
+])
+def test_solve_refuses_bad_targets_and_masks(packing60, kwargs, message):
+    cell = dc.DemCell(packing60.copy())
+    before = cell.state.s.copy()
+    with pytest.raises(dc.InputError, match=message):
+        cell.solve(**kwargs)
+    assert np.array_equal(before, cell.state.s)          # refused before any work
+
+
+@pytest.mark.parametrize("count", [0, -1, 2.5, True, "2"])
+def test_create_cells_refuses_a_bad_count(packing60, count):
+    with pytest.raises(dc.InputError, match="count must be an integer >= 1"):
+        dc.create_cells(packing60, count=count)

@@ -248,3 +248,32 @@ def test_random_increments_converge_or_are_tensile():
         codes = e.codes
     assert set(np.unique(codes)) <= {STATUS_OK, STATUS_TENSILE}
     assert np.mean(codes == STATUS_OK) > 0.9
+
+
+def test_driver_stops_at_the_compression_point_with_the_cause():
+    """Hydrostatic compression towards the compression point (eq. 2.70): with stop_on_failure
+    the test ends at the last converged state, names the cause, and keeps the history."""
+    from cosserat_fenicsx.materials.ehlers import EhlersMaterial
+    from cosserat_fenicsx.materials.ehlers import material_point as mp
+    with pytest.raises(MaterialPointError):
+        mp.hydrostatic_test(EhlersMaterial.hostun(), 2e7, n_steps=100)
+    h = mp.hydrostatic_test(EhlersMaterial.hostun(), 2e7, n_steps=100, stop_on_failure=True)
+    assert "compression point" in h["stopped"] and "last converged state" in h["stopped"]
+    assert 5 < len(h["mean_stress"]) < 100
+    assert np.all(np.isfinite(h["mean_stress"])) and np.all(np.diff(h["mean_stress"]) < 0)
+    complete = mp.hydrostatic_test(EhlersMaterial.hostun(), 1e6, n_steps=20, stop_on_failure=True)
+    assert complete["stopped"] == "" and len(complete["mean_stress"]) == 20
+
+
+@pytest.mark.parametrize("kwargs, message", [
+    (dict(confining=float("nan")), "confining pressure must be > 0"),
+    (dict(confining=-1.0), "confining pressure must be > 0"),
+    (dict(axial_strain=0.7), "axial_strain must be in \\(0, 0.5\\)"),
+    (dict(n_steps=0), "n_steps must be an integer in \\[1"),
+    (dict(dt=float("inf")), "dt must be > 0"),
+])
+def test_driver_refuses_bad_arguments_before_any_kernel(kwargs, message):
+    from cosserat_fenicsx.materials.ehlers import EhlersMaterial
+    from cosserat_fenicsx.materials.ehlers import material_point as mp
+    with pytest.raises(ValueError, match=message):
+        mp.triaxial_test(EhlersMaterial.hostun(), **kwargs)

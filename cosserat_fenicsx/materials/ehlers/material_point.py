@@ -18,6 +18,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from ...validation import POSITIVE, STEPS, Range, check
 from .errors import MaterialPointError
 from .local_solver import S_EPS_P, S_EPV_OFFSET, S_STRAIN, STATE_SIZE
 
@@ -164,6 +165,15 @@ def compression_point_ratio(pt):
     return float(eps_e_vol / eps_crit)
 
 
+def _check_test(confining, axial_strain, n_steps, n_consolidation, dt):
+    """InputError (a ValueError) naming the argument, before any kernel runs."""
+    check("confining pressure", confining, POSITIVE)
+    check("axial_strain", axial_strain, Range(0.0, 0.5, low_open=True, high_open=True))
+    check("n_steps", n_steps, STEPS)
+    check("n_consolidation", n_consolidation, STEPS)
+    check("dt", dt, POSITIVE)
+
+
 def _run_test(pt, recs, load, stop_on_failure):
     """Run load() (which appends a record per converged step to recs) and return the
     history arrays with h["stopped"]: "" when every step converged. A MaterialPointError
@@ -189,6 +199,7 @@ def _run_test(pt, recs, load, stop_on_failure):
 
 def hydrostatic_test(material, p_max=1.0e6, n_steps=200, dt=1.0, stop_on_failure=False):
     """Hydrostatic compression to mean stress -p_max (A.1): sig11 = sig22 = sig33 = -p."""
+    _check_test(p_max, 0.1, n_steps, 1, dt)
     pt = MaterialPoint(material)
     recs = []
     return _run_test(pt, recs, lambda: consolidate(pt, -p_max, n_steps=n_steps, dt=dt, records=recs),
@@ -214,6 +225,7 @@ def triaxial_test(material, confining=100e3, axial_strain=0.15, n_steps=600, n_c
     """Triaxial compression (A.1): isotropic consolidation to -p, then eps11 decreased by
     ``axial_strain`` at constant lateral stress sig22 = sig33 = -p (eps22 = eps33 free).
     Axial and volumetric strains are counted from the start of the deviatoric phase."""
+    _check_test(confining, axial_strain, n_steps, n_consolidation, dt)
     pt = MaterialPoint(material)
     recs = []
 
@@ -228,6 +240,7 @@ def biaxial_test(material, confining=100e3, axial_strain=0.15, n_steps=600, n_co
                  stop_on_failure=False):
     """Homogeneous plane-strain biaxial test (A.2): consolidation sig11 = sig22 = -p with
     eps33 = 0, then eps11 decreased at sig22 = -p, eps33 = 0 (sig33 from the model)."""
+    _check_test(confining, axial_strain, n_steps, n_consolidation, dt)
     pt = MaterialPoint(material)
     recs = []
 

@@ -14,10 +14,10 @@ export PYTHONDONTWRITEBYTECODE = 1
 
 DEB_PACKAGES = python3-dolfinx-real python3-numba python3-scipy python3-pytest \
 	python3-matplotlib python3-gmsh python3-h5py mpi-default-bin openmpi-bin \
-	xvfb xauth python3-paraview
+	xvfb xauth python3-paraview python3-hypothesis
 SUDO := $(shell [ "$$(id -u)" = 0 ] || echo sudo)
 DEBIAN13 ?= ../shared/tools/debian13-env.sh
-DEBIAN13_PKGS = python3-matplotlib python3-gmsh python3-h5py
+DEBIAN13_PKGS = python3-matplotlib python3-gmsh python3-h5py python3-hypothesis
 
 .PHONY: deps demo test test-debian13 benchmark clean
 
@@ -63,6 +63,8 @@ benchmark: deps
 	$(MPIRUN) -n $(NP) $(PYTHON) benchmarks/femdem_regularisation.py --out $(OUT)/benchmarks/femdem_regularisation
 	$(MPIRUN) -n $(NP) $(PYTHON) benchmarks/femdem_convergence.py --out $(OUT)/benchmarks/femdem_convergence
 	$(MPIRUN) -n $(NP) $(PYTHON) benchmarks/femdem_rotation.py --out $(OUT)/benchmarks/femdem_rotation
+	$(PYTHON) benchmarks/robustness_sweep.py --random 2 --out $(OUT)/benchmarks/robustness_sweep
+	ROBUSTNESS_EXAMPLES=25 ROBUSTNESS_RANDOM=1 $(PYTHON) -m pytest -q -p no:cacheprovider tests/test_robustness_properties.py
 	$(PYTHON) -m pytest -q -p no:cacheprovider -m slow tests
 
 clean:

@@ -239,22 +239,40 @@ def resolution_warning(element_size, specimen_width, specimen_height, min_elemen
 
 def assess_band(fit, element_size, specimen_width, specimen_height):
     """The band entries of a summary.json: `fit` is a callable returning a BandFit (or
-    raising ValueError). A band is reported only when band_verdict accepts it; otherwise
-    `band` is None and `no_band_reason` says why, and `mesh_warning` says when the mesh is
-    too coarse for the specimen. Returns (band or None, dict of summary entries)."""
+    raising ValueError). A band is reported when band_verdict accepts the fit as a
+    localisation (converged, strain contrast A/e0 >= 0.5, FWHM inside the specimen) and the
+    bell describes the field (rms residual below the amplitude); otherwise `band` is false,
+    the thickness null and `no_band_reason` says why. A band thinner than half an element is
+    reported with `band_resolved: false` (its thickness follows the element size: the
+    classical-continuum result) and the reason in `band_warning`; `mesh_warning` says when
+    fewer than 4 elements span the specimen. Returns (band or None, dict of entries)."""
     warning = resolution_warning(element_size, specimen_width, specimen_height)
-    result, band, reason = None, None, ""
+    result, band, reason, resolved = None, None, "", True
     try:
         result = fit()
-        is_band, reason = band_verdict(result, element_size, specimen_width)
+        is_band, reason = band_verdict(result, 0.0, specimen_width)
+        if is_band and not result.rms_residual <= result.amplitude:
+            is_band, reason = False, (f"the bell does not describe the strain field: rms residual "
+                                      f"{result.rms_residual:.3g} above the amplitude {result.amplitude:.3g}")
         band = result if is_band else None
     except ValueError as error:
         reason = str(error)
-    if warning and not reason:
-        reason = warning
-        band = None
-    return band, {"band": band is not None,
-                  "band_thickness": band.thickness if band else None,
-                  "band_inclination_deg": band.inclination_deg if band else None,
-                  "band_fit": result.as_dict() if result else None,
-                  "no_band_reason": reason, "mesh_warning": warning}
+    if band is not None and warning:
+        band, reason = None, warning
+    band_warning = ""
+    if band is not None and band.thickness < 0.5 * element_size:
+        resolved = False
+        band_warning = (f"H = {band.thickness:.3g} m is below half an element ({element_size:.3g} m): "
+                        "the band is as thin as the mesh allows, its thickness follows the element size")
+    if band is None:
+        return None, no_band(reason, warning, result)
+    return band, {"band": True, "band_resolved": resolved, "band_warning": band_warning,
+                  "band_thickness": band.thickness, "band_inclination_deg": band.inclination_deg,
+                  "band_fit": result.as_dict(), "no_band_reason": "", "mesh_warning": warning}
+
+
+def no_band(reason, mesh_warning="", fit=None):
+    """The band entries of a summary.json without a band (see assess_band)."""
+    return {"band": False, "band_resolved": False, "band_warning": "", "band_thickness": None,
+            "band_inclination_deg": None, "band_fit": fit.as_dict() if fit else None,
+            "no_band_reason": reason, "mesh_warning": mesh_warning}

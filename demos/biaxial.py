@@ -139,8 +139,9 @@ stress = np.array([r["vertical_stress"] for r in rows])
 axial = np.array([r["axial_strain"] for r in rows])
 i_peak = int(np.argmin(stress))
 band, band_entries = assess_band(test.band, args.cell_size, args.width, args.height)
-if band_entries["no_band_reason"]:
-    print0(comm, f"biaxial: no band: {band_entries['no_band_reason']}")
+for key, text in (("no_band_reason", "no band"), ("band_warning", "band"), ("mesh_warning", "mesh")):
+    if band_entries[key]:
+        print0(comm, f"biaxial: {text}: {band_entries[key]}")
 plastic_infos = [(r["step"], info) for r, info in zip(rows, test.solver.infos_converged()) if r["phase"] == 2]
 longest = max(plastic_infos, key=lambda x: len(x[1].residual_history), default=(None, None))
 summary = {

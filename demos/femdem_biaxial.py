@@ -67,7 +67,7 @@ from mpi4py import MPI
 from cosserat_fenicsx import cli
 from cosserat_fenicsx.output import CsvLog, FieldWriter, print0
 from cosserat_fenicsx.scenes.femdem_biaxial import FemDemBiaxial, FemDemSettings, max_over_ranks, parse_mesh
-from cosserat_fenicsx.shear_band import assess_band
+from cosserat_fenicsx.shear_band import assess_band, no_band
 from cosserat_fenicsx.run_guard import RunGuard
 from cosserat_fenicsx.stepping import LoadSteppingError
 from cosserat_fenicsx.validation import (COUNT, NON_NEGATIVE, NON_NEGATIVE_INTEGER, POSITIVE, UNIT_OPEN, Range,
@@ -224,12 +224,12 @@ for label, pick in (("highest_stress_ratio", np.argmax), ("lowest_stress_ratio",
 
 # --- summary --------------------------------------------------------------------------------
 rows = [r for r in test.history if r["phase"] == 2]
-band, band_entries = None, {"band": False, "band_thickness": None, "band_inclination_deg": None,
-                            "band_fit": None, "no_band_reason": "no compression step", "mesh_warning": ""}
+band, band_entries = None, no_band("no compression step")
 if rows:
     band, band_entries = assess_band(test.band, min(args.width / nx, args.height / ny), args.width, args.height)
-    if band_entries["no_band_reason"]:
-        print0(comm, f"femdem: no band: {band_entries['no_band_reason']}")
+for key, text in (("no_band_reason", "no band"), ("band_warning", "band"), ("mesh_warning", "mesh")):
+    if band_entries[key]:
+        print0(comm, f"femdem: {text}: {band_entries[key]}")
 ratio = np.array([r["stress_ratio"] for r in rows]) if rows else np.zeros(0)
 i_peak = int(np.argmax(ratio)) if len(ratio) else None
 iterations = [r["newton_iterations"] for r in rows]

@@ -102,3 +102,23 @@ def test_a_start_that_drifts_off_the_specimen_is_restarted():
     assert fit.converged
     assert fit.thickness == pytest.approx(6.7e-3, rel=0.05)
     assert fit.inclination_deg == pytest.approx(29.4, abs=1.0)
+
+
+def test_assess_band_claims_a_band_only_where_there_is_one():
+    from cosserat_fenicsx.shear_band import assess_band
+    r = (0.01, 0.15, 3e-3, 0.02, math.radians(55.0))
+    points, values = synthetic(r, noise=0.002)
+    band, entries = assess_band(lambda: fit_band(points, values), 2e-3, 0.05, 0.10)
+    assert band is not None and entries["band"] and entries["band_resolved"]
+    assert entries["band_thickness"] == pytest.approx(3e-3, rel=0.05) and not entries["no_band_reason"]
+    # the same band on a mesh whose elements are 4 times its thickness: reported, flagged
+    band, entries = assess_band(lambda: fit_band(points, values), 12e-3, 0.05, 0.10)
+    assert entries["band"] and not entries["band_resolved"] and "below half an element" in entries["band_warning"]
+    # a homogeneous field with round-off: a fit "converges" with a 1e-16 amplitude, no band
+    rng = np.random.default_rng(1)
+    flat = 4e-3 + 1e-17 * rng.standard_normal(len(points))
+    band, entries = assess_band(lambda: fit_band(points, flat), 2e-3, 0.05, 0.10)
+    assert band is None and entries["band_thickness"] is None and "no localisation" in entries["no_band_reason"]
+    # a mesh coarser than the specimen: no band and a warning, whatever the fit says
+    band, entries = assess_band(lambda: fit_band(points, values), 0.2, 0.05, 0.10)
+    assert band is None and "cannot resolve" in entries["mesh_warning"] and entries["no_band_reason"]

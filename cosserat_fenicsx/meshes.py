@@ -20,8 +20,9 @@ MAX_ELEMENTS = 10_000_000
 def rectangle_divisions(width, height, cell_size):
     """(nx, ny) squares of about `cell_size` in a width x height rectangle; InputError when
     that is more than MAX_ELEMENTS (e.g. a cell size of 1e-300 m)."""
-    for name, value in (("width", width), ("height", height), ("cell_size", cell_size)):
-        check(name, value, POSITIVE)
+    check("width", width, RECTANGLE_LENGTH)
+    check("height", height, RECTANGLE_LENGTH)
+    check("cell_size", cell_size, POSITIVE)
     nx, ny = (max(1.0, float(np.ceil(extent / cell_size - 1e-9))) for extent in (width, height))   # floats: inf, not OverflowError
     if not nx * ny <= MAX_ELEMENTS:
         raise InputError(f"cell size {cell_size:g} m gives {nx * ny:.3g} elements in a {width:g} x {height:g} m "
@@ -39,20 +40,23 @@ def check_element_count(area, cell_size, what="the mesh"):
 
 #: lengths of a geometry [m] whose areas and Jacobians stay well inside double precision
 LENGTH = Range(1e-9, 1e9)
+#: sides of a rectangle [m]: dolfinx 0.5 locates points (probes.sample_line) with an
+#: absolute tolerance, and a layer 1e-5 m high gave NaN profiles (1e-4 m did not)
+RECTANGLE_LENGTH = Range(1e-4, 1e6)
 #: the hole plate is meshed at unit size: the hole must stay above the mesher's tolerance
 HOLE_RATIO = Range(1e-4, 1.0, high_open=True)
 
 
 def check_hole_plate(radius, half_side, cell_size, hole_cell_size):
-    """InputError unless the hole plate can be meshed: lengths in GMSH_LENGTH, element sizes
-    no coarser than the plate and the hole, at most MAX_ELEMENTS elements."""
+    """InputError unless the hole plate can be meshed: lengths in LENGTH, radius / half side
+    in HOLE_RATIO, element sizes no coarser than the plate, at most MAX_ELEMENTS elements."""
     check("radius", radius, LENGTH)
     check("half_side", half_side, LENGTH)
     if not half_side > radius:
         raise InputError(f"half_side must be > radius ({radius:g} m), got {half_side:g} m")
     check("radius / half_side", radius / half_side, HOLE_RATIO)
     check("cell_size", cell_size, Range(0.0, half_side, low_open=True))
-    check("hole_cell_size", hole_cell_size, Range(0.0, radius, low_open=True))
+    check("hole_cell_size", hole_cell_size, Range(0.0, half_side, low_open=True))
     check_element_count(2 * half_side * half_side, cell_size, "the plate")
     check_element_count(2 * radius * radius, hole_cell_size, "the ring around the hole")
 
@@ -67,8 +71,8 @@ def rectangle(comm, width, height, cell_size=None, cell_type="triangle", origin=
     if cell_type not in ("triangle", "quadrilateral"):
         raise ValueError(f"cell_type must be 'triangle' or 'quadrilateral', got {cell_type!r}")
     if divisions is not None:
-        check("width", width, POSITIVE)
-        check("height", height, POSITIVE)
+        check("width", width, RECTANGLE_LENGTH)
+        check("height", height, RECTANGLE_LENGTH)
         nx, ny = divisions
         if not all(isinstance(n, (int, np.integer)) and n >= 1 for n in (nx, ny)):
             raise ValueError(f"divisions must be two integers >= 1, got {divisions!r}")

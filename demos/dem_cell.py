@@ -102,8 +102,10 @@ def parse(argv=None):
     p.add_argument("--out", default="results/dem_cell", help="output directory")
     a = p.parse_args(argv)
     try:
-        if a.increment > a.axial_strain:
-            raise InputError(f"--increment must be <= --axial-strain ({a.axial_strain:g}), got {a.increment:g}")
+        if not a.axial_strain / 1e6 <= a.increment <= a.axial_strain:
+            raise InputError(f"--increment must be in [--axial-strain / 1e6, --axial-strain] = "
+                             f"[{a.axial_strain / 1e6:g}, {a.axial_strain:g}] (at most a million increments), "
+                             f"got {a.increment:g}")
         check_pressure_ratio(a.pressure, a.kn)
         dc.ContactLaw(kn=a.kn, ks=a.ks, friction=a.friction, rotations=not a.no_rotation)
         if a.packing is not None:

@@ -22,7 +22,9 @@ import numpy as np
 from mpi4py import MPI
 
 from cosserat_fenicsx import CosseratProblem, NewtonSolver, LoadStepper, LoadSteppingError, analytic, cli, meshes
-from cosserat_fenicsx.validation import POSITIVE, number
+from cosserat_fenicsx.validation import POSITIVE, Range, check as check_value, number
+
+SHEAR_STRAIN = Range(1e-12, 1.0)
 from cosserat_fenicsx.output import FieldWriter, CsvLog, print0
 from cosserat_fenicsx.probes import sample_line
 from cosserat_fenicsx.run_guard import RunGuard
@@ -34,9 +36,18 @@ cli.add_output_options(parser, "results/shear_layer")
 cli.add_stepping_options(parser, steps=1)
 parser.add_argument("--height", type=number(POSITIVE), default=0.1, help="layer height H [m] (default %(default)g)")
 parser.add_argument("--width", type=number(POSITIVE), default=None, help="strip width [m] (default H/4)")
-parser.add_argument("--shift", type=number(), default=1.0e-3, help="top displacement in x1 [m] (default %(default)g)")
+parser.add_argument("--shift", type=number(), default=1.0e-3, help="top displacement in x1 [m], |shift| / H in [1e-12, 1] (default %(default)g)")
 parser.add_argument("--top-rotation", choices=("fixed", "free"), default="fixed")
-args = cli.parse(parser, check=lambda a: meshes.rectangle_divisions(a.width or a.height / 4, a.height, a.cell_size))
+
+
+def check(args):
+    meshes.rectangle_divisions(args.width or args.height / 4, args.height, args.cell_size)
+    # small strains: the layer's shear strain shift / H; below 1e-12 the solution drowns
+    # in the solver's absolute tolerances
+    check_value("--shift / --height (the shear strain)", abs(args.shift / args.height), SHEAR_STRAIN)
+
+
+args = cli.parse(parser, check=check)
 comm = MPI.COMM_WORLD
 guard = RunGuard(comm, os.path.join(args.out, "summary.json"), label="shear_layer")
 width = args.width or args.height / 4

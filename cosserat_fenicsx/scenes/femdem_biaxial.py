@@ -85,6 +85,13 @@ class FemDemSettings:
             v = getattr(self, name)
             if not (isinstance(v, (int, np.integer)) and v >= 1):
                 raise ValueError(f"femdem: {name} must be an integer >= 1, got {v!r}")
+        if not self.nx * self.ny <= meshes.MAX_ELEMENTS:
+            raise ValueError(f"femdem: a {self.nx}x{self.ny} mesh has more than {meshes.MAX_ELEMENTS:.0e} elements")
+        if not self.grain_diameter < min(self.width, self.height):
+            raise ValueError(f"femdem: grain_diameter must be below the specimen's width and height, "
+                             f"got {self.grain_diameter!r}")
+        if self.l_c is not None and not (math.isfinite(self.l_c) and self.l_c < min(self.width, self.height)):
+            raise ValueError(f"femdem: l_c must be below the specimen's width and height, got {self.l_c!r}")
         if not (math.isfinite(self.axial_strain) and 0 < self.axial_strain < 0.5):
             raise ValueError(f"femdem: axial_strain must be in (0, 0.5), got {self.axial_strain!r}")
         if self.mode not in MODES:

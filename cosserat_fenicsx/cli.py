@@ -24,7 +24,12 @@ PETSC_PREFIXES = ("-snes_", "-ksp_", "-pc_", "-mat_", "-log_view")
 
 def make_parser(description):
     # the JIT compilers log every C build at INFO level: keep the demos' output readable
-    logging.getLogger().setLevel(logging.WARNING)
+    # (setuptools' distutils resets the root logger's level when it compiles, so the handler
+    # that ffcx's logging.basicConfig() installed gets the threshold too)
+    root = logging.getLogger()
+    root.setLevel(logging.WARNING)
+    for handler in root.handlers:
+        handler.setLevel(logging.WARNING)
     parser = Parser(
         description=description, allow_abbrev=False,
         formatter_class=argparse.RawDescriptionHelpFormatter,

@@ -23,6 +23,8 @@ import signal
 import subprocess
 import sys
 
+from cosserat_fenicsx.validation import Range
+
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 
 #: the cheapest meaningful run of each demo (one option at a time is drawn on top of it)
@@ -50,16 +52,8 @@ def describe_options(demo):
 
 
 def in_range(spec, value):
-    if math.isnan(value) or (math.isinf(value) and not (spec["infinite"] and value > 0)):
-        return False
-    if spec["integer"] and (math.isinf(value) or value != int(value)):
-        return False
-    low, high = spec["low"], spec["high"]
-    if low is not None and (value < low or (spec["low_open"] and value == low)):
-        return False
-    if high is not None and (value > high or (spec["high_open"] and value == high)):
-        return False
-    return True
+    """Whether `value` lies in the range a demo declared (describe_options' spec)."""
+    return Range(**{k: v for k, v in spec.items() if k != "default"}).contains(value)
 
 
 def text(value):

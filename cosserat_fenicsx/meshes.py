@@ -30,6 +30,14 @@ def rectangle_divisions(width, height, cell_size):
     return int(nx), int(ny)
 
 
+def check_node_at_centre(nx, degree, what="the pin at the bottom centre"):
+    """InputError unless a rectangle of nx elements across carries a node of a degree-`degree`
+    Lagrange space at mid-width (nodes sit at multiples of 1 / (nx degree) of the width)."""
+    if (nx * degree) % 2:
+        raise InputError(f"{what} needs a node at mid-width: {nx} element(s) across with degree {degree} "
+                         "have none (use an even number of elements across or degree_u 2)")
+
+
 def check_element_count(area, cell_size, what="the mesh"):
     """InputError when about area / cell_size^2 elements exceed MAX_ELEMENTS."""
     count = area / (cell_size * cell_size) if cell_size * cell_size > 0 else math.inf   # inf, not OverflowError

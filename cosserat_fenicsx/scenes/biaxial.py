@@ -90,7 +90,8 @@ class BiaxialSettings:
         check("biaxial: weak_size", self.weak_size, Range(0.0, min(self.width, self.height), high_open=True))
         check("biaxial: weak_beta_factor", self.weak_beta_factor, Range(0.0, 1.0, low_open=True))
         check("biaxial: dt_min_fraction", self.dt_min_fraction, Range(0.0, 1.0, low_open=True))
-        meshes.rectangle_divisions(self.width, self.height, self.cell_size)
+        nx, _ = meshes.rectangle_divisions(self.width, self.height, self.cell_size)
+        meshes.check_node_at_centre(nx, self.degree_u)
         from ..materials.ehlers.parameters import hostun   # no Numba: the parameters only
         try:
             hostun(**dict(self.material, eta=self.material.get("eta", self.eta) / self.step_time))

@@ -120,6 +120,7 @@ class FemDemSettings:
             v = getattr(self, name)
             if not (isinstance(v, (int, np.integer)) and v >= 1):
                 raise ValueError(f"femdem: {name} must be an integer >= 1, got {v!r}")
+        meshes.check_node_at_centre(self.nx, self.degree_u)
         if self.mode == "micropolar":
             import demcell
             if not getattr(demcell.DemCell, "micropolar", False):

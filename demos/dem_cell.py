@@ -57,19 +57,17 @@ import demcell as dc  # noqa: E402
 from demcell.interface import RelaxationOptions  # noqa: E402
 from demcell.io import CsvLog  # noqa: E402
 from demcell.packing import PRESSURE_RATIO_RANGE, check_pressure_ratio  # noqa: E402
-from cosserat_fenicsx.validation import Range  # noqa: E402
-
-PARTICLES_RANGE = Range(10, 100_000, integer=True)
+from cosserat_fenicsx.validation import DISCS, FRICTION  # noqa: E402
 
 
 def parse(argv=None):
     from cosserat_fenicsx.validation import (NON_NEGATIVE, NON_NEGATIVE_INTEGER, POSITIVE, UNIT_OPEN, COUNT,
-                                             InputError, Parser, Range, number)
+                                             InputError, Parser, number)
     p = Parser(description=__doc__.split("\n\n")[0], formatter_class=argparse.RawDescriptionHelpFormatter,
                allow_abbrev=False, epilog="See the module docstring (head of this file) for details.")
-    p.add_argument("--particles", type=number(PARTICLES_RANGE), default=228,
-                   help=f"number of discs, {PARTICLES_RANGE.describe()} (default 228, 000 Table 3)")
-    p.add_argument("--friction", type=number(Range(0.0, infinite=True)), default=0.4,
+    p.add_argument("--particles", type=number(DISCS), default=228,
+                   help=f"number of discs, {DISCS.describe()} (default 228, 000 Table 3)")
+    p.add_argument("--friction", type=number(FRICTION), default=0.4,
                    help="Coulomb friction mu >= 0, inf: no sliding (default 0.4)")
     p.add_argument("--no-rotation", action="store_true", help="lock particle rotations (000 section 4.3.2)")
     p.add_argument("--seed", type=number(NON_NEGATIVE_INTEGER), default=0, help="packing seed (default 0)")

@@ -70,8 +70,8 @@ from cosserat_fenicsx.scenes.femdem_biaxial import FemDemBiaxial, FemDemSettings
 from cosserat_fenicsx.shear_band import assess_band, no_band
 from cosserat_fenicsx.run_guard import RunGuard
 from cosserat_fenicsx.stepping import LoadSteppingError
-from cosserat_fenicsx.validation import (COUNT, NON_NEGATIVE, NON_NEGATIVE_INTEGER, POSITIVE, UNIT_OPEN, Range,
-                                         number)
+from cosserat_fenicsx.validation import (COUNT, DISCS, FRICTION, NON_NEGATIVE, NON_NEGATIVE_INTEGER, POSITIVE,
+                                         UNIT_OPEN, number)
 
 parser = cli.make_parser(__doc__)
 cli.add_mesh_options(parser, with_cell_size=False)
@@ -87,10 +87,10 @@ g.add_argument("--weak-size", type=number(NON_NEGATIVE), default=0.0, help="side
 g.add_argument("--weak-friction", type=number(low=0.0, high=1.0, low_open=True), default=1.0,
                help="contact friction of the weak cells / --friction, in (0, 1] (default %(default)g)")
 g = parser.add_argument_group("the cell (as demos/dem_cell.py)")
-g.add_argument("--particles", type=number(Range(10, 100_000, integer=True)), default=228, help="number of discs (default 228, 000 Table 3)")
+g.add_argument("--particles", type=number(DISCS), default=228, help="number of discs (default 228, 000 Table 3)")
 g.add_argument("--seed", type=number(NON_NEGATIVE_INTEGER), default=0, help="packing seed (default 0)")
 g.add_argument("--packing", default=None, help="packing file (.npz from demos/dem_cell.py) instead of generating one")
-g.add_argument("--friction", type=number(Range(0.0, infinite=True)), default=0.4, help="Coulomb friction mu (default 0.4; inf: no sliding)")
+g.add_argument("--friction", type=number(FRICTION), default=0.4, help="Coulomb friction mu (default 0.4; inf: no sliding)")
 g.add_argument("--pressure", type=number(POSITIVE), default=10.0, help="confining pressure p0 [N/m] (default 10)")
 g.add_argument("--kn", type=number(POSITIVE), default=1e4, help="normal contact stiffness [N/m] (default 1e4)")
 g.add_argument("--ks", type=number(NON_NEGATIVE), default=2e3, help="tangential contact stiffness [N/m] (default 2e3)")

@@ -13,11 +13,15 @@ stay readable because nothing is left open between steps: history.csv is flushed
 row and the XDMF/HDF5 file is closed after each step (output.FieldWriter); while a step is
 being written (`deferred`, `protect`) the signal waits until the step is complete.
 
-A signal that arrives while a rank is inside one long C call (a linear solve, a Numba
-kernel, a blocking MPI collective) is handled when the call returns; mpirun sends SIGKILL
-one second after SIGTERM by default, so such a rank may be killed first: its files are
-still readable (closed after the last step) and summary.json then holds the last step's
-`completed: false` with the reason RUNNING.
+Python runs a signal handler in the main thread between bytecodes, so a rank inside one long
+call would hear the signal only when the call returns. A watchdog thread, woken by the
+C-level handler through signal.set_wakeup_fd, ends the run itself (same summary, same exit)
+when the main thread has not within MAIN_GRACE (rank 0) or RANK_GRACE seconds; it can run
+while the main thread is in a call that releases the GIL (gmsh, a blocking MPI call through
+mpi4py, time.sleep), not in one that holds it (a Numba kernel, most dolfinx and PETSc
+calls). A rank held there until mpirun's SIGKILL leaves summary.json as its last step wrote
+it (`completed: false`, reason RUNNING); its files are readable all the same (closed after
+the last step).
 """
 from contextlib import contextmanager
 import json
@@ -25,10 +29,12 @@ import os
 import signal
 import sys
 import threading
+import time
 
 RUNNING = "running, or killed before it could record why (summary.json is rewritten after every step)"
 SIGNALS = (signal.SIGINT, signal.SIGTERM)
 RANK_GRACE = 0.5   # [s] a rank other than 0 keeps computing this long after the signal
+MAIN_GRACE = 0.3   # [s] rank 0's watchdog waits this long for the main thread's handler
 
 
 def _json_default(value):
@@ -52,7 +58,9 @@ class RunGuard:
         self.entries = dict(entries or {})
         self.steps = 0
         self._depth, self._pending = 0, None
+        self._wakeup = None
         self._previous = {sig: signal.signal(sig, self._handler) for sig in SIGNALS}
+        self._start_watchdog()
         self._write(completed=False, reason=RUNNING)
 
     # --- progress ---------------------------------------------------------------------
@@ -72,7 +80,7 @@ class RunGuard:
             yield
         finally:
             self._depth -= 1
-            if self._depth == 0 and self._pending is not None:
+            if self._depth == 0 and self._pending is not None and self.rank == 0:
                 self._interrupt(self._pending)
 
     def protect(self, on_step, progress=None):
@@ -109,6 +117,10 @@ class RunGuard:
         for sig, handler in self._previous.items():
             signal.signal(sig, handler)
         self._previous = {}
+        if self._wakeup:
+            signal.set_wakeup_fd(self._previous_wakeup)
+            os.close(self._wakeup[1])        # the watchdog reads EOF and ends
+            self._wakeup = None
 
     # --- internals --------------------------------------------------------------------
     def _write(self, **override):
@@ -122,27 +134,39 @@ class RunGuard:
         os.replace(tmp, self.path)
 
     def _handler(self, signum, frame):
-        if self.rank != 0:
-            # rank 0 may be waiting for this one in a collective call: carry on for a
-            # moment so that it can return to Python and record the interruption
-            if self._pending is None:
-                self._pending = signum
-                self._exit_later(signum, RANK_GRACE)
-            return
-        if self._depth > 0:
-            self._pending = signum
-            return
-        self._interrupt(signum)
+        """Python's handler: runs in the main thread, between bytecodes."""
+        self._pending = self._pending or signum
+        if self.rank == 0 and self._depth == 0:
+            self._interrupt(signum)
+        # other ranks: the watchdog ends them after RANK_GRACE (rank 0 may be waiting for
+        # them in a collective call); inside `deferred`: when the block is done
 
-    def _exit_later(self, signum, delay):
-        def fire():
-            if self._depth > 0:          # inside a collective write: finish it first
-                self._exit_later(signum, 0.05)
-            else:
+    def _start_watchdog(self):
+        """A thread woken by the C-level signal handler (signal.set_wakeup_fd): it ends the
+        run when the main thread cannot, because it is inside a long call that released
+        the GIL (gmsh, a blocking MPI call through mpi4py)."""
+        read_end, write_end = os.pipe()
+        os.set_blocking(write_end, False)
+        self._wakeup = (read_end, write_end)
+        self._previous_wakeup = signal.set_wakeup_fd(write_end, warn_on_full_buffer=False)
+
+        def watch():
+            while True:
+                try:
+                    data = os.read(read_end, 1)
+                except OSError:
+                    return
+                if not data:
+                    return
+                signum = data[0]
+                if signum not in SIGNALS:
+                    continue
+                deadline = time.monotonic() + (MAIN_GRACE if self.rank == 0 else RANK_GRACE)
+                while time.monotonic() < deadline or self._depth > 0:
+                    time.sleep(0.02)     # the main thread's handler normally ends the run first
                 self._interrupt(signum)
-        timer = threading.Timer(delay, fire)
-        timer.daemon = True
-        timer.start()
+
+        threading.Thread(target=watch, name="run-guard-watchdog", daemon=True).start()
 
     def _interrupt(self, signum):
         name = signal.Signals(signum).name

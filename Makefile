@@ -64,6 +64,7 @@ benchmark: deps
 	$(MPIRUN) -n $(NP) $(PYTHON) benchmarks/femdem_convergence.py --out $(OUT)/benchmarks/femdem_convergence
 	$(MPIRUN) -n $(NP) $(PYTHON) benchmarks/femdem_rotation.py --out $(OUT)/benchmarks/femdem_rotation
 	$(PYTHON) benchmarks/robustness_sweep.py --random 2 --out $(OUT)/benchmarks/robustness_sweep
+	$(PYTHON) benchmarks/interrupt_runs.py --trials 12 --ranks $(NP) --signal INT --out $(OUT)/benchmarks/interrupt_runs
 	ROBUSTNESS_EXAMPLES=25 ROBUSTNESS_RANDOM=1 $(PYTHON) -m pytest -q -p no:cacheprovider tests/test_robustness_properties.py
 	$(PYTHON) -m pytest -q -p no:cacheprovider -m slow tests
 

@@ -68,7 +68,7 @@ g.add_argument("--axial-strain", type=number(low=0.0, high=0.5, low_open=True, h
 g.add_argument("--consolidation-steps", type=number(STEPS), default=5, help="steps of phase 1 (default %(default)s)")
 g.add_argument("--k-sigma", type=number(NON_NEGATIVE), default=10.0, help="skew-stress weight k_sigma in F, G (default %(default)g)")
 g.add_argument("--k-mu", type=number(NON_NEGATIVE), default=0.0, help="couple-stress weight k_mu [1/m^2] (default %(default)g)")
-g.add_argument("--eta", type=number(POSITIVE), default=0.1, help="Perzyna time eta [s] (2.81), 1 s per step (default %(default)g)")
+g.add_argument("--eta", type=number(NON_NEGATIVE), default=0.1, help="Perzyna time eta [s] (2.81), 1 s per step (default %(default)g)")
 g.add_argument("--weak-size", type=number(NON_NEGATIVE), default=5e-3,
                help="side of the weakened square at the lower left corner [m], 0: none (default %(default)g)")
 g.add_argument("--weak-factor", type=number(low=0.0, high=1.0, low_open=True), default=0.8,

@@ -80,7 +80,7 @@ def test_both_or_neither_material(square):
     ("hole_plate", ["--l-c", "0", "--sweep"], "--sweep varies a/l_c: it needs --l-c > 0"),
     ("biaxial", ["--weak-size", "0.2"], "weak_size must be in [0, 0.05), got 0.2"),
     ("biaxial", ["--k-sigma", "-1"], "argument --k-sigma: must be >= 0, got -1"),
-    ("biaxial", ["--classical", "--mu-c", "0", "--eta", "inf"], "argument --eta: must be > 0, got inf"),
+    ("biaxial", ["--classical", "--mu-c", "0", "--eta", "inf"], "argument --eta: must be >= 0, got inf"),
 ])
 def test_demo_rejects_bad_options_before_work(demo, tmp_path, demo_name, args, message):
     proc = demo(demo_name, *args, "--out", tmp_path / "out", check=False, timeout=60)

@@ -54,7 +54,7 @@ from ..problem import CosseratProblem
 from ..shear_band import fit_band_collective, strain_norm
 from ..snes import NewtonSolver
 from ..stepping import LoadStepper
-from ..validation import COUNT, POSITIVE, InputError, Range, check
+from ..validation import COUNT, NON_NEGATIVE, POSITIVE, InputError, Range, check
 
 
 @dataclass
@@ -82,8 +82,9 @@ class BiaxialSettings:
     def check(self):
         """Every setting in range and the material overrides valid (InputError, a
         ValueError, naming the setting), before any mesh, form or kernel exists."""
-        for name in ("width", "height", "confining", "cell_size", "step_time", "eta"):
+        for name in ("width", "height", "confining", "cell_size", "step_time"):
             check(f"biaxial: {name}", getattr(self, name), POSITIVE)
+        check("biaxial: eta", self.eta, NON_NEGATIVE)      # 0: rate-independent
         check("biaxial: axial_strain", self.axial_strain, Range(0.0, 0.5, low_open=True, high_open=True))
         for name in ("consolidation_steps", "steps"):
             check(f"biaxial: {name}", getattr(self, name), COUNT)

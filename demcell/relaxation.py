@@ -186,7 +186,7 @@ def _inv2(a):
     return r
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)   # long: lets run_guard's watchdog act on a signal meanwhile
 def advance(radius, mass, inertia, s, v, theta, omega, dtheta, force, moment, s_build, h,
             h_build, h_ref, pair_i, pair_j, fn, fs, mr, bonded, touching, d_prev,
             law, ipar, ctrl, F_start, F_end, out):

@@ -45,6 +45,9 @@ def trial(out, ranks, sig, delay):
             h5_steps = sorted({len(g) for g in f["Function"].values()}) if "Function" in f else [0]
     except OSError as error:
         h5_steps = [f"unreadable: {error}"]
+    if summary["completed"]:
+        # the signal came after the final summary (plot and prints left): the results are whole
+        return dict(outcome="finished before the signal", code=proc.returncode, steps_completed=rows)
     clean = (summary["reason"].startswith("interrupted by") and summary["steps_completed"] == rows
              and h5_steps in ([rows], [0]) and "Traceback" not in stderr)
     return dict(outcome="clean" if clean else "NOT CLEAN", code=proc.returncode, reason=summary["reason"],
@@ -56,7 +59,7 @@ def main():
     p.add_argument("--trials", type=int, default=12)
     p.add_argument("--ranks", type=int, default=2)
     p.add_argument("--signal", choices=("INT", "TERM"), default="INT")
-    p.add_argument("--max-delay", type=float, default=12.0, help="[s] delays drawn in [1, this]")
+    p.add_argument("--max-delay", type=float, default=10.0, help="[s] delays drawn in [1, this]")
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--out", default="results/interrupt_runs")
     args = p.parse_args()

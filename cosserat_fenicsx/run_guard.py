@@ -155,8 +155,9 @@ class RunGuard:
                 try:
                     data = os.read(read_end, 1)
                 except OSError:
-                    return
-                if not data:
+                    data = b""
+                if not data:                 # release() closed the write end
+                    os.close(read_end)
                     return
                 signum = data[0]
                 if signum not in SIGNALS:

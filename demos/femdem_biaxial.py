@@ -99,7 +99,7 @@ g.add_argument("--relaxation-tol", type=number(UNIT_OPEN), default=1e-3, help="c
 g.add_argument("--criterion", choices=("energy", "force"), default="force",
                help="cell convergence test: unbalanced-force ratio (001, default) or E_kin/E_pot (000 eq. 31; "
                     "near the peak it leaves a residual floor above --force-rtol, docs/femdem.md)")
-g.add_argument("--max-dem-steps", type=number(COUNT), default=200_000, help="DEM steps allowed per cell solve (default %(default)s)")
+g.add_argument("--max-dem-steps", type=number(low=1, high=1e9, integer=True), default=200_000, help="DEM steps allowed per cell solve (default %(default)s)")
 g = parser.add_argument_group("coupling")
 g.add_argument("--mode", choices=("classical", "hybrid", "micropolar"), default="hybrid",
                help="classical: Cauchy continuum; hybrid (default): micropolar, elastic skew and couple stress; "

@@ -36,6 +36,7 @@ import ufl
 from mpi4py import MPI
 
 from .. import compat, meshes
+from ..validation import check
 from ..problem import CosseratProblem
 from ..shear_band import fit_band_collective
 from ..snes import NewtonSolver
@@ -77,7 +78,9 @@ class FemDemSettings:
         from ..materials.dem import MODES, TANGENTS, CellOptions
         if self.cell is None:
             self.cell = CellOptions()
-        for name in ("width", "height", "grain_diameter", "force_rtol"):
+        for name in ("width", "height"):
+            check(f"femdem: {name}", getattr(self, name), meshes.RECTANGLE_LENGTH)
+        for name in ("grain_diameter", "force_rtol"):
             v = getattr(self, name)
             if not (isinstance(v, (int, float)) and math.isfinite(v) and v > 0):
                 raise ValueError(f"femdem: {name} must be a positive number, got {v!r}")

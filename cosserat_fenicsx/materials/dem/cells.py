@@ -22,6 +22,11 @@ import numpy as np
 TANGENTS = {"cto": "perturbation", "demqo": "demqo", "kruyt": "kruyt", "pstlo": "pstlo"}
 
 
+#: DEM steps allowed per cell solve at most (the relaxation kernel counts in int64; a
+#: billion steps is days of one cell)
+MAX_STEPS = 10 ** 9
+
+
 @dataclass
 class CellOptions:
     """Micro-scale settings (000 Table 3 defaults; pressure as demos/dem_cell.py)."""
@@ -60,9 +65,9 @@ class CellOptions:
         if not (isinstance(self.seed, (int, np.integer)) and self.seed >= 0):
             raise ValueError(f"seed must be an integer >= 0, got {self.seed!r}")
         check_every = self.relaxation().check_every
-        if not (isinstance(self.max_steps, (int, np.integer)) and self.max_steps >= 2 * check_every):
-            raise ValueError(f"max_steps must be an integer >= {2 * check_every} (the convergence test runs "
-                             f"every {check_every} DEM steps), got {self.max_steps!r}")
+        if not (isinstance(self.max_steps, (int, np.integer)) and 2 * check_every <= self.max_steps <= MAX_STEPS):
+            raise ValueError(f"max_steps must be an integer in [{2 * check_every}, {MAX_STEPS:.0e}] (the convergence "
+                             f"test runs every {check_every} DEM steps), got {self.max_steps!r}")
         if self.packing is not None:
             self.load_packing()      # missing or corrupt: InputError (a ValueError) now
         self.relaxation()            # unknown or bad extra options

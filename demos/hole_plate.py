@@ -97,6 +97,7 @@ def solve(radius, write_fields):
     def write_step(record):
         with guard.deferred():
             writer.write(record.time)
+
     solver = NewtonSolver(problem)
     LoadStepper(problem, solver, dt=1.0, verbose=write_fields,
                 on_step=write_step if writer else None).run()

@@ -22,12 +22,12 @@ import numpy as np
 from mpi4py import MPI
 
 from cosserat_fenicsx import CosseratProblem, NewtonSolver, LoadStepper, LoadSteppingError, analytic, cli, meshes
-from cosserat_fenicsx.validation import POSITIVE, Range, check as check_value, number
-
-SHEAR_STRAIN = Range(1e-12, 1.0)
 from cosserat_fenicsx.output import FieldWriter, CsvLog, print0
 from cosserat_fenicsx.probes import sample_line
 from cosserat_fenicsx.run_guard import RunGuard
+from cosserat_fenicsx.validation import POSITIVE, Range, check as check_value, number
+
+SHEAR_STRAIN = Range(1e-12, 1.0)   # |shift| / H: small strains, above the solver's absolute tolerances
 
 parser = cli.make_parser(__doc__)
 cli.add_material_options(parser, mu=1.0e8, lmbda=1.0e8, l_c=1.0e-2)

@@ -58,7 +58,7 @@ def main():
                     case_dir = os.path.join(args.out, "case")
                     t0 = time.perf_counter()
                     try:
-                        outcome, detail = robustness.run_case(demo, option, value, case_dir, timeout=args.timeout)
+                        outcome, detail = robustness.run_case(demo, {option: value}, case_dir, timeout=args.timeout)
                     except AssertionError as error:
                         outcome, detail = "FAILED", str(error)[:2000]
                         failures.append(dict(demo=demo, option=option, value=repr(value), detail=detail))

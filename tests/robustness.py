@@ -1,4 +1,4 @@
-"""Run a demo as a user would with one numeric option drawn at random, and judge the end.
+"""Run a demo as a user would with numeric options drawn at random, and judge the end.
 
 Shared by the property tests (tests/test_robustness_properties.py, a few draws per demo) and
 the sweep (benchmarks/robustness_sweep.py, many). The demos declare the range of every
@@ -62,12 +62,13 @@ def text(value):
     return repr(value)
 
 
-def run_case(demo, option, value, out, timeout=60.0, grace=30.0, ranks=None):
-    """Run the demo's baseline with `option value`; returns (outcome, detail)."""
+def run_case(demo, values, out, timeout=60.0, grace=30.0, ranks=None):
+    """Run the demo's baseline with `values` ({option: value}, set after the baseline's own
+    options, so they win); returns (outcome, detail)."""
     if os.path.exists(out):
         shutil.rmtree(out)
-    cmd = [sys.executable, os.path.join(ROOT, "demos", demo + ".py"), *BASELINES[demo], option, text(value),
-           "--out", out]
+    drawn = [item for option, value in values.items() for item in (option, text(value))]
+    cmd = [sys.executable, os.path.join(ROOT, "demos", demo + ".py"), *BASELINES[demo], *drawn, "--out", out]
     if ranks:
         cmd = ["mpirun", "-n", str(ranks)] + cmd
     proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=ENV, cwd=ROOT)
@@ -87,7 +88,7 @@ def run_case(demo, option, value, out, timeout=60.0, grace=30.0, ranks=None):
 
 
 def judge(cmd, code, stdout, stderr, out, interrupted):
-    where = f"{' '.join(cmd[-4:-2])} (exit {code})"
+    where = f"{' '.join(cmd)} (exit {code})"
     assert "Traceback" not in stderr and "Traceback" not in stdout, f"{where}: traceback\n{stderr[-3000:]}"
     if code == 2 and not interrupted:
         lines = [line for line in stderr.strip().splitlines() if line.strip()]

@@ -1,5 +1,5 @@
-"""Property tests (Hypothesis) of every demo's command line: any value of any numeric option,
-NaN, inf, zero, negative, huge and tiny included, is refused in one line before any work
+"""Property tests (Hypothesis) of every demo's command line: any values of one to three of its
+numeric options at once, NaN, inf, zero, negative, huge and tiny included, are refused in one line before any work
 (always so outside the option's declared range), or the run ends cleanly: completed with
 finite outputs, stopped with a reason, or, when still running after the time limit,
 interrupted by SIGTERM with its outputs readable (tests/robustness.py judges).
@@ -41,11 +41,14 @@ def test_any_option_value_is_refused_or_ends_cleanly(demo, tmp_path):
               suppress_health_check=list(HealthCheck))
     @given(data=st.data())
     def check(data):
-        option = data.draw(st.sampled_from(sorted(options)), label="option")
-        value = data.draw(value_strategy(options[option]), label="value")
-        outcome, detail = robustness.run_case(demo, option, value, str(tmp_path / "out"), timeout=60)
-        if not robustness.in_range(options[option], value):
-            assert outcome == "refused" and option in detail, (option, value, outcome, detail)
+        # one to three options at once: a value may be fine alone and not with another
+        chosen = data.draw(st.lists(st.sampled_from(sorted(options)), min_size=1, max_size=3, unique=True),
+                           label="options")
+        values = {option: data.draw(value_strategy(options[option]), label=option) for option in chosen}
+        outcome, detail = robustness.run_case(demo, values, str(tmp_path / "out"), timeout=60)
+        outside = [option for option, value in values.items() if not robustness.in_range(options[option], value)]
+        if outside:
+            assert outcome == "refused" and any(option in detail for option in outside), (values, outcome, detail)
 
     check()
 

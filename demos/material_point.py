@@ -71,16 +71,33 @@ def build_parser():
     return p
 
 
-def run_test(material, test, confining, args):
+HISTORY_COLUMNS = ["axial_strain", "axial_stress", "volumetric_strain", "sig22", "sig33", "mean_stress",
+                   "eps22", "eps33", "eps_p_vol", "beta", "delta", "epsilon", "gamma", "yield_function"]
+
+
+def run_test(material, test, confining, args, out, guard):
+    """One test; history.csv is written row by row as the steps converge (an interrupted
+    run keeps them), each row counted by the RunGuard."""
     from cosserat_fenicsx.materials.ehlers import material_point as mp
-    if test == "hydrostatic":
-        h = mp.hydrostatic_test(material, confining, n_steps=args.steps, dt=args.dt, stop_on_failure=True)
-    elif test == "triaxial":
-        h = mp.triaxial_test(material, confining, args.axial_strain, args.steps, args.consolidation_steps, args.dt,
-                             stop_on_failure=True)
-    else:
-        h = mp.biaxial_test(material, confining, args.axial_strain, args.steps, args.consolidation_steps, args.dt,
-                            stop_on_failure=True)
+    with open(os.path.join(out, "history.csv"), "w", newline="") as f:
+        writer = csv.writer(f)
+        writer.writerow(HISTORY_COLUMNS)
+
+        def on_record(record):
+            with guard.deferred():
+                writer.writerow([f"{record[c]:.10g}" for c in HISTORY_COLUMNS])
+                f.flush()
+                guard.progress(final_axial_strain=record["axial_strain"])
+
+        options = dict(dt=args.dt, stop_on_failure=True, on_record=on_record)
+        if test == "hydrostatic":
+            h = mp.hydrostatic_test(material, confining, n_steps=args.steps, **options)
+        elif test == "triaxial":
+            h = mp.triaxial_test(material, confining, args.axial_strain, args.steps, args.consolidation_steps,
+                                 **options)
+        else:
+            h = mp.biaxial_test(material, confining, args.axial_strain, args.steps, args.consolidation_steps,
+                                **options)
     s = mp.summarize(h)
     s.update(test=test, confining_pressure=confining, completed=not h["stopped"], reason=h["stopped"])
     if h["stopped"]:
@@ -93,16 +110,8 @@ def run_test(material, test, confining, args):
     return h, s
 
 
-def write_outputs(h, s, out, title):
-    """history.csv and material_point.png (summary.json is the RunGuard's)."""
-    os.makedirs(out, exist_ok=True)
-    cols = ["axial_strain", "axial_stress", "volumetric_strain", "sig22", "sig33", "mean_stress",
-            "eps22", "eps33", "eps_p_vol", "beta", "delta", "epsilon", "gamma", "yield_function"]
-    with open(os.path.join(out, "history.csv"), "w", newline="") as f:
-        w = csv.writer(f)
-        w.writerow(cols)
-        for i in range(len(h["axial_strain"])):
-            w.writerow([f"{h[c][i]:.10g}" for c in cols])
+def plot(h, out, title):
+    """material_point.png (history.csv is written as the test goes, summary.json by the RunGuard)."""
     import matplotlib
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
@@ -175,9 +184,9 @@ def main(argv=None):
         return run_readings(args)
     if args.test != "all":
         guard = RunGuard(None, os.path.join(args.out, "summary.json"), dict(test=args.test), label="material_point")
-        h, s = run_test(material, args.test, args.confining, args)
+        h, s = run_test(material, args.test, args.confining, args, args.out, guard)
         s["wall_time_s"] = time.perf_counter() - t0
-        write_outputs(h, s, args.out, f"{args.test}, P = {args.confining / 1e3:g} kPa")
+        plot(h, args.out, f"{args.test}, P = {args.confining / 1e3:g} kPa")
         guard.finish(s)
         print(json.dumps(s, indent=2))
         if not s["completed"]:
@@ -190,8 +199,8 @@ def main(argv=None):
         key = "hydrostatic" if test == "hydrostatic" else f"{test}_{p / 1e3:.0f}kPa"
         os.makedirs(os.path.join(args.out, key), exist_ok=True)
         guard = RunGuard(None, os.path.join(args.out, key, "summary.json"), dict(test=test), label="material_point")
-        h, s = run_test(material, test, p, args)
-        write_outputs(h, s, os.path.join(args.out, key), key)
+        h, s = run_test(material, test, p, args, os.path.join(args.out, key), guard)
+        plot(h, os.path.join(args.out, key), key)
         guard.finish(s)
         completed &= s["completed"]
         ref = SPEC_H1[key]

@@ -112,3 +112,12 @@ def test_interrupted_output_opens_in_paraview(tmp_path):
     summary, rows = check_interrupted(out, signal.SIGTERM, None)
     data = paraview_read(out / "fields.xdmf", tmp_path / "render.png", "displacement")
     assert len(data["times"]) == len(rows) and "plastic_strain" in data["arrays"]
+
+
+def test_interrupted_material_point_keeps_its_history(tmp_path):
+    """The material-point driver writes history.csv row by row: Ctrl-C keeps every step."""
+    code, out = interrupt(tmp_path, signal.SIGINT, 50, demo="material_point",
+                          args=["--test", "triaxial", "--steps", "200000"])
+    assert code == 128 + signal.SIGINT
+    summary, rows = check_interrupted(out, signal.SIGINT, None)
+    assert len(rows) >= 50 and summary["steps_completed"] == len(rows)

@@ -174,6 +174,20 @@ def _check_test(confining, axial_strain, n_steps, n_consolidation, dt):
     check("dt", dt, POSITIVE)
 
 
+class _Records(list):
+    """The history records of a test; `on_record(record)` (optional) hears each as it
+    is appended, so a caller can write the history as the test goes."""
+
+    def __init__(self, on_record=None):
+        super().__init__()
+        self.on_record = on_record
+
+    def append(self, record):
+        super().append(record)
+        if self.on_record is not None:
+            self.on_record(record)
+
+
 def _run_test(pt, recs, load, stop_on_failure):
     """Run load() (which appends a record per converged step to recs) and return the
     history arrays with h["stopped"]: "" when every step converged. A MaterialPointError
@@ -197,11 +211,12 @@ def _run_test(pt, recs, load, stop_on_failure):
     return h
 
 
-def hydrostatic_test(material, p_max=1.0e6, n_steps=200, dt=1.0, stop_on_failure=False):
-    """Hydrostatic compression to mean stress -p_max (A.1): sig11 = sig22 = sig33 = -p."""
+def hydrostatic_test(material, p_max=1.0e6, n_steps=200, dt=1.0, stop_on_failure=False, on_record=None):
+    """Hydrostatic compression to mean stress -p_max (A.1): sig11 = sig22 = sig33 = -p.
+    (stop_on_failure: _run_test; on_record(record): called as each step's record is made.)"""
     _check_test(p_max, 0.1, n_steps, 1, dt)
     pt = MaterialPoint(material)
-    recs = []
+    recs = _Records(on_record)
     return _run_test(pt, recs, lambda: consolidate(pt, -p_max, n_steps=n_steps, dt=dt, records=recs),
                      stop_on_failure)
 
@@ -221,13 +236,13 @@ def _compression(pt, recs, mask, lateral, confining, axial_strain, n_steps, dt):
 
 
 def triaxial_test(material, confining=100e3, axial_strain=0.15, n_steps=600, n_consolidation=40, dt=1.0,
-                  stop_on_failure=False):
+                  stop_on_failure=False, on_record=None):
     """Triaxial compression (A.1): isotropic consolidation to -p, then eps11 decreased by
     ``axial_strain`` at constant lateral stress sig22 = sig33 = -p (eps22 = eps33 free).
     Axial and volumetric strains are counted from the start of the deviatoric phase."""
     _check_test(confining, axial_strain, n_steps, n_consolidation, dt)
     pt = MaterialPoint(material)
-    recs = []
+    recs = _Records(on_record)
 
     def load():
         consolidate(pt, -confining, n_steps=n_consolidation, dt=dt)
@@ -237,12 +252,12 @@ def triaxial_test(material, confining=100e3, axial_strain=0.15, n_steps=600, n_c
 
 
 def biaxial_test(material, confining=100e3, axial_strain=0.15, n_steps=600, n_consolidation=40, dt=1.0,
-                 stop_on_failure=False):
+                 stop_on_failure=False, on_record=None):
     """Homogeneous plane-strain biaxial test (A.2): consolidation sig11 = sig22 = -p with
     eps33 = 0, then eps11 decreased at sig22 = -p, eps33 = 0 (sig33 from the model)."""
     _check_test(confining, axial_strain, n_steps, n_consolidation, dt)
     pt = MaterialPoint(material)
-    recs = []
+    recs = _Records(on_record)
 
     def load():
         consolidate(pt, -confining, n_steps=n_consolidation, plane_strain=True, dt=dt)

@@ -80,6 +80,11 @@ def test_both_or_neither_material(square):
     ("hole_plate", ["--l-c", "0", "--sweep"], "--sweep varies a/l_c: it needs --l-c > 0"),
     ("biaxial", ["--weak-size", "0.2"], "weak_size must be in [0, 0.05), got 0.2"),
     ("biaxial", ["--k-sigma", "-1"], "argument --k-sigma: must be >= 0, got -1"),
+    ("biaxial", ["--cell-size", "1e-4"], "gives 1e+06 triangles in a 0.05 x 0.1 m rectangle; at most 5e+05"),
+    ("femdem_biaxial", ["--mesh", "1000x1000"], "needs about 684 GB for its cells; at most 16 GB"),
+    ("femdem_biaxial", ["--max-dem-steps", "1e300"], "argument --max-dem-steps: must be an integer in [1, 1e+09]"),
+    ("dem_cell", ["--increment", "1e-300"], "at most a million increments"),
+    ("material_point", ["--dt", "nan"], "argument --dt: must be > 0, got nan"),
     ("biaxial", ["--classical", "--mu-c", "0", "--eta", "inf"], "argument --eta: must be >= 0, got inf"),
 ])
 def test_demo_rejects_bad_options_before_work(demo, tmp_path, demo_name, args, message):
@@ -105,7 +110,7 @@ def test_non_finite_loads_are_refused_before_the_form_compiler(square, method, a
 
 
 def test_mesh_too_fine_is_refused_before_meshing():
-    with pytest.raises(ValueError, match="elements in a 1 x 1 m rectangle; at most 1e\\+07"):
+    with pytest.raises(ValueError, match="triangles in a 1 x 1 m rectangle; at most 5e\\+05"):
         meshes.rectangle(MPI.COMM_WORLD, 1.0, 1.0, 1e-300)
     with pytest.raises(ValueError, match="radius / half_side must be in"):
         meshes.hole_plate(MPI.COMM_WORLD, 1e-9, 1.0, 0.1)

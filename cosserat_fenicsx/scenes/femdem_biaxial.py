@@ -46,6 +46,14 @@ from .biaxial import RecordingSolver, gauss_point_coordinates
 DEFAULT_SOLVER_OPTIONS = {"snes_linesearch_type": "basic"}   # full Newton steps, as 001 and YADE
 
 
+#: Gauss points (one cell each) of one NXxNY rectangle: two triangles of 3 points
+CELL_POINTS_PER_RECTANGLE = 6
+#: memory of a cell per disc (114 kB for 228 discs, docs/femdem.md) and the most the cells of
+#: one run may take on this 24 GiB machine
+BYTES_PER_DISC = 500
+MAX_CELL_BYTES = 16e9
+
+
 @dataclass
 class FemDemSettings:
     """Geometry, loading, discretisation, coupling mode and cell of one run (SI units for
@@ -88,8 +96,6 @@ class FemDemSettings:
             v = getattr(self, name)
             if not (isinstance(v, (int, np.integer)) and v >= 1):
                 raise ValueError(f"femdem: {name} must be an integer >= 1, got {v!r}")
-        if not self.nx * self.ny <= meshes.MAX_ELEMENTS:
-            raise ValueError(f"femdem: a {self.nx}x{self.ny} mesh has more than {meshes.MAX_ELEMENTS:.0e} elements")
         if not self.grain_diameter < min(self.width, self.height):
             raise ValueError(f"femdem: grain_diameter must be below the specimen's width and height, "
                              f"got {self.grain_diameter!r}")
@@ -133,6 +139,10 @@ class FemDemSettings:
         if self.cell_type not in ("triangle", "quadrilateral"):
             raise ValueError(f"femdem: cell_type must be triangle or quadrilateral, got {self.cell_type!r}")
         self.cell.check()
+        cells_bytes = CELL_POINTS_PER_RECTANGLE * self.nx * self.ny * BYTES_PER_DISC * self.cell.particles
+        if not cells_bytes <= MAX_CELL_BYTES:
+            raise ValueError(f"femdem: a {self.nx}x{self.ny} mesh of {self.cell.particles}-disc cells needs about "
+                             f"{cells_bytes / 1e9:.3g} GB for its cells; at most {MAX_CELL_BYTES / 1e9:g} GB")
 
 
 def parse_mesh(text):

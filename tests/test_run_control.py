@@ -43,7 +43,9 @@ def test_interrupted_run_keeps_finished_steps(tmp_path):
     assert len(steps) >= len(rows) - 1
 
 
-BIAXIAL = ["--cell-size", "0.0125", "--steps", "60", "--consolidation-steps", "2", "--axial-strain", "0.01",
+# long enough that it cannot finish in the second mpirun waits between its SIGCONT and the
+# SIGTERM it sends its ranks on Ctrl-C (the tests interrupt it after a few steps)
+BIAXIAL = ["--cell-size", "0.0125", "--steps", "2000", "--consolidation-steps", "2", "--axial-strain", "0.05",
            "--write-every", "1"]
 
 
@@ -74,7 +76,7 @@ def check_interrupted(out, sig, ranks):
     import json
     import h5py
     summary = json.loads((out / "summary.json").read_text())
-    assert summary["completed"] is False
+    assert summary["completed"] is False, "the run finished before the signal: make it longer"
     rows = (out / "history.csv").read_text().splitlines()[1:] if (out / "history.csv").exists() else []
     if summary["reason"].startswith("interrupted by"):
         # mpirun turns Ctrl-C into SIGTERM for its ranks

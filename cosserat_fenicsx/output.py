@@ -1,15 +1,13 @@
-"""Results as the run goes: XDMF fields for ParaView, history.csv, summary.json.
+"""Results as the run goes: XDMF fields for ParaView, history.csv (summary.json: run_guard).
 
 XDMF holds P1 and DG0 data only: the P2 displacement is interpolated to P1, stresses
 (UFL expressions or Gauss-point data) become cell values (DG0; for linear stress fields
 on triangles the centroid value equals the cell mean). Each step is written when it
 converges and the HDF5 file is closed after it (reopened in append mode for the next), so
 an interrupted or killed run keeps a readable file of what it computed (`run_guard` defers
-SIGINT/SIGTERM while a step is written). Only requested fields are written. Rank 0 alone writes the CSV/JSON files and prints.
+SIGINT/SIGTERM while a step is written). Only requested fields are written. Rank 0 alone writes the CSV files and prints.
 """
 import csv
-import json
-import os
 
 import dolfinx.fem
 import dolfinx.io
@@ -24,14 +22,6 @@ FIELDS = ("displacement", "rotation", "stress", "couple_stress")
 def print0(comm, *args):
     if comm.rank == 0:
         print(*args, flush=True)
-
-
-def write_json(comm, path, data):
-    if comm.rank == 0:
-        tmp = path + ".tmp"
-        with open(tmp, "w") as f:
-            json.dump(data, f, indent=2, sort_keys=True, default=float)
-        os.replace(tmp, path)
 
 
 class CsvLog:

@@ -83,6 +83,8 @@ COUNT = Range(low=1, integer=True)
 STEPS = Range(1, 1_000_000, integer=True)    # load steps: more than a million is a typo here
 NON_NEGATIVE_INTEGER = Range(low=0, integer=True)
 UNIT_OPEN = Range(0.0, 1.0, low_open=True, high_open=True)
+AXIAL_STRAIN = Range(0.0, 0.5, low_open=True, high_open=True)   # compression of a test, |strain|
+FRACTION = Range(0.0, 1.0, low_open=True)    # a factor that weakens: (0, 1]
 DISCS = Range(10, 100_000, integer=True)     # discs per periodic DEM cell
 FRICTION = Range(0.0, infinite=True)         # Coulomb coefficient; inf: no sliding
 

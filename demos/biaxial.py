@@ -50,7 +50,7 @@ from cosserat_fenicsx.run_guard import RunGuard
 from cosserat_fenicsx.scenes.biaxial import BiaxialSettings, BiaxialTest, convergence_orders
 from cosserat_fenicsx.shear_band import assess_band, bell
 from cosserat_fenicsx.stepping import LoadSteppingError
-from cosserat_fenicsx.validation import COUNT, NON_NEGATIVE, POSITIVE, STEPS, number
+from cosserat_fenicsx.validation import AXIAL_STRAIN, COUNT, FRACTION, NON_NEGATIVE, POSITIVE, STEPS, number
 
 parser = cli.make_parser(__doc__)
 cli.add_material_options(parser, mu=91.0e6, lmbda=49.4e6, l_c=3.0e-3)
@@ -63,7 +63,7 @@ g.add_argument("--classical", action="store_true", dest="cauchy",
 g.add_argument("--width", type=number(POSITIVE), default=0.05, help="specimen width W [m] (default %(default)g)")
 g.add_argument("--height", type=number(POSITIVE), default=0.10, help="specimen height H [m] (default %(default)g)")
 g.add_argument("--confining", type=number(POSITIVE), default=100e3, help="confining pressure p [Pa] (default %(default)g)")
-g.add_argument("--axial-strain", type=number(low=0.0, high=0.5, low_open=True, high_open=True), default=0.05,
+g.add_argument("--axial-strain", type=number(AXIAL_STRAIN), default=0.05,
                help="platen displacement / H in phase 2, in (0, 0.5) (default %(default)g)")
 g.add_argument("--consolidation-steps", type=number(STEPS), default=5, help="steps of phase 1 (default %(default)s)")
 g.add_argument("--k-sigma", type=number(NON_NEGATIVE), default=10.0, help="skew-stress weight k_sigma in F, G (default %(default)g)")
@@ -71,7 +71,7 @@ g.add_argument("--k-mu", type=number(NON_NEGATIVE), default=0.0, help="couple-st
 g.add_argument("--eta", type=number(NON_NEGATIVE), default=0.1, help="Perzyna time eta [s] (2.81), 1 s per step (default %(default)g)")
 g.add_argument("--weak-size", type=number(NON_NEGATIVE), default=5e-3,
                help="side of the weakened square at the lower left corner [m], 0: none (default %(default)g)")
-g.add_argument("--weak-factor", type=number(low=0.0, high=1.0, low_open=True), default=0.8,
+g.add_argument("--weak-factor", type=number(FRACTION), default=0.8,
                help="beta0 and beta* of the weakened square relative to the rest, in (0, 1] (default %(default)g)")
 g.add_argument("--write-every", type=number(COUNT), default=5, help="XDMF every N steps and at the end (default %(default)s)")
 

@@ -57,7 +57,7 @@ import demcell as dc  # noqa: E402
 from demcell.interface import RelaxationOptions  # noqa: E402
 from demcell.io import CsvLog  # noqa: E402
 from demcell.packing import PRESSURE_RATIO_RANGE, check_pressure_ratio  # noqa: E402
-from cosserat_fenicsx.validation import DISCS, FRICTION  # noqa: E402
+from cosserat_fenicsx.validation import AXIAL_STRAIN, DISCS, FRICTION  # noqa: E402
 
 
 def parse(argv=None):
@@ -71,7 +71,7 @@ def parse(argv=None):
                    help="Coulomb friction mu >= 0, inf: no sliding (default 0.4)")
     p.add_argument("--no-rotation", action="store_true", help="lock particle rotations (000 section 4.3.2)")
     p.add_argument("--seed", type=number(NON_NEGATIVE_INTEGER), default=0, help="packing seed (default 0)")
-    p.add_argument("--axial-strain", type=number(low=0.0, high=0.5, low_open=True, high_open=True), default=0.1,
+    p.add_argument("--axial-strain", type=number(AXIAL_STRAIN), default=0.1,
                    help="final axial shortening |F_11 - 1|, in (0, 0.5) (default 0.1, 000 Table 3)")
     p.add_argument("--increment", type=number(POSITIVE), default=1e-3,
                    help="axial strain per increment, at most --axial-strain (default 1e-3)")

@@ -70,7 +70,7 @@ from cosserat_fenicsx.scenes.femdem_biaxial import FemDemBiaxial, FemDemSettings
 from cosserat_fenicsx.shear_band import assess_band, no_band
 from cosserat_fenicsx.run_guard import RunGuard
 from cosserat_fenicsx.stepping import LoadSteppingError
-from cosserat_fenicsx.validation import (COUNT, DISCS, FRICTION, NON_NEGATIVE, NON_NEGATIVE_INTEGER, POSITIVE,
+from cosserat_fenicsx.validation import (AXIAL_STRAIN, COUNT, DISCS, FRACTION, FRICTION, NON_NEGATIVE, NON_NEGATIVE_INTEGER, POSITIVE,
                                          UNIT_OPEN, number)
 
 parser = cli.make_parser(__doc__)
@@ -81,10 +81,10 @@ g = parser.add_argument_group("specimen and loading (000 section 4.1)")
 g.add_argument("--mesh", default="2x4", help="NXxNY rectangles (000: 1x1, 1x2, 2x4, 4x8; default %(default)s)")
 g.add_argument("--width", type=number(POSITIVE), default=0.01, help="specimen width W [m] (default %(default)g)")
 g.add_argument("--height", type=number(POSITIVE), default=0.02, help="specimen height H [m] (default %(default)g)")
-g.add_argument("--axial-strain", type=number(low=0.0, high=0.5, low_open=True, high_open=True), default=0.10,
+g.add_argument("--axial-strain", type=number(AXIAL_STRAIN), default=0.10,
                help="platen displacement / H, in (0, 0.5) (default %(default)g)")
 g.add_argument("--weak-size", type=number(NON_NEGATIVE), default=0.0, help="side of the weak square at the lower left corner [m] (default 0: none)")
-g.add_argument("--weak-friction", type=number(low=0.0, high=1.0, low_open=True), default=1.0,
+g.add_argument("--weak-friction", type=number(FRACTION), default=1.0,
                help="contact friction of the weak cells / --friction, in (0, 1] (default %(default)g)")
 g = parser.add_argument_group("the cell (as demos/dem_cell.py)")
 g.add_argument("--particles", type=number(DISCS), default=228, help="number of discs (default 228, 000 Table 3)")

@@ -48,7 +48,7 @@ TABLE_6_2 = {"triaxial_100kPa": dict(sigma0=500e3, epsV0=0.1), "triaxial_300kPa"
 
 
 def build_parser():
-    from cosserat_fenicsx.validation import NON_NEGATIVE, POSITIVE, STEPS, Parser, number
+    from cosserat_fenicsx.validation import AXIAL_STRAIN, NON_NEGATIVE, POSITIVE, STEPS, Parser, number
     p = Parser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter, allow_abbrev=False)
     p.add_argument("--test", choices=("hydrostatic", "triaxial", "biaxial", "all", "readings"), default="triaxial")
     p.add_argument("--confining", type=number(POSITIVE), default=100e3,
@@ -64,7 +64,7 @@ def build_parser():
     n = p.add_argument_group("numerics")
     n.add_argument("--steps", type=number(STEPS), default=600, help="load steps of the deviatoric phase (default %(default)s)")
     n.add_argument("--consolidation-steps", type=number(STEPS), default=40, help="steps of the isotropic phase (default %(default)s)")
-    n.add_argument("--axial-strain", type=number(low=0.0, high=0.5, low_open=True, high_open=True), default=0.15,
+    n.add_argument("--axial-strain", type=number(AXIAL_STRAIN), default=0.15,
                    help="axial compression strain, in (0, 0.5) (default %(default)g)")
     n.add_argument("--eta", type=number(NON_NEGATIVE), default=1e-4, help="Perzyna relaxation time [s] (2.81) (default %(default)g)")
     n.add_argument("--dt", type=number(POSITIVE), default=1.0, help="time per load step [s] (default %(default)g)")

@@ -54,7 +54,7 @@ from ..problem import CosseratProblem
 from ..shear_band import fit_band_collective, strain_norm
 from ..snes import NewtonSolver
 from ..stepping import LoadStepper
-from ..validation import COUNT, NON_NEGATIVE, POSITIVE, InputError, Range, check
+from ..validation import AXIAL_STRAIN, COUNT, FRACTION, NON_NEGATIVE, POSITIVE, InputError, Range, check
 
 
 @dataclass
@@ -85,12 +85,12 @@ class BiaxialSettings:
         for name in ("width", "height", "confining", "cell_size", "step_time"):
             check(f"biaxial: {name}", getattr(self, name), POSITIVE)
         check("biaxial: eta", self.eta, NON_NEGATIVE)      # 0: rate-independent
-        check("biaxial: axial_strain", self.axial_strain, Range(0.0, 0.5, low_open=True, high_open=True))
+        check("biaxial: axial_strain", self.axial_strain, AXIAL_STRAIN)
         for name in ("consolidation_steps", "steps"):
             check(f"biaxial: {name}", getattr(self, name), COUNT)
         check("biaxial: weak_size", self.weak_size, Range(0.0, min(self.width, self.height), high_open=True))
-        check("biaxial: weak_beta_factor", self.weak_beta_factor, Range(0.0, 1.0, low_open=True))
-        check("biaxial: dt_min_fraction", self.dt_min_fraction, Range(0.0, 1.0, low_open=True))
+        check("biaxial: weak_beta_factor", self.weak_beta_factor, FRACTION)
+        check("biaxial: dt_min_fraction", self.dt_min_fraction, FRACTION)
         nx, _ = meshes.rectangle_divisions(self.width, self.height, self.cell_size)
         meshes.check_node_at_centre(nx, self.degree_u)
         from ..materials.ehlers.parameters import hostun   # no Numba: the parameters only

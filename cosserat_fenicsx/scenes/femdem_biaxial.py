@@ -36,11 +36,11 @@ import ufl
 from mpi4py import MPI
 
 from .. import compat, meshes
-from ..validation import check
 from ..problem import CosseratProblem
 from ..shear_band import fit_band_collective
 from ..snes import NewtonSolver
 from ..stepping import LoadStepper
+from ..validation import check
 from .biaxial import RecordingSolver, gauss_point_coordinates
 
 DEFAULT_SOLVER_OPTIONS = {"snes_linesearch_type": "basic"}   # full Newton steps, as 001 and YADE

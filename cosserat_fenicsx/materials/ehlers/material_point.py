@@ -18,7 +18,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from ...validation import POSITIVE, STEPS, Range, check
+from ...validation import AXIAL_STRAIN, POSITIVE, STEPS, check
 from .errors import MaterialPointError
 from .local_solver import S_EPS_P, S_EPV_OFFSET, S_STRAIN, STATE_SIZE
 
@@ -168,7 +168,7 @@ def compression_point_ratio(pt):
 def _check_test(confining, axial_strain, n_steps, n_consolidation, dt):
     """InputError (a ValueError) naming the argument, before any kernel runs."""
     check("confining pressure", confining, POSITIVE)
-    check("axial_strain", axial_strain, Range(0.0, 0.5, low_open=True, high_open=True))
+    check("axial_strain", axial_strain, AXIAL_STRAIN)
     check("n_steps", n_steps, STEPS)
     check("n_consolidation", n_consolidation, STEPS)
     check("dt", dt, POSITIVE)

@@ -175,3 +175,10 @@ class Parser(argparse.ArgumentParser):
     def refuse(self, error):
         """An InputError or ValueError found after parsing, still before any work."""
         self.error(" ".join(str(error).split()) or type(error).__name__)
+
+    def given_options(self, argv=None):
+        """The dests of the options given explicitly in argv (default sys.argv[1:]), so a
+        value read from a file can be overridden only by what the user typed."""
+        argv = sys.argv[1:] if argv is None else list(argv)
+        typed = {tok.split("=", 1)[0] for tok in argv if tok.startswith("--")}
+        return {a.dest for a in self._actions if typed & set(a.option_strings)}

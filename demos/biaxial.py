@@ -73,28 +73,43 @@ g.add_argument("--weak-size", type=number(NON_NEGATIVE), default=5e-3,
                help="side of the weakened square at the lower left corner [m], 0: none (default %(default)g)")
 g.add_argument("--weak-factor", type=number(FRACTION), default=0.8,
                help="beta0 and beta* of the weakened square relative to the rest, in (0, 1] (default %(default)g)")
+g.add_argument("--parameters", metavar="FILE", default=None,
+               help="JSON Ehlers parameter file (identified_parameters.json of demos/identify.py); the material "
+                    "options typed on the command line override its values")
 g.add_argument("--write-every", type=number(COUNT), default=5, help="XDMF every N steps and at the end (default %(default)s)")
 
 
-def biaxial_settings(args):
+def material_values(args):
+    """Ehlers overrides: those of --parameters FILE, then the material options typed."""
     e = args.elasticity
+    options = dict(mu=e.mu, lmbda=e.lmbda, mu_c=e.mu_c, l_c=e.l_c, k_sigma=args.k_sigma, k_mu=args.k_mu)
+    if not args.parameters:
+        return options
+    from cosserat_fenicsx.materials.ehlers.parameters import read_parameter_file
+    given = parser.given_options()
+    values = read_parameter_file(args.parameters)
+    values.update({k: v for k, v in options.items() if k in given})   # option dests = parameter names
+    return values
+
+
+def biaxial_settings(args):
     return BiaxialSettings(
         width=args.width, height=args.height, confining=args.confining, axial_strain=args.axial_strain,
         consolidation_steps=args.consolidation_steps, steps=args.steps, cell_size=args.cell_size,
         cell_type=args.cell_type, micropolar=not args.cauchy, weak_size=args.weak_size,
         weak_beta_factor=args.weak_factor, eta=args.eta, degree_u=args.degree_u, degree_phi=args.degree_phi,
-        material=dict(mu=e.mu, lmbda=e.lmbda, mu_c=e.mu_c, l_c=e.l_c, k_sigma=args.k_sigma, k_mu=args.k_mu))
+        material=material_values(args))
 
 
 args = cli.parse(parser, check=lambda args: biaxial_settings(args).check())
 comm = MPI.COMM_WORLD
 guard = RunGuard(comm, os.path.join(args.out, "summary.json"), label="biaxial")
 classical = args.cauchy
-e = args.elasticity
 try:
     test = BiaxialTest(comm, biaxial_settings(args))
 except RuntimeError as error:      # e.g. the consolidation of the material point (MaterialPointError)
     guard.stop(f"consolidation: {error}")
+used = test.material.parameters     # what runs (defaults, --parameters FILE, typed options)
 print0(comm, f"biaxial: {'classical' if classical else 'micropolar'} {test.material!r}, "
              f"{comm.allreduce(len(test.points))} Gauss points, {test.n_weak_cells} weakened cells, "
              f"{comm.size} rank(s)")
@@ -161,8 +176,8 @@ summary = {
     "steps": len(rows), "cut_backs": int(rows[-1]["cuts"]) if rows else 0,
     "completed": not stopped, "stopped": stopped, "reason": stopped,
     "wall_time": wall, "kernel_time_rank0": test.zoned.kernel_time, "ranks": comm.size,
-    "classical": classical, "l_c": e.l_c, "mu_c": e.mu_c if not classical else 0.0, "k_sigma": args.k_sigma,
-    "k_mu": args.k_mu, "eta": args.eta, "cell_size": args.cell_size, "width": args.width,
+    "classical": classical, "l_c": used.l_c, "mu_c": used.mu_c if not classical else 0.0,
+    "k_sigma": used.k_sigma, "k_mu": used.k_mu, "parameters_file": args.parameters, "eta": args.eta, "cell_size": args.cell_size, "width": args.width,
     "height": args.height, "confining": args.confining, "weak_size": args.weak_size,
     "weak_factor": args.weak_factor}
 guard.finish(summary)
@@ -190,7 +205,7 @@ if comm.rank == 0:
         ax[2].plot(d * 1e3, values, ".", ms=1, color="0.5", label="|eps| at Gauss points")
         ax[2].plot(d[order] * 1e3, bell(points[order], r), "r-", label=f"eq 4.22: H = {band.thickness * 1e3:.2f} mm")
         ax[2].set_xlabel("distance from band axis d [mm]"); ax[2].set_ylabel("|eps|"); ax[2].legend()
-    kind = "classical" if classical else f"micropolar l_c = {e.l_c * 1e3:g} mm"
+    kind = "classical" if classical else f"micropolar l_c = {used.l_c * 1e3:g} mm"
     fig.suptitle(f"biaxial test, {kind}, h = {args.cell_size * 1e3:g} mm"
                  + (f"; band {band.inclination_deg:.1f} deg" if band else ""))
     fig.tight_layout(); fig.savefig(os.path.join(args.out, "biaxial.png"), dpi=120)

@@ -211,14 +211,38 @@ def _run_test(pt, recs, load, stop_on_failure):
     return h
 
 
-def hydrostatic_test(material, p_max=1.0e6, n_steps=200, dt=1.0, stop_on_failure=False, on_record=None):
+def _new_point(material, point):
+    """The point a test drives: a fresh MaterialPoint, or `point` (e.g. a subclass that
+    carries parameter sensitivities along the path) when given, which must be fresh."""
+    if point is None:
+        return MaterialPoint(material)
+    if point.material is not material or point.newton_residuals:
+        raise ValueError("material-point test: `point` must be a fresh point of the same material")
+    return point
+
+
+def hydrostatic_test(material, p_max=1.0e6, n_steps=200, dt=1.0, stop_on_failure=False, on_record=None,
+                     point=None):
     """Hydrostatic compression to mean stress -p_max (A.1): sig11 = sig22 = sig33 = -p.
-    (stop_on_failure: _run_test; on_record(record): called as each step's record is made.)"""
+    (stop_on_failure: _run_test; on_record(record): called as each step's record is made;
+    point: the MaterialPoint to drive, see _new_point.)"""
     _check_test(p_max, 0.1, n_steps, 1, dt)
-    pt = MaterialPoint(material)
+    pt = _new_point(material, point)
     recs = _Records(on_record)
     return _run_test(pt, recs, lambda: consolidate(pt, -p_max, n_steps=n_steps, dt=dt, records=recs),
                      stop_on_failure)
+
+
+def isotropic_plane_strain_test(material, p_max=1.0e6, n_steps=200, dt=1.0, stop_on_failure=False,
+                                on_record=None, point=None):
+    """Isotropic compression in plane strain: sig11 = sig22 = -p, eps33 = 0 (sig33 from the
+    model), p increased to p_max.  The 2D counterpart of the hydrostatic test, as a periodic
+    disc cell runs it (its 'volumetric' strain is eps11 + eps22, the area change)."""
+    _check_test(p_max, 0.1, n_steps, 1, dt)
+    pt = _new_point(material, point)
+    recs = _Records(on_record)
+    return _run_test(pt, recs, lambda: consolidate(pt, -p_max, n_steps=n_steps, plane_strain=True, dt=dt,
+                                                   records=recs), stop_on_failure)
 
 
 def _compression(pt, recs, mask, lateral, confining, axial_strain, n_steps, dt):
@@ -236,12 +260,12 @@ def _compression(pt, recs, mask, lateral, confining, axial_strain, n_steps, dt):
 
 
 def triaxial_test(material, confining=100e3, axial_strain=0.15, n_steps=600, n_consolidation=40, dt=1.0,
-                  stop_on_failure=False, on_record=None):
+                  stop_on_failure=False, on_record=None, point=None):
     """Triaxial compression (A.1): isotropic consolidation to -p, then eps11 decreased by
     ``axial_strain`` at constant lateral stress sig22 = sig33 = -p (eps22 = eps33 free).
     Axial and volumetric strains are counted from the start of the deviatoric phase."""
     _check_test(confining, axial_strain, n_steps, n_consolidation, dt)
-    pt = MaterialPoint(material)
+    pt = _new_point(material, point)
     recs = _Records(on_record)
 
     def load():
@@ -252,11 +276,11 @@ def triaxial_test(material, confining=100e3, axial_strain=0.15, n_steps=600, n_c
 
 
 def biaxial_test(material, confining=100e3, axial_strain=0.15, n_steps=600, n_consolidation=40, dt=1.0,
-                 stop_on_failure=False, on_record=None):
+                 stop_on_failure=False, on_record=None, point=None):
     """Homogeneous plane-strain biaxial test (A.2): consolidation sig11 = sig22 = -p with
     eps33 = 0, then eps11 decreased at sig22 = -p, eps33 = 0 (sig33 from the model)."""
     _check_test(confining, axial_strain, n_steps, n_consolidation, dt)
-    pt = MaterialPoint(material)
+    pt = _new_point(material, point)
     recs = _Records(on_record)
 
     def load():

@@ -243,3 +243,44 @@ class EhlersParameters:
 def hostun(**overrides) -> EhlersParameters:
     """Hostun sand (Tables 6.1, 6.4 under reading H1) with micropolar defaults of spec 6."""
     return EhlersParameters.from_kwargs(**overrides)
+
+
+#: fields that are numerics or switches, not material data: a parameter file leaves them out
+#: (eta, sigma_ref and r regularise, footnote to 3.32; the demos choose them)
+NUMERICAL_FIELDS = ("eta", "sigma_ref", "r", "micropolar", "tol", "max_iter", "max_substep_levels")
+
+
+def material_values(parameters: EhlersParameters) -> dict:
+    """The material data of a parameter set (SI), as a parameter file holds them."""
+    return {k: v for k, v in parameters.as_dict().items() if k not in NUMERICAL_FIELDS}
+
+
+def write_parameter_file(path, parameters: EhlersParameters, note=""):
+    """JSON parameter file (what demos/identify.py writes, and --parameters of the
+    material-point and biaxial demos reads): {"parameters": {name: value (SI)}, "note": ...}."""
+    import json
+    with open(path, "w") as f:
+        json.dump(dict(parameters=material_values(parameters), units="SI (Pa, m)", note=note), f, indent=1)
+
+
+def read_parameter_file(path) -> dict:
+    """The {name: value} of a parameter file, checked (unknown names, non-numbers, a set that
+    EhlersParameters refuses): ValueError naming the file, before any model runs."""
+    import json
+    try:
+        with open(path) as f:
+            doc = json.load(f)
+    except (OSError, json.JSONDecodeError) as error:
+        raise ValueError(f"parameter file {path!r}: {error}") from None
+    values = doc.get("parameters", doc) if isinstance(doc, dict) else None
+    if not isinstance(values, dict):
+        raise ValueError(f"parameter file {path!r}: expected a JSON object of parameter values")
+    allowed = {f.name for f in dataclasses.fields(EhlersParameters)} - set(NUMERICAL_FIELDS)
+    unknown = sorted(set(values) - allowed)
+    if unknown:
+        raise ValueError(f"parameter file {path!r}: unknown parameter(s) {unknown}")
+    try:
+        EhlersParameters(**values)
+    except (TypeError, ValueError) as error:
+        raise ValueError(f"parameter file {path!r}: {error}") from None
+    return dict(values)

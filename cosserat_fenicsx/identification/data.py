@@ -1,0 +1,188 @@
+"""Measured (or virtual) test data for an identification: reading and checking.
+
+One CSV file per test, in the material-point driver's format (demos/material_point.py
+history.csv): SI units, tension positive, strains counted from the start of the
+deviatoric phase.
+
+* triaxial / biaxial: columns ``axial_strain``, ``axial_stress``, ``volumetric_strain``
+  (one of the two measured columns may be missing: that quantity is then not fitted);
+* hydrostatic / isotropic_plane_strain: ``pressure`` [Pa, > 0] (or ``mean_stress``, whose
+  negative is the pressure) and ``volumetric_strain``.
+
+Optional columns ``<quantity>_std`` give the scatter sigma_n of each point over repeated
+tests (thesis eq. 4.26), used by the error analysis; a test can instead be given one
+scatter per quantity (Table 6.3 lists mean scatters per test).  Every check here runs
+before any model evaluation (bad input gets a one-line error naming file and column).
+"""
+
+from __future__ import annotations
+
+import csv
+import dataclasses
+import math
+import os
+
+import numpy as np
+
+from ..validation import InputError
+from .virtual_tests import KINDS, VirtualTest
+
+#: Table 6.2 of the thesis: normalisation factors of (6.3) for the Hostun tests [Pa, -]
+TABLE_6_2 = {("triaxial", 100e3): dict(axial_stress=500e3, volumetric_strain=0.1),
+             ("triaxial", 300e3): dict(axial_stress=1500e3, volumetric_strain=0.07),
+             ("triaxial", 600e3): dict(axial_stress=2500e3, volumetric_strain=0.03),
+             ("hydrostatic", None): dict(volumetric_strain=0.017),
+             ("biaxial", 100e3): dict(axial_stress=650e3)}
+
+
+@dataclasses.dataclass
+class TestData:
+    """The data of one test: abscissa x (axial strain or pressure), measured quantities y[q],
+    optional scatter std[q] (per point) and the normalisation phi_0 of each quantity
+    (eq. 4.17: weight 1 / (phi_0^2 N))."""
+
+    test: VirtualTest
+    x: np.ndarray
+    y: dict
+    std: dict
+    normalisation: dict
+    source: str = ""
+
+    @property
+    def label(self):
+        return self.test.label
+
+    @property
+    def n_points(self):
+        return sum(len(v) for v in self.y.values())
+
+
+def default_normalisation(kind, confining, quantity, values):
+    """phi_0 of (4.17): Table 6.2 for the thesis' Hostun tests, else the largest magnitude of
+    the data (the Table 6.2 values are the magnitudes of the measured curves)."""
+    key = (kind, None if kind == "hydrostatic" else confining)
+    for (k, p), table in TABLE_6_2.items():
+        if k == kind and (p is None or (key[1] is not None and math.isclose(p, key[1], rel_tol=1e-6))):
+            if quantity in table:
+                return table[quantity]
+    m = float(np.max(np.abs(values)))
+    if not m > 0:
+        raise InputError(f"{kind} test: all {quantity} data are zero; give its normalisation explicitly")
+    return m
+
+
+def _read_columns(path):
+    if not os.path.isfile(path):
+        raise InputError(f"data file {path!r} does not exist")
+    with open(path, newline="") as f:
+        rows = [r for r in csv.reader(f) if r and not r[0].lstrip().startswith("#")]
+    if len(rows) < 2:
+        raise InputError(f"data file {path!r}: a header line and at least one row are needed")
+    header = [h.strip() for h in rows[0]]
+    cols = {h: [] for h in header}
+    for i, row in enumerate(rows[1:], start=2):
+        if len(row) != len(header):
+            raise InputError(f"data file {path!r} line {i}: {len(row)} values for {len(header)} columns")
+        for h, v in zip(header, row):
+            try:
+                cols[h].append(float(v))
+            except ValueError:
+                raise InputError(f"data file {path!r} line {i}, column {h!r}: {v!r} is not a number") from None
+    return {h: np.array(v) for h, v in cols.items()}
+
+
+def read_test(path, kind, confining, quantities=None, normalisation=None, scatter=None,
+              n_steps=None, n_consolidation=40):
+    """TestData of one CSV file.  kind, confining [Pa]: the test (confining: cell pressure, or
+    the final pressure of an isotropic test -- by default the largest pressure in the file);
+    quantities: the measured quantities to fit (default: all of the kind's present in the
+    file); normalisation: {quantity: phi_0}; scatter: {quantity: sigma} one value per
+    quantity when the file has no <quantity>_std column; n_steps: load steps of the model
+    run (default: enough for 1e-3 axial strain or 1/100 of the pressure per step)."""
+    if kind not in KINDS:
+        raise InputError(f"data file {path!r}: test kind {kind!r} is not one of {sorted(KINDS)}")
+    cols = _read_columns(path)
+    abscissa, measured = KINDS[kind]
+    if abscissa == "pressure" and "pressure" not in cols and "mean_stress" in cols:
+        cols["pressure"] = -cols["mean_stress"]
+    if abscissa not in cols:
+        raise InputError(f"data file {path!r} ({kind}): column {abscissa!r} missing (columns: {sorted(cols)})")
+    wanted = list(quantities) if quantities else [q for q in measured if q in cols]
+    for q in wanted:
+        if q not in measured:
+            raise InputError(f"data file {path!r}: a {kind} test measures {list(measured)}, not {q!r}")
+        if q not in cols:
+            raise InputError(f"data file {path!r} ({kind}): column {q!r} missing (columns: {sorted(cols)})")
+    if not wanted:
+        raise InputError(f"data file {path!r} ({kind}): none of the columns {list(measured)} is present")
+    x = cols[abscissa]
+    for name in [abscissa] + wanted + [q + "_std" for q in wanted if q + "_std" in cols]:
+        bad = ~np.isfinite(cols[name])
+        if bad.any():
+            raise InputError(f"data file {path!r}: column {name!r} has {int(bad.sum())} non-finite value(s) "
+                             f"(first at data row {int(np.argmax(bad)) + 1})")
+    if abscissa == "pressure":
+        if np.any(x < 0):
+            raise InputError(f"data file {path!r}: pressure must be >= 0 (compression positive in this column)")
+        top = float(x.max()) if confining is None else float(confining)
+        if not top > 0:
+            raise InputError(f"data file {path!r}: the pressures are all zero")
+        if x.max() > top * (1 + 1e-9):
+            raise InputError(f"data file {path!r}: pressures up to {x.max():g} Pa exceed the test's {top:g} Pa")
+        test = VirtualTest(kind, top, n_steps=n_steps or 100)
+    else:
+        if confining is None:
+            raise InputError(f"data file {path!r}: a {kind} test needs its confining pressure")
+        if np.any(x > 1e-12):
+            raise InputError(f"data file {path!r}: axial strains must be <= 0 (compression, tension positive)")
+        reach = float(-x.min())
+        if not reach > 0:
+            raise InputError(f"data file {path!r}: the axial strain never leaves 0")
+        steps = n_steps or max(20, int(math.ceil(reach / 1e-3)))
+        test = VirtualTest(kind, float(confining), axial_strain=reach, n_steps=steps, n_consolidation=n_consolidation)
+    y = {q: cols[q] for q in wanted}
+    std = {}
+    for q in wanted:
+        if q + "_std" in cols:
+            std[q] = cols[q + "_std"]
+        elif scatter and q in scatter:
+            std[q] = np.full(len(x), float(scatter[q]))
+        if q in std and not np.all(std[q] > 0):
+            raise InputError(f"data file {path!r}: scatter of {q!r} must be > 0 at every point")
+    norm = {}
+    for q in wanted:
+        v = (normalisation or {}).get(q)
+        norm[q] = float(v) if v is not None else default_normalisation(kind, test.confining, q, y[q])
+        if not (math.isfinite(norm[q]) and norm[q] > 0):
+            raise InputError(f"data file {path!r}: normalisation of {q!r} must be finite and > 0, got {v!r}")
+    return TestData(test=test, x=x, y=y, std=std, normalisation=norm, source=path)
+
+
+def from_history(test, h, quantities=None, every=1, noise=None, rng=None):
+    """Virtual data (re-identification, thesis 6.2.3) from a model history h of `test`:
+    every `every`-th record; noise {quantity: sigma} adds Gaussian noise and records sigma as
+    the scatter.  The first record of a deviatoric test (axial strain 0) is left out."""
+    qs = list(quantities or test.quantities)
+    x = np.asarray(h[test.abscissa])
+    idx = np.arange(1, len(x), every) if test.abscissa == "axial_strain" else np.arange(0, len(x), every)
+    rng = rng or np.random.default_rng(0)
+    y, std = {}, {}
+    for q in qs:
+        v = np.asarray(h[q])[idx].copy()
+        if noise and q in noise:
+            v += rng.normal(0.0, noise[q], size=v.shape)
+            std[q] = np.full(len(idx), float(noise[q]))
+        y[q] = v
+    norm = {q: default_normalisation(test.kind, test.confining, q, np.asarray(h[q])[idx]) for q in qs}
+    return TestData(test=test, x=x[idx].copy(), y=y, std=std, normalisation=norm, source="virtual")
+
+
+def write_test(data, path):
+    """CSV in the format read_test reads (with <quantity>_std columns when known)."""
+    cols = [data.test.abscissa] + list(data.y) + [q + "_std" for q in data.y if q in data.std]
+    arrays = [data.x] + [data.y[q] for q in data.y] + [data.std[q] for q in data.y if q in data.std]
+    with open(path, "w", newline="") as f:
+        w = csv.writer(f)
+        w.writerow(cols)
+        for row in zip(*arrays):
+            w.writerow([f"{v:.12g}" for v in row])

@@ -1,0 +1,181 @@
+"""Identification (issue 11): error analysis against SciPy and statistics, data checks,
+the objective's bookkeeping, and bad input refused before any model run."""
+import json
+import os
+
+import numpy as np
+import pytest
+
+from cosserat_fenicsx.identification import data as D
+from cosserat_fenicsx.identification.error_analysis import analyse
+from cosserat_fenicsx.identification.objective import Objective, _interp_matrix
+from cosserat_fenicsx.identification.parameter_set import PLASTIC_HOMOGENEOUS, ParameterSet
+from cosserat_fenicsx.identification.virtual_tests import VirtualTest
+from cosserat_fenicsx.materials.ehlers.parameters import EhlersParameters
+from cosserat_fenicsx.validation import InputError
+
+
+# ---------------------------------------------------------------- error analysis (4.27)-(4.31)
+def _exp_model(x, a, b, c):
+    return a * np.exp(-b * x) + c
+
+
+def test_covariance_equals_scipy_curve_fit():
+    """K of (4.28) with s0 of (4.27) is the covariance SciPy's curve_fit estimates
+    (absolute_sigma=False), for a nonlinear model with unequal weights."""
+    from scipy.optimize import curve_fit
+    rng = np.random.default_rng(3)
+    x = np.linspace(0, 4, 40)
+    sig = 0.05 * (1 + x)
+    y = _exp_model(x, 2.0, 1.3, 0.5) + rng.normal(0, sig)
+    p, pcov = curve_fit(_exp_model, x, y, p0=(1, 1, 0), sigma=sig, absolute_sigma=False)
+    a, b, c = p
+    J = np.column_stack([np.exp(-b * x), -a * x * np.exp(-b * x), np.ones_like(x)])
+    ea = analyse(["a", "b", "c"], p, J, _exp_model(x, *p) - y, weights=1 / sig ** 2)
+    # curve_fit's Jacobian is a finite-difference one (MINPACK), good to ~1e-5
+    assert np.allclose(ea.covariance, pcov, rtol=2e-4, atol=0)
+    corr = pcov / np.sqrt(np.outer(np.diag(pcov), np.diag(pcov)))
+    assert np.allclose(ea.correlation, corr, atol=1e-4)
+    # known scatter: s0 ~ 1 when the scatter is right, and K = s0^2 (J^T W J)^-1
+    eb = analyse(["a", "b", "c"], p, J, _exp_model(x, *p) - y, sigma=sig)
+    assert 0.6 < eb.s0 < 1.4
+    p2, pcov2 = curve_fit(_exp_model, x, y, p0=(1, 1, 0), sigma=sig, absolute_sigma=True)
+    assert np.allclose(eb.covariance / eb.s0 ** 2, pcov2, rtol=2e-4)
+
+
+def test_intervals_have_their_nominal_coverage():
+    """Over repeated noise draws of a linear model, the marginal t intervals hold the true
+    parameter at 95 %, and the joint region of (4.30) holds the true vector at 95 %."""
+    rng = np.random.default_rng(11)
+    x = np.linspace(0, 1, 12)
+    J = np.column_stack([np.ones_like(x), x, x ** 2])
+    truth = np.array([1.0, -2.0, 0.5])
+    n, marginal, joint = 3000, 0, 0
+    for _ in range(n):
+        y = J @ truth + rng.normal(0, 0.1, x.size)
+        s = np.linalg.lstsq(J, y, rcond=None)[0]
+        ea = analyse(["a", "b", "c"], s, J, J @ s - y)
+        lo, hi = ea.intervals(joint=False)
+        marginal += int(lo[1] <= truth[1] <= hi[1])
+        joint += int(ea.inside_joint_region(truth))
+    # binomial standard error at 3000 draws: 0.4 %
+    assert abs(marginal / n - 0.95) < 0.015
+    assert abs(joint / n - 0.95) < 0.015
+
+
+def test_correlated_parameters_are_flagged():
+    """Two parameters entering only as a product (like mu_c l_c^2 of the couple stress):
+    correlation -1 up to round-off, or a rank-deficient Fisher matrix."""
+    x = np.linspace(0.1, 1, 20)
+    a, b = 2.0, 3.0
+    J = np.column_stack([b * x, a * x])       # d(a b x)/da, d(a b x)/db
+    ea = analyse(["a", "b"], [a, b], J + 1e-9 * np.random.default_rng(0).normal(size=J.shape),
+                 np.random.default_rng(1).normal(0, 0.01, x.size))
+    assert ea.rank_deficient or abs(ea.correlation[0, 1]) > 0.999
+
+
+# -------------------------------------------------------------------- data and objective
+def _write(path, header, rows):
+    with open(path, "w") as f:
+        f.write(",".join(header) + "\n")
+        for r in rows:
+            f.write(",".join(str(v) for v in r) + "\n")
+    return str(path)
+
+
+def test_data_files_are_checked(tmp_path):
+    ok = _write(tmp_path / "ok.csv", ["axial_strain", "axial_stress", "volumetric_strain"],
+                [(-0.01, -3e5, -0.001), (-0.02, -4e5, 0.0)])
+    d = D.read_test(ok, "triaxial", 100e3)
+    assert d.test.axial_strain == pytest.approx(0.02) and d.normalisation["axial_stress"] == 500e3
+    cases = {
+        "missing column": (["axial_strain", "volumetric_strain"], [(-0.01, 0.0)], dict(quantities=["axial_stress"]),
+                           "column 'axial_stress' missing"),
+        "nan": (["axial_strain", "axial_stress"], [(-0.01, "nan"), (-0.02, -1e5)], {}, "non-finite"),
+        "text": (["axial_strain", "axial_stress"], [(-0.01, "abc")], {}, "is not a number"),
+        "tension": (["axial_strain", "axial_stress"], [(0.01, -1e5)], {}, "must be <= 0"),
+        "ragged": (["axial_strain", "axial_stress"], [(-0.01,)], {}, "values for 2 columns"),
+    }
+    for name, (header, rows, kw, message) in cases.items():
+        path = _write(tmp_path / f"{name.replace(' ', '_')}.csv", header, rows)
+        with pytest.raises(InputError, match=message):
+            D.read_test(path, "triaxial", 100e3, **kw)
+    with pytest.raises(InputError, match="does not exist"):
+        D.read_test(str(tmp_path / "nothere.csv"), "triaxial", 100e3)
+    with pytest.raises(InputError, match="not one of"):
+        D.read_test(ok, "oedometer", 100e3)
+    hyd = _write(tmp_path / "hyd.csv", ["mean_stress", "volumetric_strain"], [(-1e5, -0.001), (-2e5, -0.002)])
+    dh = D.read_test(hyd, "hydrostatic", None)
+    assert dh.test.confining == pytest.approx(2e5) and np.allclose(dh.x, [1e5, 2e5])
+
+
+def test_parameter_choice_is_checked():
+    base = EhlersParameters(micropolar=False)
+    ps = ParameterSet(("plastic",), base)
+    assert ps.names == PLASTIC_HOMOGENEOUS and len(ps.names) == 14
+    with pytest.raises(InputError, match="not an identifiable"):
+        ParameterSet(("psi3",), base)
+    with pytest.raises(InputError, match="outside its bounds"):
+        ParameterSet(("psi1",), base, {"psi1": (2.0, 3.0)})
+    with pytest.raises(InputError, match="empty"):
+        ParameterSet(("psi1",), base, {"psi1": (2.0, 1.0)})
+    with pytest.raises(InputError, match="not identified"):
+        ParameterSet(("psi1",), base, {"psi2": (0.0, 1.0)})
+    # a constraint of (4.2) the start violates (the compression point needs n_max > n0)
+    tight = ParameterSet(("n_max",), base)
+    assert tight.constraint_values(tight.start)["compression point exists: n_max - n0 > 0 (2.70)"] > 0
+    assert tight.constraint_values([0.5])["compression point exists: n_max - n0 > 0 (2.70)"] < 0
+
+
+def test_interpolation_matrix_is_exact_on_lines():
+    xm = np.linspace(0.0, -0.1, 11)          # decreasing, as axial strains are
+    xd = np.array([-0.003, -0.05, -0.0999, 0.0])
+    P = _interp_matrix(xm, xd)
+    assert np.allclose(P @ (3 * xm + 1), 3 * xd + 1)
+    assert np.allclose(P.sum(axis=1), 1.0)
+
+
+def test_objective_terms_and_weights():
+    """f = sum of the (6.3) terms, each normalised by phi_0^2 N (4.17): a model that misses
+    every data point by exactly phi_0 gives 1 per term; the reference set gives 0."""
+    from cosserat_fenicsx.materials.ehlers import EhlersMaterial
+    ref = EhlersParameters(micropolar=False)
+    test = VirtualTest("triaxial", 300e3, n_steps=30, axial_strain=0.06)
+    good = D.from_history(test, test.run(EhlersMaterial(**ref.as_dict())), every=2)
+    shifted = D.TestData(test=test, x=good.x, y={q: v + good.normalisation[q] for q, v in good.y.items()},
+                         std={}, normalisation=good.normalisation)
+    obj = Objective([good, shifted], ParameterSet(("psi1",), ref))
+    e = obj.evaluate([ref.psi1], jacobian=False)
+    # (both data sets carry the same label, so the terms are checked block by block)
+    k = 0
+    per = []
+    for label, q, n in obj.blocks:
+        r = e.residual[k:k + n]
+        per.append(float(r @ r))
+        k += n
+    assert np.allclose(per[:2], 0.0, atol=1e-16) and np.allclose(per[2:], 1.0, rtol=1e-12)
+    assert np.isclose(sum(per), e.f)
+
+
+# ---------------------------------------------------------------------------- the demo
+def test_identify_demo_refuses_bad_input(tmp_path):
+    from conftest import run_demo
+    good = _write(tmp_path / "t.csv", ["axial_strain", "axial_stress", "volumetric_strain"],
+                  [(-0.01, -3e5, -0.001), (-0.02, -4e5, 0.0)])
+    nan = _write(tmp_path / "nan.csv", ["axial_strain", "axial_stress"], [(-0.01, "nan")])
+    start = tmp_path / "start.json"
+    start.write_text(json.dumps({"parameters": {"n_max": 0.5}}))
+    cases = [
+        (["--data", f"triaxial:100e3:{nan}"], "non-finite"),
+        (["--data", f"triaxial:100e3:{good}", "--params", "psi7"], "not an identifiable"),
+        (["--data", f"triaxial:100e3:{good}", "--params", "psi1", "--bounds", str(tmp_path / "b.json")], "bounds"),
+        (["--data", f"triaxial::{good}"], "needs its confining pressure"),
+        (["--data", f"triaxial:100e3:{good}", "--start", str(start)], "n0"),
+    ]
+    (tmp_path / "b.json").write_text(json.dumps({"psi1": [3.0, 4.0]}))
+    for argv, message in cases:
+        out = tmp_path / "out"
+        proc = run_demo("identify", *argv, "--out", out, check=False)
+        assert proc.returncode == 2, (argv, proc.stdout, proc.stderr)
+        assert message in proc.stderr, (argv, proc.stderr)
+        assert not os.path.exists(out), "refused before any work: no output directory"

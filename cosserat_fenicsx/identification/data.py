@@ -92,13 +92,15 @@ def _read_columns(path):
 
 
 def read_test(path, kind, confining, quantities=None, normalisation=None, scatter=None,
-              n_steps=None, n_consolidation=40):
+              n_steps=None, n_consolidation=40, start_pressure=0.0):
     """TestData of one CSV file.  kind, confining [Pa]: the test (confining: cell pressure, or
     the final pressure of an isotropic test -- by default the largest pressure in the file);
     quantities: the measured quantities to fit (default: all of the kind's present in the
     file); normalisation: {quantity: phi_0}; scatter: {quantity: sigma} one value per
     quantity when the file has no <quantity>_std column; n_steps: load steps of the model
-    run (default: enough for 1e-3 axial strain or 1/100 of the pressure per step)."""
+    run (default: enough for 1e-3 axial strain or 1/100 of the pressure per step);
+    start_pressure (isotropic kinds): the pressure the test starts from, its strains counted
+    from there (e.g. a DEM cell prepared at p0)."""
     if kind not in KINDS:
         raise InputError(f"data file {path!r}: test kind {kind!r} is not one of {sorted(KINDS)}")
     cols = _read_columns(path)
@@ -129,7 +131,10 @@ def read_test(path, kind, confining, quantities=None, normalisation=None, scatte
             raise InputError(f"data file {path!r}: the pressures are all zero")
         if x.max() > top * (1 + 1e-9):
             raise InputError(f"data file {path!r}: pressures up to {x.max():g} Pa exceed the test's {top:g} Pa")
-        test = VirtualTest(kind, top, n_steps=n_steps or 100)
+        p_start = float(start_pressure or 0.0)
+        if x.min() < p_start * (1 - 1e-9):
+            raise InputError(f"data file {path!r}: pressures below the start pressure {p_start:g} Pa")
+        test = VirtualTest(kind, top, n_steps=n_steps or 100, start_pressure=p_start)
     else:
         if confining is None:
             raise InputError(f"data file {path!r}: a {kind} test needs its confining pressure")

@@ -79,7 +79,7 @@ def _with_origin(test, h, dh, quantities):
     x = np.asarray(h[test.abscissa], dtype=float)
     ys = {q: np.asarray(h[q], dtype=float) for q in quantities}
     ds = {q: (None if dh is None else np.asarray(dh[q], dtype=float)) for q in quantities}
-    if test.abscissa == "pressure":
+    if not test.counts_from_first_record:
         x = np.concatenate([[0.0], x])
         for q in quantities:
             ys[q] = np.concatenate([[0.0], ys[q]])
@@ -131,7 +131,7 @@ def _worker(args):
 class Objective:
     """f(s) of (4.18) over a list of TestData, for the parameters of `parameter_set`."""
 
-    def __init__(self, data, parameter_set: ParameterSet, sensitivity="numerical", processes=1):
+    def __init__(self, data, parameter_set: ParameterSet, sensitivity="semi-analytical", processes=1):
         if not data:
             raise InputError("identification: no test data")
         if sensitivity not in ("numerical", "semi-analytical"):

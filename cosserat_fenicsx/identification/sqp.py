@@ -26,6 +26,9 @@ import numpy as np
 
 from .objective import Objective
 
+#: largest relative parameter change of the first SQP step (see identify)
+FIRST_STEP = 0.1
+
 
 @dataclasses.dataclass
 class IterationRecord:
@@ -88,12 +91,19 @@ def identify(objective: Objective, method="SLSQP", max_iterations=50, ftol=1e-10
                 best["e"] = e
         return cache[key]
 
-    def fun(z):
-        e = evaluate(z)
-        return e.f, e.gradient * pset.scale   # df/dz = df/ds * scale
-
     first = evaluate(z0)
     f_start = first.f
+    # SLSQP's first step is steepest descent with a unit Hessian: -grad f in z.  f is scaled
+    # so that this step changes the parameters by at most FIRST_STEP (10 %) of their scale;
+    # unscaled, a gradient of a few units sent the first trial to the bounds, where the model
+    # fails (beta* = 0) and the failed runs cost 100 evaluations' time.  BFGS learns the
+    # curvature from there.
+    g0 = np.linalg.norm(first.gradient * pset.scale)
+    fscale = min(1.0, FIRST_STEP / g0) if g0 > 0 else 1.0
+
+    def fun(z):
+        e = evaluate(z)
+        return fscale * e.f, fscale * e.gradient * pset.scale   # df/dz = df/ds * scale
     history = []
 
     def record(z, k):
@@ -120,12 +130,12 @@ def identify(objective: Objective, method="SLSQP", max_iterations=50, ftol=1e-10
 
     if method == "SLSQP":
         res = optimize.minimize(fun, z0, jac=True, method="SLSQP", bounds=bounds, constraints=cons,
-                                callback=callback, options=dict(maxiter=max_iterations, ftol=ftol))
+                                callback=callback, options=dict(maxiter=max_iterations, ftol=ftol * fscale))
     elif method == "trust-constr":
         def hess(z):
             e = evaluate(z)
             Jz = e.jacobian * pset.scale
-            return 2.0 * Jz.T @ Jz        # Gauss-Newton (4.13)
+            return fscale * 2.0 * Jz.T @ Jz        # Gauss-Newton (4.13)
         nlc = []
         if cons:
             nlc = [optimize.NonlinearConstraint(cons[0]["fun"], 0.0, np.inf)]

@@ -25,7 +25,7 @@ import dataclasses
 
 import numpy as np
 
-from ..validation import AXIAL_STRAIN, POSITIVE, STEPS, InputError, check
+from ..validation import AXIAL_STRAIN, NON_NEGATIVE, POSITIVE, STEPS, InputError, check
 
 #: kind -> (abscissa, measured quantities)
 KINDS = {
@@ -48,6 +48,7 @@ class VirtualTest:
     axial_strain: float = 0.15
     n_steps: int = 150
     n_consolidation: int = 40
+    start_pressure: float = 0.0
 
     def __post_init__(self):
         if self.kind not in KINDS:
@@ -56,6 +57,10 @@ class VirtualTest:
         check(f"{self.kind} test axial strain", self.axial_strain, AXIAL_STRAIN)
         check(f"{self.kind} test n_steps", self.n_steps, STEPS)
         check(f"{self.kind} test n_consolidation", self.n_consolidation, STEPS)
+        check(f"{self.kind} test start pressure", self.start_pressure, NON_NEGATIVE)
+        if self.start_pressure > 0 and (self.abscissa != "pressure" or not self.start_pressure < self.confining):
+            raise InputError(f"{self.kind} test: a start pressure needs an isotropic test and must be below "
+                             f"its final pressure ({self.start_pressure:g} >= {self.confining:g} Pa?)")
 
     @property
     def abscissa(self):
@@ -64,6 +69,12 @@ class VirtualTest:
     @property
     def quantities(self):
         return KINDS[self.kind][1]
+
+    @property
+    def counts_from_first_record(self):
+        """True when the strains are counted from the state of the first record (deviatoric
+        tests, isotropic ones with a start pressure), False when from the unloaded state."""
+        return self.abscissa == "axial_strain" or self.start_pressure > 0
 
     @property
     def label(self):
@@ -75,18 +86,25 @@ class VirtualTest:
         fresh MaterialPoint (subclass) to drive, e.g. one that carries sensitivities."""
         from ..materials.ehlers import material_point as mp
         common = dict(point=point, on_record=on_record, stop_on_failure=stop_on_failure)
-        if self.kind == "hydrostatic":
-            h = mp.hydrostatic_test(material, self.confining, n_steps=self.n_steps, **common)
-        elif self.kind == "isotropic_plane_strain":
-            h = mp.isotropic_plane_strain_test(material, self.confining, n_steps=self.n_steps, **common)
+        if self.abscissa == "pressure":
+            run = mp.hydrostatic_test if self.kind == "hydrostatic" else mp.isotropic_plane_strain_test
+            h = run(material, self.confining, n_steps=self.n_steps, p_start=self.start_pressure,
+                    n_consolidation=self.n_consolidation, **common)
         else:
             run = mp.triaxial_test if self.kind == "triaxial" else mp.biaxial_test
             h = run(material, self.confining, self.axial_strain, self.n_steps, self.n_consolidation, **common)
-        h["pressure"] = -np.asarray(h["mean_stress"])
+        h["pressure"] = self.pressure(h)
         return h
+
+    def pressure(self, h):
+        """The pressure of the test's records: -tr(sigma)/3, or in plane strain the in-plane
+        -(sig11 + sig22)/2 that a 2D cell reports (sig33 is not measured there)."""
+        if self.kind == "isotropic_plane_strain":
+            return np.asarray(h["in_plane_pressure"])
+        return -np.asarray(h["mean_stress"])
 
     def abscissa_range(self):
         """(lo, hi) of the abscissa the test covers: data outside it cannot be compared."""
         if self.abscissa == "pressure":
-            return 0.0, self.confining
+            return self.start_pressure, self.confining
         return -self.axial_strain, 0.0

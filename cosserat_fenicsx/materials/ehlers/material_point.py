@@ -18,7 +18,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from ...validation import AXIAL_STRAIN, POSITIVE, STEPS, check
+from ...validation import AXIAL_STRAIN, NON_NEGATIVE, POSITIVE, STEPS, InputError, check
 from .errors import MaterialPointError
 from .local_solver import S_EPS_P, S_EPV_OFFSET, S_STRAIN, STATE_SIZE
 
@@ -106,6 +106,7 @@ def _record(pt, out, e_ref):
         volumetric_strain=pt.strain[:3].sum() - e_ref[:3].sum(),
         axial_stress=pt.stress[0],
         mean_stress=pt.stress[:3].mean(),
+        in_plane_pressure=-0.5 * (pt.stress[0] + pt.stress[1]),
         beta=st[7], delta=st[8], epsilon=st[9], gamma=st[10],
         yield_function=st[13], eps_p_vol=st[S_EPS_P:S_EPS_P + 3].sum(),
         newton_iterations=len(pt.newton_residuals[-1]) if pt.newton_residuals else 0))
@@ -118,11 +119,12 @@ def _as_arrays(records, pt=None):
     return h
 
 
-def consolidate(pt, sigma, n_steps=40, plane_strain=False, dt=1.0, records=None):
+def consolidate(pt, sigma, n_steps=40, plane_strain=False, dt=1.0, records=None, e_ref=None):
     """Stress-controlled proportional loading from the current state to diagonal ``sigma``
     (sig11, sig22, sig33) [Pa]; with plane_strain the total eps33 stays 0 instead and
     only sig11, sig22 are prescribed (sig33 follows from the model). Returns the records
-    of the steps (appended to `records` when given, so a caller keeps them on failure)."""
+    of the steps (appended to `records` when given, so a caller keeps them on failure);
+    their strains are counted from e_ref (7,) (default: zero)."""
     sigma = np.broadcast_to(np.asarray(sigma, dtype=float), (3,))
     mask = np.array([True, True, not plane_strain, False, False, False, False])
     s0 = pt.stress.copy()
@@ -133,7 +135,7 @@ def consolidate(pt, sigma, n_steps=40, plane_strain=False, dt=1.0, records=None)
         if plane_strain:
             tgt[2] = 0.0
         pt.advance(mask, tgt, dt)
-        _record(pt, recs, np.zeros(7))
+        _record(pt, recs, np.zeros(7) if e_ref is None else e_ref)
     return recs
 
 
@@ -221,28 +223,49 @@ def _new_point(material, point):
     return point
 
 
+def _isotropic(pt, recs, p_max, n_steps, plane_strain, dt, p_start, n_consolidation):
+    """Isotropic compression to p_max; with p_start > 0 the point is first consolidated to
+    p_start (not recorded) and the records start there, strains counted from that state."""
+    if p_start > 0.0:
+        consolidate(pt, -p_start, n_steps=n_consolidation, plane_strain=plane_strain, dt=dt)
+        e_ref = pt.strain.copy()
+        _record(pt, recs, e_ref)
+        consolidate(pt, -p_max, n_steps=n_steps, plane_strain=plane_strain, dt=dt, records=recs, e_ref=e_ref)
+    else:
+        consolidate(pt, -p_max, n_steps=n_steps, plane_strain=plane_strain, dt=dt, records=recs)
+
+
+def _check_start(p_start, p_max):
+    check("p_start", p_start, NON_NEGATIVE)
+    if not p_start < p_max:
+        raise InputError(f"p_start = {p_start:g} Pa must be below p_max = {p_max:g} Pa")
+
+
 def hydrostatic_test(material, p_max=1.0e6, n_steps=200, dt=1.0, stop_on_failure=False, on_record=None,
-                     point=None):
+                     point=None, p_start=0.0, n_consolidation=40):
     """Hydrostatic compression to mean stress -p_max (A.1): sig11 = sig22 = sig33 = -p.
     (stop_on_failure: _run_test; on_record(record): called as each step's record is made;
-    point: the MaterialPoint to drive, see _new_point.)"""
-    _check_test(p_max, 0.1, n_steps, 1, dt)
+    point: the MaterialPoint to drive, see _new_point; p_start: see _isotropic.)"""
+    _check_test(p_max, 0.1, n_steps, n_consolidation, dt)
+    _check_start(p_start, p_max)
     pt = _new_point(material, point)
     recs = _Records(on_record)
-    return _run_test(pt, recs, lambda: consolidate(pt, -p_max, n_steps=n_steps, dt=dt, records=recs),
+    return _run_test(pt, recs, lambda: _isotropic(pt, recs, p_max, n_steps, False, dt, p_start, n_consolidation),
                      stop_on_failure)
 
 
 def isotropic_plane_strain_test(material, p_max=1.0e6, n_steps=200, dt=1.0, stop_on_failure=False,
-                                on_record=None, point=None):
+                                on_record=None, point=None, p_start=0.0, n_consolidation=40):
     """Isotropic compression in plane strain: sig11 = sig22 = -p, eps33 = 0 (sig33 from the
     model), p increased to p_max.  The 2D counterpart of the hydrostatic test, as a periodic
-    disc cell runs it (its 'volumetric' strain is eps11 + eps22, the area change)."""
-    _check_test(p_max, 0.1, n_steps, 1, dt)
+    disc cell runs it (its pressure is the in-plane one, -(sig11 + sig22)/2, its 'volumetric'
+    strain eps11 + eps22, the area change).  p_start: see _isotropic."""
+    _check_test(p_max, 0.1, n_steps, n_consolidation, dt)
+    _check_start(p_start, p_max)
     pt = _new_point(material, point)
     recs = _Records(on_record)
-    return _run_test(pt, recs, lambda: consolidate(pt, -p_max, n_steps=n_steps, plane_strain=True, dt=dt,
-                                                   records=recs), stop_on_failure)
+    return _run_test(pt, recs, lambda: _isotropic(pt, recs, p_max, n_steps, True, dt, p_start, n_consolidation),
+                     stop_on_failure)
 
 
 def _compression(pt, recs, mask, lateral, confining, axial_strain, n_steps, dt):

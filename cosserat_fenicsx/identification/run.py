@@ -1,0 +1,171 @@
+"""A stepwise identification run and its outputs (thesis 4.3, 6.1; used by demos/identify.py).
+
+Each stage identifies its parameters with those of the earlier stages fixed at their
+identified values; the error analysis (4.5) is made for every stage at its optimum.  The
+iterations go to iterations.csv as they happen; the figures and summary.json at the end.
+"""
+
+from __future__ import annotations
+
+import csv
+import dataclasses
+import os
+import time
+
+import numpy as np
+
+from ..materials.ehlers.parameters import write_parameter_file
+from .error_analysis import analyse, plot_correlation
+from .objective import Objective
+from .parameter_set import ParameterSet
+from .sqp import identify
+
+
+@dataclasses.dataclass
+class StageResult:
+    names: tuple
+    identification: object      # IdentificationResult
+    analysis: object            # ErrorAnalysis or None (rank-deficient / too few data)
+    objective: Objective
+    start_evaluation: object
+
+
+def run_stages(data, stages, start, bounds, args, log=print, out=None):
+    """Run the stages; returns (final EhlersParameters, [StageResult])."""
+    current = start
+    results = []
+    rows = None
+    if out is not None:
+        f = open(os.path.join(out, "iterations.csv"), "w", newline="")
+        rows = csv.writer(f)
+        rows.writerow(["stage", "iteration", "objective", "projected_gradient", "wall_time", "values"])
+    try:
+        for k, stage in enumerate(stages, start=1):
+            pset = ParameterSet(stage, current, {n: b for n, b in bounds.items()
+                                                 if n in ParameterSet(stage, current).names})
+            objective = Objective(data, pset, sensitivity=args.sensitivity, processes=args.processes)
+            log(f"stage {k}: {len(pset.names)} parameters {', '.join(pset.names)} "
+                f"({args.method}, {args.sensitivity} sensitivities, {objective.n_data} data points)")
+
+            def progress(rec, k=k):
+                vals = " ".join(f"{n}={v:.5g}" for n, v in rec.values.items())
+                log(f"  it {rec.iteration:3d}  f = {rec.f:.6e}  |proj grad| = {rec.projected_gradient:.3e}  "
+                    f"{rec.wall_time:6.1f} s  {vals}")
+                if rows is not None:
+                    rows.writerow([k, rec.iteration, f"{rec.f:.10g}", f"{rec.projected_gradient:.6g}",
+                                   f"{rec.wall_time:.3f}", " ".join(f"{n}={v:.10g}" for n, v in rec.values.items())])
+                    f.flush()
+
+            start_eval = objective.evaluate(pset.start, jacobian=False)
+            try:
+                res = identify(objective, method=args.method, max_iterations=args.max_iterations, progress=progress)
+            finally:
+                objective.close()
+            analysis = None
+            best = res.best
+            try:
+                analysis = analyse(pset.names, res.values, best.raw_jacobian, best.raw_residual,
+                                   sigma=objective.scatter, weights=objective.weights,
+                                   alpha=1.0 - args.confidence)
+            except ValueError as error:
+                log(f"  error analysis not possible: {error}")
+            results.append(StageResult(pset.names, res, analysis, objective, start_eval))
+            current = pset.parameters(res.values)
+            if out is not None:   # the best point so far, written as soon as it is known
+                write_parameter_file(os.path.join(out, "identified_parameters.json"), current,
+                                     note=f"demos/identify.py, after stage {k} of {len(stages)}")
+            log(f"stage {k}: {'converged' if res.converged else 'NOT converged'} ({res.message}); "
+                f"f {res.f_start:.4g} -> {res.f:.4g} in {res.iterations} iterations, {res.evaluations} "
+                f"evaluations, {res.wall_time:.1f} s")
+            if analysis is not None:
+                log(f"  s0 = {analysis.s0:.3g} (4.27), condition number {analysis.condition_number:.3g}")
+                lo, hi = analysis.intervals(joint=True)
+                for i, n in enumerate(pset.names):
+                    log(f"  {n:14s} {res.values[i]:+.6g}  std {analysis.std[i]:.3g} "
+                        f"({100 * analysis.std[i] / max(abs(res.values[i]), 1e-300):.2g} %)  "
+                        f"{100 * args.confidence:g} % (4.30) [{lo[i]:+.5g}, {hi[i]:+.5g}]")
+    finally:
+        if rows is not None:
+            f.close()
+    return current, results
+
+
+def write_outputs(result, data, args, reference=None):
+    """Figures and the summary dict (the caller writes summary.json)."""
+    final, stages = result
+    out = args.out
+    summary = dict(method=args.method, sensitivity=args.sensitivity, processes=args.processes,
+                   tests=[dict(label=d.label, source=d.source, points=len(d.x), quantities=list(d.y),
+                               normalisation=d.normalisation, model_steps=d.test.n_steps) for d in data],
+                   stages=[])
+    for st in stages:
+        r = st.identification
+        entry = dict(parameters=list(st.names), start=dict(zip(st.names, map(float, r.start))),
+                     identified=r.values_dict(), f_start=r.f_start, f=r.f, converged=r.converged,
+                     message=r.message, iterations=r.iterations, evaluations=r.evaluations,
+                     wall_time_s=r.wall_time, terms=st.objective.terms(r.best),
+                     model_stopped={k: v for k, v in r.best.stopped.items() if v},
+                     error_analysis=st.analysis.to_dict() if st.analysis is not None else None)
+        if reference is not None:
+            entry["reference"] = {n: float(getattr(reference, n)) for n in st.names}
+            entry["relative_error"] = {n: float(v / getattr(reference, n) - 1.0) if getattr(reference, n) else float(v)
+                                       for n, v in r.values_dict().items()}
+        summary["stages"].append(entry)
+    last = stages[-1].identification
+    summary.update(converged=all(s.identification.converged for s in stages), f_start=stages[0].identification.f_start,
+                   f=last.f, iterations=sum(s.identification.iterations for s in stages),
+                   evaluations=sum(s.identification.evaluations for s in stages),
+                   identified_parameters_file=os.path.join(out, "identified_parameters.json"))
+    _plot_fit(stages, data, os.path.join(out, "fit.png"))
+    _plot_objective(stages, os.path.join(out, "objective.png"))
+    if stages[-1].analysis is not None:
+        plot_correlation(stages[-1].analysis, os.path.join(out, "correlation.png"))
+    return summary
+
+
+def _plot_fit(stages, data, path):
+    import matplotlib
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    panels = [(d, q) for d in data for q in d.y]
+    ncol = min(4, len(panels))
+    nrow = (len(panels) + ncol - 1) // ncol
+    fig, axes = plt.subplots(nrow, ncol, figsize=(3.6 * ncol, 3.0 * nrow), squeeze=False)
+    first, last = stages[0].start_evaluation, stages[-1].identification.best
+    for ax, (d, q) in zip(axes.flat, panels):
+        scale = 1e-3 if q in ("axial_stress",) else 1.0
+        xs = 1e-3 if d.test.abscissa == "pressure" else 1.0
+        ax.plot(d.x * xs, d.y[q] * scale, "k.", ms=3, label="data")
+        for ev, style, lab in ((first, "b--", "start"), (last, "r-", "identified")):
+            c = ev.curves[d.label]
+            ax.plot(np.asarray(c["x"]) * xs, np.asarray(c[q]) * scale, style, lw=1, label=lab)
+        ax.set_title(d.label, fontsize=8)
+        ax.set_xlabel("pressure [kPa]" if d.test.abscissa == "pressure" else "axial strain [-]", fontsize=8)
+        ax.set_ylabel(q + (" [kPa]" if scale != 1 else " [-]"), fontsize=8)
+        ax.tick_params(labelsize=7)
+        ax.grid(True, alpha=0.3)
+    for ax in list(axes.flat)[len(panels):]:
+        ax.axis("off")
+    axes.flat[0].legend(fontsize=7)
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+
+
+def _plot_objective(stages, path):
+    import matplotlib
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    fig, ax = plt.subplots(figsize=(5, 3.5))
+    offset = 0
+    for k, st in enumerate(stages, start=1):
+        h = st.identification.history
+        ax.semilogy([offset + r.iteration for r in h], [r.f for r in h], "o-", ms=3, label=f"stage {k}")
+        offset += h[-1].iteration if h else 0
+    ax.set_xlabel("SQP iteration")
+    ax.set_ylabel("objective f (4.18)")
+    ax.grid(True, alpha=0.3)
+    ax.legend(fontsize=8)
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)

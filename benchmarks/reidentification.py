@@ -81,7 +81,8 @@ def main():
     p.add_argument("--steps", type=number(STEPS), default=75)
     p.add_argument("--every", type=number(Range(1, 100, integer=True)), default=3)
     p.add_argument("--sensitivity", choices=("numerical", "semi-analytical"), default="semi-analytical")
-    p.add_argument("--method", choices=("SLSQP", "trust-constr"), default="SLSQP")
+    p.add_argument("--method", choices=("auto", "trf", "SLSQP", "trust-constr"), default="auto",
+                   help="auto: trf (Gauss-Newton trust region) unless a nonlinear constraint applies, then SLSQP")
     p.add_argument("--processes", type=number(Range(1, 64, integer=True)), default=1)
     p.add_argument("--max-iterations", type=number(STEPS), default=100)
     p.add_argument("--out", default="out/reidentification")

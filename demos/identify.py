@@ -65,7 +65,8 @@ def build_parser():
                         "(default: psi1,psi2,beta_star,gamma_star)")
     p.add_argument("--start", default=None, help="JSON parameter file with the start values (default Hostun)")
     p.add_argument("--bounds", default=None, help='JSON {"name": [lower, upper]} overriding the default bounds')
-    p.add_argument("--method", choices=("SLSQP", "trust-constr"), default="SLSQP")
+    p.add_argument("--method", choices=("auto", "trf", "SLSQP", "trust-constr"), default="auto",
+                   help="auto: trf (Gauss-Newton trust region) unless a nonlinear constraint applies, then SLSQP")
     p.add_argument("--sensitivity", choices=("semi-analytical", "numerical"), default="semi-analytical",
                    help="semi-analytical (section 5.2, default: 24x cheaper than differences) or numerical (5.1)")
     p.add_argument("--max-iterations", type=number(STEPS), default=60, help="SQP iterations per stage")

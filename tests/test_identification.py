@@ -121,10 +121,13 @@ def test_parameter_choice_is_checked():
         ParameterSet(("psi1",), base, {"psi1": (2.0, 1.0)})
     with pytest.raises(InputError, match="not identified"):
         ParameterSet(("psi1",), base, {"psi2": (0.0, 1.0)})
-    # a constraint of (4.2) the start violates (the compression point needs n_max > n0)
-    tight = ParameterSet(("n_max",), base)
-    assert tight.constraint_values(tight.start)["compression point exists: n_max - n0 > 0 (2.70)"] > 0
-    assert tight.constraint_values([0.5])["compression point exists: n_max - n0 > 0 (2.70)"] < 0
+    # the constraints of (4.2): the compression point needs n_max > n0 (2.70) -- a bound when
+    # only one of them is identified, a constraint when both are
+    one = ParameterSet(("n_max",), base)
+    assert one.lower[0] > base.n0 and not one.constraint_values(one.start)
+    both = ParameterSet(("n_max", "n0"), base)
+    name = "compression point exists: n_max - n0 > 0 (2.70)"
+    assert both.constraint_values(both.start)[name] > 0 and both.constraint_values([0.5, 0.6])[name] < 0
 
 
 def test_interpolation_matrix_is_exact_on_lines():
@@ -179,3 +182,58 @@ def test_identify_demo_refuses_bad_input(tmp_path):
         assert proc.returncode == 2, (argv, proc.stdout, proc.stderr)
         assert message in proc.stderr, (argv, proc.stderr)
         assert not os.path.exists(out), "refused before any work: no output directory"
+
+
+# ---------------------------------------------------------------- re-identification (6.2.3)
+def _virtual(reference, noise=0.0, seed=0, steps=60):
+    from cosserat_fenicsx.materials.ehlers import EhlersMaterial
+    rng = np.random.default_rng(seed)
+    material = EhlersMaterial(**reference.as_dict())
+    data = []
+    for kind, p in (("hydrostatic", 1e6), ("triaxial", 100e3), ("triaxial", 300e3), ("triaxial", 600e3),
+                    ("biaxial", 100e3)):
+        test = VirtualTest(kind, p, n_steps=steps)
+        h = test.run(material)
+        sig = {q: noise * D.default_normalisation(kind, p, q, np.asarray(h[q])) for q in test.quantities}
+        data.append(D.from_history(test, h, every=3, noise=sig if noise else None, rng=rng))
+    return data
+
+
+def test_reidentification_of_the_14_plastic_parameters():
+    """Virtual data of the five tests of 6.1 from the Hostun set; all 14 parameters of (6.2)
+    disturbed by +10 % are recovered to 1e-6 (measured: 6e-9 in 9 iterations)."""
+    from cosserat_fenicsx.identification.sqp import identify
+    ref = EhlersParameters(micropolar=False)
+    data = _virtual(ref)
+    values = ref.as_dict()
+    for n in PLASTIC_HOMOGENEOUS:
+        values[n] *= 1.1
+    pset = ParameterSet(("plastic",), EhlersParameters(**values))
+    res = identify(Objective(data, pset), max_iterations=40)
+    truth = np.array([getattr(ref, n) for n in pset.names])
+    assert res.converged and res.method == "trf"
+    assert res.f < 1e-14 * res.f_start
+    assert np.max(np.abs(res.values / truth - 1)) < 1e-6
+
+
+@pytest.mark.slow
+def test_confidence_intervals_cover_the_reference_over_noise_draws():
+    """The error analysis (4.27-4.30) of the identification itself: over 60 noise draws (1 %
+    of phi_0) the joint region and the marginal intervals hold the reference at about 95 %
+    (measured over 100 draws: 0.96 and 0.959; s0 = 1.000)."""
+    from cosserat_fenicsx.identification.sqp import identify
+    ref = EhlersParameters(micropolar=False)
+    truth = None
+    joint, marginal, n = 0, 0.0, 60
+    for k in range(n):
+        data = _virtual(ref, noise=0.01, seed=100 + k)
+        pset = ParameterSet(("plastic",), ref)
+        obj = Objective(data, pset)
+        res = identify(obj, max_iterations=40)
+        truth = np.array([getattr(ref, m) for m in pset.names])
+        ea = analyse(pset.names, res.values, res.best.raw_jacobian, res.best.raw_residual, sigma=obj.scatter)
+        lo, hi = ea.intervals(joint=False)
+        joint += ea.inside_joint_region(truth)
+        marginal += np.mean((lo <= truth) & (truth <= hi))
+    # binomial standard error at 60 draws: 2.8 %; 3 of them either side
+    assert abs(joint / n - 0.95) < 0.085 and abs(marginal / n - 0.95) < 0.05

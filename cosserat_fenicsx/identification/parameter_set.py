@@ -91,6 +91,7 @@ class ParameterSet:
                                  f"(identified: {list(self.names)})")
         self.lower = np.array([self._bound(n)[0] for n in self.names])
         self.upper = np.array([self._bound(n)[1] for n in self.names])
+        self._constraints_as_bounds()
         start = self.start
         for n, lo, hi, v in zip(self.names, self.lower, self.upper, start):
             if not lo < hi:
@@ -103,6 +104,21 @@ class ParameterSet:
                 raise InputError(f"identification: the start violates the constraint '{cname}' "
                                  f"(value {g:g})")
         self.scale = np.array([abs(v) if v != 0 else TYPICAL.get(n, 1.0) for n, v in zip(self.names, start)])
+
+    def _constraints_as_bounds(self):
+        """A constraint with one identified parameter is a bound on it (so that a bounds-only
+        solver can run); only those with several identified parameters stay constraints."""
+        b = self.base
+        one = {"n_max": ("n0", lambda: (b.n0 + 1e-6, None)), "n0": ("n_max", lambda: (None, b.n_max - 1e-6)),
+               "lmbda": ("mu", lambda: (-2.0 * b.mu / 3.0 + 1e3, None)),
+               "mu": ("lmbda", lambda: (-1.5 * b.lmbda + 1e3, None))}
+        for k, n in enumerate(self.names):
+            if n in one and one[n][0] not in self.names:
+                lo, hi = one[n][1]()
+                if lo is not None:
+                    self.lower[k] = max(self.lower[k], lo)
+                if hi is not None:
+                    self.upper[k] = min(self.upper[k], hi)
 
     def _bound(self, n):
         lo, hi = self.bounds.get(n, DEFAULT_BOUNDS[n])
@@ -127,12 +143,13 @@ class ParameterSet:
         return {n: float(v) for n, v in zip(self.names, s)}
 
     def constraint_values(self, s):
-        """Active constraints (those involving an identified parameter) at s."""
+        """The constraints between identified parameters at s (those on one identified
+        parameter are bounds, see _constraints_as_bounds)."""
         values = self.base.as_dict()
         values.update(self.values(s))
         out = {}
         for cname, g in _constraints(values).items():
-            if any(n in self.names for n in _CONSTRAINT_NAMES[cname]):
+            if all(n in self.names for n in _CONSTRAINT_NAMES[cname]):
                 out[cname] = float(g)
         return out
 

@@ -51,7 +51,8 @@ def virtual(reference, steps, every, noise, rng):
         h = test.run(material)
         sig = None
         if noise > 0:
-            sig = {q: noise * default_normalisation(kind, p, q, np.asarray(h[q])) for q in test.quantities}
+            sig = {q: noise * default_normalisation(kind, p, q, np.asarray(h[q]), thesis=True)
+                     for q in test.quantities}
         data.append(from_history(test, h, every=every, noise=sig, rng=rng))
     return data
 

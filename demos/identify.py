@@ -150,7 +150,8 @@ def virtual_data(reference, args):
         h = test.run(material)
         noise = None
         if args.noise > 0:
-            noise = {q: args.noise * default_normalisation(kind, p, q, np.asarray(h[q])) for q in test.quantities}
+            noise = {q: args.noise * default_normalisation(kind, p, q, np.asarray(h[q]), thesis=True)
+                     for q in test.quantities}
         data.append(from_history(test, h, every=args.every, noise=noise, rng=rng))
     return data
 

@@ -87,7 +87,9 @@ def test_data_files_are_checked(tmp_path):
     ok = _write(tmp_path / "ok.csv", ["axial_strain", "axial_stress", "volumetric_strain"],
                 [(-0.01, -3e5, -0.001), (-0.02, -4e5, 0.0)])
     d = D.read_test(ok, "triaxial", 100e3)
-    assert d.test.axial_strain == pytest.approx(0.02) and d.normalisation["axial_stress"] == 500e3
+    # phi_0 of (4.17): the data's magnitude (Table 6.2 only for the thesis' virtual tests)
+    assert d.test.axial_strain == pytest.approx(0.02) and d.normalisation["axial_stress"] == 4e5
+    assert D.default_normalisation("triaxial", 100e3, "axial_stress", [1.0], thesis=True) == 500e3
     cases = {
         "missing column": (["axial_strain", "volumetric_strain"], [(-0.01, 0.0)], dict(quantities=["axial_stress"]),
                            "column 'axial_stress' missing"),
@@ -194,7 +196,8 @@ def _virtual(reference, noise=0.0, seed=0, steps=60):
                     ("biaxial", 100e3)):
         test = VirtualTest(kind, p, n_steps=steps)
         h = test.run(material)
-        sig = {q: noise * D.default_normalisation(kind, p, q, np.asarray(h[q])) for q in test.quantities}
+        sig = {q: noise * D.default_normalisation(kind, p, q, np.asarray(h[q]), thesis=True)
+                     for q in test.quantities}
         data.append(D.from_history(test, h, every=3, noise=sig if noise else None, rng=rng))
     return data
 

@@ -57,11 +57,12 @@ class TestData:
         return sum(len(v) for v in self.y.values())
 
 
-def default_normalisation(kind, confining, quantity, values):
-    """phi_0 of (4.17): Table 6.2 for the thesis' Hostun tests, else the largest magnitude of
-    the data (the Table 6.2 values are the magnitudes of the measured curves)."""
+def default_normalisation(kind, confining, quantity, values, thesis=False):
+    """phi_0 of (4.17): the largest magnitude of the data (what the Table 6.2 values are for
+    the measured Hostun curves); with `thesis`, Table 6.2 itself for the thesis' five tests
+    (virtual Hostun data)."""
     key = (kind, None if kind == "hydrostatic" else confining)
-    for (k, p), table in TABLE_6_2.items():
+    for (k, p), table in TABLE_6_2.items() if thesis else ():
         if k == kind and (p is None or (key[1] is not None and math.isclose(p, key[1], rel_tol=1e-6))):
             if quantity in table:
                 return table[quantity]
@@ -166,7 +167,8 @@ def read_test(path, kind, confining, quantities=None, normalisation=None, scatte
 def from_history(test, h, quantities=None, every=1, noise=None, rng=None):
     """Virtual data (re-identification, thesis 6.2.3) from a model history h of `test`:
     every `every`-th record; noise {quantity: sigma} adds Gaussian noise and records sigma as
-    the scatter.  The first record of a deviatoric test (axial strain 0) is left out."""
+    the scatter; normalised as Table 6.2 where the thesis tests match.  The first record of a
+    deviatoric test (axial strain 0) is left out."""
     qs = list(quantities or test.quantities)
     x = np.asarray(h[test.abscissa])
     idx = np.arange(1, len(x), every) if test.abscissa == "axial_strain" else np.arange(0, len(x), every)
@@ -178,7 +180,7 @@ def from_history(test, h, quantities=None, every=1, noise=None, rng=None):
             v += rng.normal(0.0, noise[q], size=v.shape)
             std[q] = np.full(len(idx), float(noise[q]))
         y[q] = v
-    norm = {q: default_normalisation(test.kind, test.confining, q, np.asarray(h[q])[idx]) for q in qs}
+    norm = {q: default_normalisation(test.kind, test.confining, q, np.asarray(h[q])[idx], thesis=True) for q in qs}
     return TestData(test=test, x=x[idx].copy(), y=y, std=std, normalisation=norm, source="virtual")
 
 

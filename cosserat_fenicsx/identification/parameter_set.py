@@ -36,7 +36,7 @@ GROUPS = {"elastic": ELASTIC, "plastic": PLASTIC_HOMOGENEOUS, "initial": INITIAL
 #: default bounds (SI) and typical sizes (scales when the start value is 0)
 _C = (-1000.0, 1000.0)
 DEFAULT_BOUNDS = {
-    "mu": (1e5, 1e11), "lmbda": (-1e11, 1e11), "n_max": (1e-3, 0.999), "n0": (1e-3, 0.999),
+    "mu": (1e5, 1e11), "lmbda": (0.0, 1e11), "n_max": (1e-3, 0.999), "n0": (1e-3, 0.999),   # lmbda >= 0: nu >= 0
     "C_beta_D": _C, "C_beta_V": _C, "C_delta_D": _C, "C_delta_V": _C, "C_epsilon_D": _C, "C_epsilon_V": _C,
     "C_gamma_D": _C, "C_gamma_V": _C,
     "beta_star": (0.0, 3.0), "beta0": (0.0, 3.0),
@@ -149,9 +149,17 @@ class ParameterSet:
         values.update(self.values(s))
         out = {}
         for cname, g in _constraints(values).items():
-            if all(n in self.names for n in _CONSTRAINT_NAMES[cname]):
+            if all(n in self.names for n in _CONSTRAINT_NAMES[cname]) and not self._implied(cname):
                 out[cname] = float(g)
         return out
+
+    def _implied(self, cname):
+        """True when the bounds already enforce the constraint (then a bounds-only solver runs)."""
+        lo = dict(zip(self.names, self.lower))
+        hi = dict(zip(self.names, self.upper))
+        if cname.startswith("bulk"):
+            return lo["lmbda"] >= 0.0 and lo["mu"] > 0.0
+        return lo["n_max"] > hi["n0"]
 
     def to_scaled(self, s):
         return np.asarray(s, dtype=float) / self.scale

@@ -28,6 +28,7 @@ class StageResult:
     analysis: object            # ErrorAnalysis or None (rank-deficient / too few data)
     objective: Objective
     start_evaluation: object
+    at_bound: list
 
 
 def run_stages(data, stages, start, bounds, args, log=print, out=None):
@@ -63,13 +64,21 @@ def run_stages(data, stages, start, bounds, args, log=print, out=None):
                 objective.close()
             analysis = None
             best = res.best
+            # a parameter at an active bound is held fixed in the error analysis: the linearised
+            # statistics of 4.5 assume an interior optimum
+            tol = 1e-3 * pset.scale   # closer than 0.1 % of the parameter's scale
+            at_bound = [n for n, v, lo, hi, t in zip(pset.names, res.values, pset.lower, pset.upper, tol)
+                        if v - lo <= t or hi - v <= t]
+            free = [k for k, n in enumerate(pset.names) if n not in at_bound]
+            if at_bound:
+                log(f"  at a bound (held fixed in the error analysis): {', '.join(at_bound)}")
             try:
-                analysis = analyse(pset.names, res.values, best.raw_jacobian, best.raw_residual,
-                                   sigma=objective.scatter, weights=objective.weights,
+                analysis = analyse([pset.names[k] for k in free], res.values[free], best.raw_jacobian[:, free],
+                                   best.raw_residual, sigma=objective.scatter, weights=objective.weights,
                                    alpha=1.0 - args.confidence)
             except ValueError as error:
                 log(f"  error analysis not possible: {error}")
-            results.append(StageResult(pset.names, res, analysis, objective, start_eval))
+            results.append(StageResult(pset.names, res, analysis, objective, start_eval, at_bound))
             current = pset.parameters(res.values)
             if out is not None:   # the best point so far, written as soon as it is known
                 write_parameter_file(os.path.join(out, "identified_parameters.json"), current,
@@ -80,9 +89,10 @@ def run_stages(data, stages, start, bounds, args, log=print, out=None):
             if analysis is not None:
                 log(f"  s0 = {analysis.s0:.3g} (4.27), condition number {analysis.condition_number:.3g}")
                 lo, hi = analysis.intervals(joint=True)
-                for i, n in enumerate(pset.names):
-                    log(f"  {n:14s} {res.values[i]:+.6g}  std {analysis.std[i]:.3g} "
-                        f"({100 * analysis.std[i] / max(abs(res.values[i]), 1e-300):.2g} %)  "
+                for i, n in enumerate(analysis.names):
+                    v = analysis.values[i]
+                    log(f"  {n:14s} {v:+.6g}  std {analysis.std[i]:.3g} "
+                        f"({100 * analysis.std[i] / max(abs(v), 1e-300):.2g} %)  "
                         f"{100 * args.confidence:g} % (4.30) [{lo[i]:+.5g}, {hi[i]:+.5g}]")
     finally:
         if rows is not None:
@@ -105,6 +115,7 @@ def write_outputs(result, data, args, reference=None):
                      message=r.message, iterations=r.iterations, evaluations=r.evaluations,
                      wall_time_s=r.wall_time, terms=st.objective.terms(r.best),
                      model_stopped={k: v for k, v in r.best.stopped.items() if v},
+                     at_bound=st.at_bound,
                      error_analysis=st.analysis.to_dict() if st.analysis is not None else None)
         if reference is not None:
             entry["reference"] = {n: float(getattr(reference, n)) for n in st.names}

@@ -49,6 +49,7 @@ class VirtualTest:
     n_steps: int = 150
     n_consolidation: int = 40
     start_pressure: float = 0.0
+    max_cuts: int = 4
 
     def __post_init__(self):
         if self.kind not in KINDS:
@@ -85,6 +86,9 @@ class VirtualTest:
         dict (arrays per record) with a "pressure" entry (-mean stress) added.  point: a
         fresh MaterialPoint (subclass) to drive, e.g. one that carries sensitivities."""
         from ..materials.ehlers import material_point as mp
+        if point is None:
+            point = mp.MaterialPoint(material)
+        point.max_cuts = self.max_cuts
         common = dict(point=point, on_record=on_record, stop_on_failure=stop_on_failure)
         if self.abscissa == "pressure":
             run = mp.hydrostatic_test if self.kind == "hydrostatic" else mp.isotropic_plane_strain_test

@@ -78,8 +78,13 @@ class MaterialPoint:
         raise MaterialPointError(f"material-point driver: mixed-control Newton did not converge "
                                  f"(residuals {history[-3:]} Pa)")
 
-    def advance(self, stress_controlled, target, dt=1.0, max_cuts=12):
+    #: bisections of a load step before advance() gives up (an identification lowers it: a
+    #: parameter set the model cannot follow with much smaller steps is a failed evaluation)
+    max_cuts = 12
+
+    def advance(self, stress_controlled, target, dt=1.0, max_cuts=None):
         """step() with bisection of the increment (and dt) when the point update fails."""
+        max_cuts = self.max_cuts if max_cuts is None else max_cuts
         start_target = np.where(stress_controlled, self.stress, self.strain)
         target = np.asarray(target, dtype=float)
         done, frac = 0.0, 1.0

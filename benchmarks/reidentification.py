@@ -29,33 +29,13 @@ import numpy as np
 
 sys.path.insert(0, os.path.join(os.path.dirname(os.path.abspath(__file__)), ".."))
 
-from cosserat_fenicsx.identification.data import default_normalisation, from_history  # noqa: E402
+from cosserat_fenicsx.identification.data import thesis_virtual_data  # noqa: E402
 from cosserat_fenicsx.identification.error_analysis import analyse  # noqa: E402
 from cosserat_fenicsx.identification.objective import Objective  # noqa: E402
 from cosserat_fenicsx.identification.parameter_set import ParameterSet  # noqa: E402
 from cosserat_fenicsx.identification.sqp import identify  # noqa: E402
-from cosserat_fenicsx.identification.virtual_tests import VirtualTest  # noqa: E402
-from cosserat_fenicsx.materials.ehlers import EhlersMaterial  # noqa: E402
 from cosserat_fenicsx.materials.ehlers.parameters import EhlersParameters  # noqa: E402
 from cosserat_fenicsx.validation import NON_NEGATIVE, STEPS, Parser, Range, number  # noqa: E402
-
-TESTS = (("hydrostatic", 1.0e6), ("triaxial", 100e3), ("triaxial", 300e3), ("triaxial", 600e3),
-         ("biaxial", 100e3))
-
-
-def virtual(reference, steps, every, noise, rng):
-    material = EhlersMaterial(**reference.as_dict())
-    data = []
-    for kind, p in TESTS:
-        test = VirtualTest(kind, p, n_steps=steps)
-        h = test.run(material)
-        sig = None
-        if noise > 0:
-            sig = {q: noise * default_normalisation(kind, p, q, np.asarray(h[q]), thesis=True)
-                     for q in test.quantities}
-        data.append(from_history(test, h, every=every, noise=sig, rng=rng))
-    return data
-
 
 def run(data, names, start, sensitivity, processes, max_iterations, method="SLSQP"):
     pset = ParameterSet(names, start)
@@ -101,7 +81,7 @@ def main():
             json.dump(summary, f, indent=1, default=float)
 
     # ---- 2. noise-free recovery from a disturbed start
-    data = virtual(reference, args.steps, args.every, 0.0, np.random.default_rng(0))
+    data = thesis_virtual_data(reference, args.steps, args.every, 0.0, np.random.default_rng(0))
     values = reference.as_dict()
     for n in names:
         values[n] *= 1.0 + args.disturb
@@ -128,7 +108,7 @@ def main():
     rng = np.random.default_rng(2026)
     inside_joint, inside_marginal, s0s, its, recs = 0, np.zeros(len(names)), [], [], []
     for k in range(args.draws):
-        data = virtual(reference, args.steps, args.every, args.noise, rng)
+        data = thesis_virtual_data(reference, args.steps, args.every, args.noise, rng)
         pset, res, ea, cpu = run(data, names, reference, args.sensitivity, args.processes, args.max_iterations,
                                  args.method)
         truth = np.array([getattr(reference, n) for n in names])

@@ -40,7 +40,6 @@ Examples:
       --params plastic --out out/identify_lab
 """
 import argparse
-import csv
 import json
 import os
 import sys
@@ -50,10 +49,6 @@ import numpy as np
 
 sys.path.insert(0, os.path.join(os.path.dirname(os.path.abspath(__file__)), ".."))
 from cosserat_fenicsx.validation import NON_NEGATIVE, POSITIVE, STEPS, InputError, Parser, Range, number  # noqa: E402
-
-THESIS_TESTS = (("hydrostatic", 1.0e6), ("triaxial", 100e3), ("triaxial", 300e3), ("triaxial", 600e3),
-                ("biaxial", 100e3))
-
 
 def build_parser():
     p = Parser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter, allow_abbrev=False)
@@ -137,25 +132,6 @@ def load_data(args, config):
     return out
 
 
-def virtual_data(reference, args):
-    """The five tests of 6.1 run with the reference set, noise added (re-identification)."""
-    from cosserat_fenicsx.identification.data import default_normalisation, from_history
-    from cosserat_fenicsx.identification.virtual_tests import VirtualTest
-    from cosserat_fenicsx.materials.ehlers import EhlersMaterial
-    material = EhlersMaterial(**reference.as_dict())
-    rng = np.random.default_rng(args.seed)
-    data = []
-    for kind, p in THESIS_TESTS:
-        test = VirtualTest(kind, p, n_steps=args.steps)
-        h = test.run(material)
-        noise = None
-        if args.noise > 0:
-            noise = {q: args.noise * default_normalisation(kind, p, q, np.asarray(h[q]), thesis=True)
-                     for q in test.quantities}
-        data.append(from_history(test, h, every=args.every, noise=noise, rng=rng))
-    return data
-
-
 def main(argv=None):
     parser = build_parser()
     args = parser.parse_args(argv)
@@ -183,7 +159,7 @@ def main(argv=None):
         virtual = data is None
         start_values = reference.as_dict()
         if virtual:
-            all_names = [n for st in stages for n in ParameterSet(st, reference).names]
+            all_names = {n for st in stages for n in ParameterSet(st, reference).names}
             for n in all_names:
                 start_values[n] = start_values[n] * (1.0 + args.disturb) if start_values[n] != 0 else 0.0
         start = EhlersParameters(**start_values)
@@ -192,11 +168,13 @@ def main(argv=None):
     except (InputError, ValueError) as error:
         parser.refuse(error)
     os.makedirs(args.out, exist_ok=True)
+    from cosserat_fenicsx.identification.data import thesis_virtual_data
     from cosserat_fenicsx.identification.run import run_stages, write_outputs
     if virtual:
         print(f"identify: re-identification from virtual data of the Hostun set, start disturbed by "
               f"{100 * args.disturb:+g} %, noise {args.noise:g} phi_0")
-        data = virtual_data(reference, args)
+        data = thesis_virtual_data(reference, args.steps, args.every, args.noise,
+                                   np.random.default_rng(args.seed))
     for d in data:
         print(f"  {d.label}: {len(d.x)} points, quantities {list(d.y)}, normalisation "
               + ", ".join(f"{q} {v:.4g}" for q, v in d.normalisation.items()) + f"  ({d.source})")

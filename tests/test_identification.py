@@ -14,6 +14,8 @@ from cosserat_fenicsx.identification.virtual_tests import VirtualTest
 from cosserat_fenicsx.materials.ehlers.parameters import EhlersParameters
 from cosserat_fenicsx.validation import InputError
 
+pytestmark = pytest.mark.serial          # material point only: the serial pass
+
 
 # ---------------------------------------------------------------- error analysis (4.27)-(4.31)
 def _exp_model(x, a, b, c):
@@ -187,27 +189,12 @@ def test_identify_demo_refuses_bad_input(tmp_path):
 
 
 # ---------------------------------------------------------------- re-identification (6.2.3)
-def _virtual(reference, noise=0.0, seed=0, steps=60):
-    from cosserat_fenicsx.materials.ehlers import EhlersMaterial
-    rng = np.random.default_rng(seed)
-    material = EhlersMaterial(**reference.as_dict())
-    data = []
-    for kind, p in (("hydrostatic", 1e6), ("triaxial", 100e3), ("triaxial", 300e3), ("triaxial", 600e3),
-                    ("biaxial", 100e3)):
-        test = VirtualTest(kind, p, n_steps=steps)
-        h = test.run(material)
-        sig = {q: noise * D.default_normalisation(kind, p, q, np.asarray(h[q]), thesis=True)
-                     for q in test.quantities}
-        data.append(D.from_history(test, h, every=3, noise=sig if noise else None, rng=rng))
-    return data
-
-
 def test_reidentification_of_the_14_plastic_parameters():
     """Virtual data of the five tests of 6.1 from the Hostun set; all 14 parameters of (6.2)
     disturbed by +10 % are recovered to 1e-6 (measured: 6e-9 in 9 iterations)."""
     from cosserat_fenicsx.identification.sqp import identify
     ref = EhlersParameters(micropolar=False)
-    data = _virtual(ref)
+    data = D.thesis_virtual_data(ref, n_steps=60)
     values = ref.as_dict()
     for n in PLASTIC_HOMOGENEOUS:
         values[n] *= 1.1
@@ -229,7 +216,7 @@ def test_confidence_intervals_cover_the_reference_over_noise_draws():
     truth = None
     joint, marginal, n = 0, 0.0, 60
     for k in range(n):
-        data = _virtual(ref, noise=0.01, seed=100 + k)
+        data = D.thesis_virtual_data(ref, n_steps=60, noise=0.01, rng=np.random.default_rng(100 + k))
         pset = ParameterSet(("plastic",), ref)
         obj = Objective(data, pset)
         res = identify(obj, max_iterations=40)

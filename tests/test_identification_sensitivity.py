@@ -26,6 +26,8 @@ from cosserat_fenicsx.materials.ehlers.parameters import EhlersParameters
 from cosserat_fenicsx.materials.ehlers.sensitivity import step_sensitivity
 from cosserat_fenicsx.validation import InputError
 
+pytestmark = pytest.mark.serial          # material point only: the serial pass
+
 NAMES = sens.PLASTICITY_14 + ("mu", "lmbda", "n_max", "beta0", "delta0", "epsilon0", "gamma0")
 TESTS = {"hydrostatic": VirtualTest("hydrostatic", 1e6, n_steps=60),
          "isotropic_plane_strain": VirtualTest("isotropic_plane_strain", 1e6, n_steps=60),

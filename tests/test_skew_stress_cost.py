@@ -22,6 +22,8 @@ from skew_stress_cost import shear_path  # noqa: E402
 from cosserat_fenicsx.materials.ehlers import EhlersMaterial  # noqa: E402
 from cosserat_fenicsx.materials.ehlers.material_point import consolidate_state  # noqa: E402
 
+pytestmark = pytest.mark.serial          # material point only: the serial pass
+
 PSI1 = 1.85          # Table 6.4
 GAMMA_MAX, STEPS = 0.3, 120   # past the peak (gamma ~ 0.12-0.14), a second or two per path
 

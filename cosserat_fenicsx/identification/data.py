@@ -193,3 +193,27 @@ def write_test(data, path):
         w.writerow(cols)
         for row in zip(*arrays):
             w.writerow([f"{v:.12g}" for v in row])
+
+
+#: the five homogeneous tests of thesis 6.1 (Table 6.2): kind, confining (final) pressure [Pa]
+THESIS_TESTS = (("hydrostatic", 1.0e6), ("triaxial", 100e3), ("triaxial", 300e3), ("triaxial", 600e3),
+                ("biaxial", 100e3))
+
+
+def thesis_virtual_data(reference, n_steps=75, every=3, noise=0.0, rng=None):
+    """Virtual data of the five tests of 6.1 run with the parameter set `reference`
+    (re-identification, thesis 6.2.3's method); noise: Gaussian, as a fraction of each
+    quantity's phi_0 of Table 6.2, recorded as the data's scatter."""
+    from ..materials.ehlers import EhlersMaterial
+    material = EhlersMaterial(**reference.as_dict())
+    rng = rng or np.random.default_rng(0)
+    data = []
+    for kind, p in THESIS_TESTS:
+        test = VirtualTest(kind, p, n_steps=n_steps)
+        h = test.run(material)
+        sig = None
+        if noise > 0:
+            sig = {q: noise * default_normalisation(kind, p, q, np.asarray(h[q]), thesis=True)
+                   for q in test.quantities}
+        data.append(from_history(test, h, every=every, noise=sig, rng=rng))
+    return data

@@ -20,7 +20,6 @@ independent: with processes > 1 they are evaluated in parallel worker processes.
 from __future__ import annotations
 
 import dataclasses
-import os
 import time
 
 import numpy as np
@@ -220,9 +219,3 @@ class Objective:
             k += n
         return out
 
-
-def cpu_count():
-    try:
-        return len(os.sched_getaffinity(0))
-    except AttributeError:
-        return os.cpu_count() or 1

@@ -10,7 +10,6 @@ from __future__ import annotations
 import csv
 import dataclasses
 import os
-import time
 
 import numpy as np
 

@@ -32,6 +32,7 @@ demo: deps
 	$(MPIRUN) -n $(NP) $(PYTHON) demos/hole_plate.py --out $(OUT)/hole_plate
 	$(MPIRUN) -n $(NP) $(PYTHON) demos/shear_layer.py --out $(OUT)/shear_layer
 	$(PYTHON) demos/material_point.py --test all --out $(OUT)/material_point
+	$(PYTHON) demos/identify.py --out $(OUT)/identify
 	$(PYTHON) demos/dem_cell.py --out $(OUT)/dem_cell
 	$(MPIRUN) -n $(NP) $(PYTHON) demos/biaxial.py --out $(OUT)/biaxial
 	$(MPIRUN) -n $(NP) $(PYTHON) demos/femdem_biaxial.py --axial-strain 0.03 --steps 30 --out $(OUT)/femdem_biaxial
@@ -63,6 +64,12 @@ benchmark: deps
 	$(MPIRUN) -n $(NP) $(PYTHON) benchmarks/femdem_regularisation.py --out $(OUT)/benchmarks/femdem_regularisation
 	$(MPIRUN) -n $(NP) $(PYTHON) benchmarks/femdem_convergence.py --out $(OUT)/benchmarks/femdem_convergence
 	$(MPIRUN) -n $(NP) $(PYTHON) benchmarks/femdem_rotation.py --out $(OUT)/benchmarks/femdem_rotation
+	$(PYTHON) benchmarks/identification_sensitivity.py --out $(OUT)/benchmarks/identification_sensitivity
+	$(PYTHON) benchmarks/identification_cost.py --out $(OUT)/benchmarks/identification_cost
+	$(PYTHON) benchmarks/reidentification.py --draws 100 --out $(OUT)/benchmarks/reidentification
+	$(PYTHON) benchmarks/skew_stress_cost.py --out $(OUT)/benchmarks/skew_stress_cost
+	$(PYTHON) benchmarks/dem_virtual_tests.py --out $(OUT)/benchmarks/dem_virtual_tests
+	$(PYTHON) benchmarks/dem_calibration.py --dem $(OUT)/benchmarks/dem_virtual_tests --out $(OUT)/benchmarks/dem_calibration
 	$(PYTHON) benchmarks/robustness_sweep.py --random 2 --out $(OUT)/benchmarks/robustness_sweep
 	$(PYTHON) benchmarks/interrupt_runs.py --trials 12 --ranks $(NP) --signal INT --out $(OUT)/benchmarks/interrupt_runs
 	ROBUSTNESS_EXAMPLES=25 ROBUSTNESS_RANDOM=1 $(PYTHON) -m pytest -q -p no:cacheprovider tests/test_robustness_properties.py

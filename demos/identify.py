@@ -48,7 +48,7 @@ import time
 import numpy as np
 
 sys.path.insert(0, os.path.join(os.path.dirname(os.path.abspath(__file__)), ".."))
-from cosserat_fenicsx.validation import NON_NEGATIVE, POSITIVE, STEPS, InputError, Parser, Range, number  # noqa: E402
+from cosserat_fenicsx.validation import NON_NEGATIVE, STEPS, InputError, Parser, Range, number  # noqa: E402
 
 def build_parser():
     p = Parser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter, allow_abbrev=False)
@@ -83,7 +83,7 @@ def build_parser():
     m.add_argument("--eta", type=number(NON_NEGATIVE), default=1e-4, help="Perzyna time [s] (2.81)")
     m.add_argument("--micropolar", action="store_true",
                    help="keep the micropolar terms (homogeneous tests do not see them, 6.1.1)")
-    m.add_argument("--n-steps-per-test", type=number(POSITIVE), default=None, dest="model_steps",
+    m.add_argument("--n-steps-per-test", type=number(STEPS), default=None, dest="model_steps",
                    help="model load steps per test (default: 1e-3 axial strain or 1/100 of the pressure per step)")
     return p
 
@@ -170,6 +170,10 @@ def main(argv=None):
     os.makedirs(args.out, exist_ok=True)
     from cosserat_fenicsx.identification.data import thesis_virtual_data
     from cosserat_fenicsx.identification.run import run_stages, write_outputs
+    from cosserat_fenicsx.run_guard import RunGuard
+    guard = RunGuard(None, os.path.join(args.out, "summary.json"),
+                     dict(stages=[list(s) for s in stages], method=args.method, sensitivity=args.sensitivity),
+                     label="identify")
     if virtual:
         print(f"identify: re-identification from virtual data of the Hostun set, start disturbed by "
               f"{100 * args.disturb:+g} %, noise {args.noise:g} phi_0")
@@ -178,12 +182,15 @@ def main(argv=None):
     for d in data:
         print(f"  {d.label}: {len(d.x)} points, quantities {list(d.y)}, normalisation "
               + ", ".join(f"{q} {v:.4g}" for q, v in d.normalisation.items()) + f"  ({d.source})")
-    result = run_stages(data, stages, start, bounds, args, log=print, out=args.out)
+    result = run_stages(data, stages, start, bounds, args, log=print, out=args.out, guard=guard)
     summary = write_outputs(result, data, args, reference if virtual else None)
     summary["wall_time_s"] = time.perf_counter() - t_start
     summary["cpu_time_s_main_process"] = time.process_time() - c_start
-    with open(os.path.join(args.out, "summary.json"), "w") as f:
-        json.dump(summary, f, indent=1)
+    summary["completed"] = summary["converged"]
+    summary["reason"] = "" if summary["converged"] else (
+        "the identification did not converge; its best point is in identified_parameters.json: "
+        + "; ".join(st["message"] for st in summary["stages"] if not st["converged"]))
+    guard.finish(summary)
     print(f"identify: {'converged' if summary['converged'] else 'NOT converged (best point written)'}; "
           f"f {summary['f_start']:.4g} -> {summary['f']:.4g}; {summary['iterations']} iterations, "
           f"{summary['evaluations']} evaluations, {summary['wall_time_s']:.1f} s; results in {args.out}")

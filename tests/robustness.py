@@ -35,6 +35,7 @@ BASELINES = {
     "dem_cell": ["--particles", "40", "--axial-strain", "0.002", "--increment", "0.001"],
     "biaxial": ["--cell-size", "0.0125", "--steps", "2", "--consolidation-steps", "1", "--axial-strain", "0.002"],
     "femdem_biaxial": ["--mesh", "1x1", "--particles", "40", "--axial-strain", "0.002", "--steps", "2"],
+    "identify": ["--steps", "20", "--every", "2", "--max-iterations", "4"],
 }
 #: [s] a SIGTERM is heard when the current C call returns (docs/robustness.md); the longest
 #: one a valid cheap case can make is a MUMPS factorisation of a mesh near MAX_ELEMENTS

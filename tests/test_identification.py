@@ -227,3 +227,20 @@ def test_confidence_intervals_cover_the_reference_over_noise_draws():
         marginal += np.mean((lo <= truth) & (truth <= hi))
     # binomial standard error at 60 draws: 2.8 %; 3 of them either side
     assert abs(joint / n - 0.95) < 0.085 and abs(marginal / n - 0.95) < 0.05
+
+
+def test_identify_demo_writes_its_best_point_when_it_does_not_converge(tmp_path):
+    """Too few iterations: exit 1, summary.json says why, and the best point is written and
+    loads into the material-point demo (--parameters)."""
+    from conftest import run_demo
+    out = tmp_path / "id"
+    proc = run_demo("identify", "--params", "plastic", "--steps", "30", "--max-iterations", "1", "--out", out,
+                    check=False)
+    assert proc.returncode == 1, proc.stderr
+    with open(out / "summary.json") as f:
+        summary = json.load(f)
+    assert summary["completed"] is False and "did not converge" in summary["reason"]
+    assert summary["stages"][0]["f"] < summary["stages"][0]["f_start"]
+    mp = run_demo("material_point", "--test", "triaxial", "--steps", "20", "--parameters",
+                  out / "identified_parameters.json", "--out", tmp_path / "mp")
+    assert mp.returncode == 0

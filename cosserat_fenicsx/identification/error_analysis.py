@@ -62,7 +62,7 @@ class ErrorAnalysis:
         for i, n in enumerate(self.names):
             v = float(self.values[i])
             per[n] = dict(value=v, std=float(self.std[i]),
-                          relative_std=float(self.std[i] / abs(v)) if v != 0 else float("inf"),
+                          relative_std=float(self.std[i] / abs(v)) if v != 0 else None,
                           interval_joint=[float(lo[i]), float(hi[i])],
                           interval_marginal=[float(mlo[i]), float(mhi[i])])
         return dict(method="thesis section 4.5: s0 (4.27), K (4.28), sigma_p (4.29), "
@@ -70,7 +70,8 @@ class ErrorAnalysis:
                     n_data=self.n_data, n_parameters=len(self.names), s0=self.s0,
                     scatter_known=self.scatter_known, confidence=1.0 - self.alpha,
                     joint_factor=self.joint_factor, marginal_factor=self.marginal_factor,
-                    condition_number=self.condition_number, rank_deficient=self.rank_deficient,
+                    condition_number=self.condition_number if np.isfinite(self.condition_number) else None,
+                    rank_deficient=self.rank_deficient,
                     parameters=per, correlation=self.correlation.tolist(), names=list(self.names))
 
 

@@ -127,6 +127,15 @@ def _worker(args):
     return h, dh, reason or h.get("stopped", "failed")
 
 
+def _quiet_worker():
+    """A worker leaves Ctrl-C and SIGTERM to its parent (whose RunGuard writes summary.json
+    and exits; the workers end when their task queue closes): the forked copy of the parent's
+    handler must not write the summary too."""
+    import signal
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
+    signal.signal(signal.SIGTERM, signal.SIG_DFL)
+
+
 class Objective:
     """f(s) of (4.18) over a list of TestData, for the parameters of `parameter_set`."""
 
@@ -172,7 +181,8 @@ class Objective:
             import concurrent.futures
             import multiprocessing
             self._pool = concurrent.futures.ProcessPoolExecutor(
-                max_workers=min(self.processes, len(self.data)), mp_context=multiprocessing.get_context("fork"))
+                max_workers=min(self.processes, len(self.data)), mp_context=multiprocessing.get_context("fork"),
+                initializer=_quiet_worker)
         return list(self._pool.map(_worker, tasks))
 
     def evaluate(self, s, jacobian=True):

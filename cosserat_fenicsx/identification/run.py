@@ -30,8 +30,11 @@ class StageResult:
     at_bound: list
 
 
-def run_stages(data, stages, start, bounds, args, log=print, out=None):
-    """Run the stages; returns (final EhlersParameters, [StageResult])."""
+def run_stages(data, stages, start, bounds, args, log=print, out=None, guard=None):
+    """Run the stages; returns (final EhlersParameters, [StageResult]).  guard: a RunGuard
+    that counts the iterations (summary.json as the run goes; a signal waits until an
+    iteration's row and the best parameters are written)."""
+    from contextlib import nullcontext
     current = start
     results = []
     rows = None
@@ -49,12 +52,16 @@ def run_stages(data, stages, start, bounds, args, log=print, out=None):
 
             def progress(rec, k=k):
                 vals = " ".join(f"{n}={v:.5g}" for n, v in rec.values.items())
-                log(f"  it {rec.iteration:3d}  f = {rec.f:.6e}  |proj grad| = {rec.projected_gradient:.3e}  "
-                    f"{rec.wall_time:6.1f} s  {vals}")
-                if rows is not None:
-                    rows.writerow([k, rec.iteration, f"{rec.f:.10g}", f"{rec.projected_gradient:.6g}",
-                                   f"{rec.wall_time:.3f}", " ".join(f"{n}={v:.10g}" for n, v in rec.values.items())])
-                    f.flush()
+                with guard.deferred() if guard is not None else nullcontext():
+                    log(f"  it {rec.iteration:3d}  f = {rec.f:.6e}  |proj grad| = {rec.projected_gradient:.3e}  "
+                        f"{rec.wall_time:6.1f} s  {vals}")
+                    if rows is not None:
+                        rows.writerow([k, rec.iteration, f"{rec.f:.10g}", f"{rec.projected_gradient:.6g}",
+                                       f"{rec.wall_time:.3f}",
+                                       " ".join(f"{n}={v:.10g}" for n, v in rec.values.items())])
+                        f.flush()
+                    if guard is not None:
+                        guard.progress(stage=k, iteration=rec.iteration, objective=rec.f, current=rec.values)
 
             start_eval = objective.evaluate(pset.start, jacobian=False)
             try:

@@ -132,7 +132,7 @@ def _trf(p, z0, max_iterations, ftol, gtol):
 
     res = optimize.least_squares(lambda z: p.evaluate(z).residual, z0, jac=jac, bounds=(p.lo, p.hi),
                                  method="trf", x_scale="jac", ftol=ftol, xtol=1e-12, gtol=gtol,
-                                 max_nfev=4 * max_iterations)
+                                 max_nfev=max_iterations + 1)   # ~ one evaluation per iteration
     return bool(res.status > 0), str(res.message)
 
 

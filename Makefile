@@ -68,6 +68,7 @@ benchmark: deps
 	$(PYTHON) benchmarks/identification_cost.py --out $(OUT)/benchmarks/identification_cost
 	$(PYTHON) benchmarks/reidentification.py --draws 100 --out $(OUT)/benchmarks/reidentification
 	$(PYTHON) benchmarks/skew_stress_cost.py --out $(OUT)/benchmarks/skew_stress_cost
+	$(PYTHON) benchmarks/identify_micropolar.py --out $(OUT)/benchmarks/identify_micropolar
 	$(PYTHON) benchmarks/dem_virtual_tests.py --out $(OUT)/benchmarks/dem_virtual_tests
 	$(PYTHON) benchmarks/dem_calibration.py --dem $(OUT)/benchmarks/dem_virtual_tests --out $(OUT)/benchmarks/dem_calibration
 	$(PYTHON) benchmarks/robustness_sweep.py --random 2 --out $(OUT)/benchmarks/robustness_sweep

@@ -71,6 +71,7 @@ benchmark: deps
 	$(PYTHON) benchmarks/identify_micropolar.py --out $(OUT)/benchmarks/identify_micropolar
 	$(PYTHON) benchmarks/dem_virtual_tests.py --out $(OUT)/benchmarks/dem_virtual_tests
 	$(PYTHON) benchmarks/dem_calibration.py --dem $(OUT)/benchmarks/dem_virtual_tests --out $(OUT)/benchmarks/dem_calibration
+	$(PYTHON) benchmarks/femdem_vs_ehlers.py --parameters $(OUT)/benchmarks/dem_calibration/identify/identified_parameters.json --out $(OUT)/benchmarks/femdem_vs_ehlers
 	$(PYTHON) benchmarks/robustness_sweep.py --random 2 --out $(OUT)/benchmarks/robustness_sweep
 	$(PYTHON) benchmarks/interrupt_runs.py --trials 12 --ranks $(NP) --signal INT --out $(OUT)/benchmarks/interrupt_runs
 	ROBUSTNESS_EXAMPLES=25 ROBUSTNESS_RANDOM=1 $(PYTHON) -m pytest -q -p no:cacheprovider tests/test_robustness_properties.py

@@ -49,7 +49,6 @@ summary.json says it ended (completed, stopped or interrupted) is not run again 
 
     python3 benchmarks/femdem_vs_ehlers.py [--out out/femdem_vs_ehlers] [--runs ehlers,femdem]
 """
-import argparse
 import csv
 import json
 import os
@@ -69,29 +68,30 @@ CELL_DATA = os.path.join(ROOT, "out", "dem_calibration", "data", "biaxial_10Pa.c
 
 
 def parse_args(argv=None):
-    p = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    from cosserat_fenicsx.validation import FRACTION, POSITIVE, STEPS, Parser, number
+    p = Parser(description=__doc__.split("\n")[0], allow_abbrev=False)
     p.add_argument("--out", default=os.path.join(ROOT, "out", "femdem_vs_ehlers"))
     p.add_argument("--parameters", default=os.path.join(ROOT, "out", "dem_calibration", "identify",
                                                         "identified_parameters.json"))
     p.add_argument("--runs", default=",".join(DEFAULT_RUNS), help=f"comma list out of {ALL_RUNS}")
     p.add_argument("--rerun", action="store_true", help="run again even if a run's summary says it ended")
     p.add_argument("--report-only", action="store_true", help="run nothing, tabulate what exists")
-    p.add_argument("--width", type=float, default=0.01)
-    p.add_argument("--height", type=float, default=0.02)
+    p.add_argument("--width", type=number(POSITIVE), default=0.01)
+    p.add_argument("--height", type=number(POSITIVE), default=0.02)
     p.add_argument("--mesh", default="2x4", help="NXxNY rectangles (the Ehlers cell size is W / NX)")
-    p.add_argument("--pressure", type=float, default=1e5, help="confining pressure [Pa]")
-    p.add_argument("--axial-strain", type=float, default=0.04)
-    p.add_argument("--steps", type=int, default=40)
-    p.add_argument("--weak-size", type=float, default=5e-3, help="side of the weak corner [m]")
-    p.add_argument("--femdem-weak-friction", type=float, default=0.5,
+    p.add_argument("--pressure", type=number(POSITIVE), default=1e5, help="confining pressure [Pa]")
+    p.add_argument("--axial-strain", type=number(POSITIVE), default=0.04)
+    p.add_argument("--steps", type=number(STEPS), default=40)
+    p.add_argument("--weak-size", type=number(POSITIVE), default=5e-3, help="side of the weak corner [m]")
+    p.add_argument("--femdem-weak-friction", type=number(FRACTION), default=0.5,
                    help="contact friction of the weak cells / friction (FEM x DEM)")
-    p.add_argument("--ehlers-weak-factor", type=float, default=0.8,
+    p.add_argument("--ehlers-weak-factor", type=number(FRACTION), default=0.8,
                    help="beta0, beta* of the weak corner / the rest (Ehlers; 0.8 matches friction x 0.5, "
                         "see the docstring)")
-    p.add_argument("--femdem-accept-rtol", type=float, default=0.05,
+    p.add_argument("--femdem-accept-rtol", type=number(POSITIVE), default=0.05,
                    help="FEM x DEM: a stagnating Newton step ends at its best iterate if FNORM/RNORM <= this "
                         "(the demo's default 0.03 cuts the post-peak steps to 0.01 %% of strain; see the docstring)")
-    p.add_argument("--stress-scale", type=float, default=1e4, help="c of the calibration: kn = 1e4 c, ks = 2e3 c")
+    p.add_argument("--stress-scale", type=number(POSITIVE), default=1e4, help="c of the calibration: kn = 1e4 c, ks = 2e3 c")
     a = p.parse_args(argv)
     a.runs = [r for r in a.runs.split(",") if r]
     unknown = set(a.runs) - set(ALL_RUNS)
@@ -378,9 +378,12 @@ def main(argv=None):
             cost["steps_accepted_above_force_rtol"] = s.get("steps_accepted_above_force_rtol")
         result["runs"][name] = {"curve": metrics(h, strains, window), "band": band_entries(s), "cost": cost,
                                 "completed": s.get("completed"), "reason": s.get("reason")}
-    cell = read_cell_data(CELL_DATA)
+    # the calibration's (scaled) cell data sit beside its identify/ directory
+    cell_data = os.path.join(os.path.dirname(os.path.dirname(os.path.abspath(a.parameters))), "data",
+                             os.path.basename(CELL_DATA))
+    cell = read_cell_data(cell_data)
     if cell is not None:
-        result["runs"]["cell"] = {"curve": metrics(cell, strains, window), "source": CELL_DATA}
+        result["runs"]["cell"] = {"curve": metrics(cell, strains, window), "source": cell_data}
     with open(os.path.join(a.out, "summary.json"), "w") as f:
         json.dump(result, f, indent=1)
     if histories:

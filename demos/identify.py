@@ -136,6 +136,7 @@ def main(argv=None):
     parser = build_parser()
     args = parser.parse_args(argv)
     t_start, c_start = time.perf_counter(), time.process_time()
+    from cosserat_fenicsx.identification.objective import check_homogeneous
     from cosserat_fenicsx.identification.parameter_set import ParameterSet
     from cosserat_fenicsx.materials.ehlers.parameters import EhlersParameters, read_parameter_file
     # ---- every input checked before any model run
@@ -164,7 +165,9 @@ def main(argv=None):
                 start_values[n] = start_values[n] * (1.0 + args.disturb) if start_values[n] != 0 else 0.0
         start = EhlersParameters(**start_values)
         for st in stages:   # names, bounds and constraints at the start, stage by stage
-            ParameterSet(st, start, {k: v for k, v in bounds.items() if k in ParameterSet(st, start).names})
+            names = ParameterSet(st, start).names
+            check_homogeneous(names)
+            ParameterSet(st, start, {k: v for k, v in bounds.items() if k in names})
     except (InputError, ValueError) as error:
         parser.refuse(error)
     os.makedirs(args.out, exist_ok=True)

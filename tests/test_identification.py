@@ -175,6 +175,7 @@ def test_identify_demo_refuses_bad_input(tmp_path):
     cases = [
         (["--data", f"triaxial:100e3:{nan}"], "non-finite"),
         (["--data", f"triaxial:100e3:{good}", "--params", "psi7"], "not an identifiable"),
+        (["--data", f"triaxial:100e3:{good}", "--params", "l_c,psi1"], "no effect in homogeneous tests"),
         (["--data", f"triaxial:100e3:{good}", "--params", "psi1", "--bounds", str(tmp_path / "b.json")], "bounds"),
         (["--data", f"triaxial::{good}"], "needs its confining pressure"),
         (["--data", f"triaxial:100e3:{good}", "--start", str(start)], "n0"),

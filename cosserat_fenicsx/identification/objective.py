@@ -25,7 +25,7 @@ import time
 import numpy as np
 
 from ..validation import InputError
-from .parameter_set import ParameterSet
+from .parameter_set import MICROPOLAR, ParameterSet
 
 
 @dataclasses.dataclass
@@ -127,6 +127,16 @@ def _worker(args):
     return h, dh, reason or h.get("stopped", "failed")
 
 
+def check_homogeneous(names):
+    """InputError for parameters the homogeneous tests cannot see: the micropolar ones do not
+    act there (sigma symmetric, m = 0, thesis 6.1.1)."""
+    polar = [n for n in names if n in MICROPOLAR]
+    if polar:
+        raise InputError(f"identification: {polar} have no effect in homogeneous tests (thesis 6.1.1: the "
+                         "stress stays symmetric, the couple stress zero); identify them from a biaxial FE run "
+                         "with a band (benchmarks/identify_micropolar.py)")
+
+
 def _quiet_worker():
     """A worker leaves Ctrl-C and SIGTERM to its parent (whose RunGuard writes summary.json
     and exits; the workers end when their task queue closes): the forked copy of the parent's
@@ -144,6 +154,7 @@ class Objective:
             raise InputError("identification: no test data")
         if sensitivity not in ("numerical", "semi-analytical"):
             raise InputError(f"sensitivity must be 'numerical' or 'semi-analytical', got {sensitivity!r}")
+        check_homogeneous(parameter_set.names)
         self.data = list(data)
         self.parameter_set = parameter_set
         self.sensitivity = sensitivity

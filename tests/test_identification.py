@@ -245,3 +245,17 @@ def test_identify_demo_writes_its_best_point_when_it_does_not_converge(tmp_path)
     mp = run_demo("material_point", "--test", "triaxial", "--steps", "20", "--parameters",
                   out / "identified_parameters.json", "--out", tmp_path / "mp")
     assert mp.returncode == 0
+
+
+def test_parameter_file_drives_the_biaxial_demo(tmp_path):
+    """A parameter file (what identify writes) sets the FE biaxial test's material; an option
+    typed on the command line overrides the file's value."""
+    from conftest import read_summary, run_demo
+    from cosserat_fenicsx.materials.ehlers.parameters import write_parameter_file
+    path = tmp_path / "p.json"
+    write_parameter_file(str(path), EhlersParameters(k_sigma=0.5, l_c=4e-3))
+    out = tmp_path / "bx"
+    run_demo("biaxial", "--parameters", path, "--l-c", "5e-3", "--cell-size", "0.0125", "--steps", "2",
+             "--consolidation-steps", "1", "--axial-strain", "0.002", "--out", out)
+    s = read_summary(out)
+    assert s["k_sigma"] == 0.5 and s["l_c"] == 5e-3 and s["parameters_file"] == str(path)

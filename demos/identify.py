@@ -24,8 +24,11 @@ re-identification of section 6.2.3: virtual data from the Hostun set (the five t
 
 Stepwise identification (4.3): --params may be given several times; each stage
 identifies its parameters with those of the earlier stages fixed at their identified
-values (e.g. ``--params elastic --params plastic``).  Groups: elastic (4.19), plastic (the
-14 of 6.2), initial, or parameter names separated by commas.
+values, on the tests of the kinds after a colon (default all), e.g. ``--params
+elastic:triaxial_unloading --params plastic:hydrostatic,triaxial,biaxial``; ``--stepwise``
+is that sequence (with virtual data it adds unloading branches of the three triaxial
+tests, the thesis' data for step 1(a)).  Groups: elastic (4.19), plastic (the 14 of 6.2),
+initial, or parameter names separated by commas.
 
 Outputs in --out: identified_parameters.json (loadable: ``demos/material_point.py
 --parameters`` and ``demos/biaxial.py --parameters``), summary.json (values, start,
@@ -56,8 +59,12 @@ def build_parser():
                    help="a test's data file (repeatable); none: re-identification from virtual data")
     p.add_argument("--config", default=None, help="JSON file with tests, params, start, bounds (see docs)")
     p.add_argument("--params", action="append", default=[],
-                   help="parameters to identify: names or groups, comma separated; repeat for stages "
+                   help="parameters to identify: names or groups, comma separated, optionally :KIND,KIND (the "
+                        "tests this stage fits); repeat for stages "
                         "(default: psi1,psi2,beta_star,gamma_star)")
+    p.add_argument("--stepwise", action="store_true",
+                   help="the stepwise identification of 4.3/6.1: elastic (4.19) on unloading branches, then the "
+                        "14 plastic parameters (6.2) on the other tests")
     p.add_argument("--start", default=None, help="JSON parameter file with the start values (default Hostun)")
     p.add_argument("--bounds", default=None, help='JSON {"name": [lower, upper]} overriding the default bounds')
     p.add_argument("--method", choices=("auto", "trf", "SLSQP", "trust-constr"), default="auto",
@@ -88,10 +95,44 @@ def build_parser():
     return p
 
 
-def parse_stages(params):
-    stages = [tuple(x.strip() for x in arg.split(",") if x.strip()) for arg in params]
-    stages = [s for s in stages if s]
-    return stages or [("psi1", "psi2", "beta_star", "gamma_star")]
+def parse_stages(params, config_stages, stepwise):
+    """Stages from --params NAMES[:KIND,KIND] (repeatable), the config's "stages" (lists of
+    names, or {"params": [...], "kinds": [...]}), or --stepwise (4.3: elastic on the unloading
+    branches, then the 14 plastic parameters on the five tests)."""
+    from cosserat_fenicsx.identification.run import Stage
+    from cosserat_fenicsx.identification.virtual_tests import KINDS, UNLOADING
+
+    def split(text):
+        return tuple(x.strip() for x in text.split(",") if x.strip())
+
+    stages = []
+    if stepwise:
+        if params or config_stages:
+            raise InputError("--stepwise sets the stages itself: give no --params or config stages with it")
+        return [Stage(("elastic",), UNLOADING), Stage(("plastic",), tuple(k for k in KINDS if k not in UNLOADING))]
+    for arg in params:
+        names, _, kinds = arg.partition(":")
+        stages.append(Stage(split(names), split(kinds) or None))
+    for st in ([] if params else config_stages):
+        if isinstance(st, dict):
+            stages.append(Stage(tuple(st.get("params", ())), tuple(st["kinds"]) if st.get("kinds") else None))
+        else:
+            stages.append(Stage(split(st) if isinstance(st, str) else tuple(st)))
+    for st in stages:
+        if not st.params:
+            raise InputError("a stage names no parameters")
+        bad = [k for k in st.kinds or () if k not in KINDS]
+        if bad:
+            raise InputError(f"stage {','.join(st.params)}: test kind(s) {bad} not among {sorted(KINDS)}")
+    return stages or [Stage(("psi1", "psi2", "beta_star", "gamma_star"))]
+
+
+def virtual_kinds(stages):
+    """The kinds of the virtual data: the five tests of 6.1, and the unloading branches when a
+    stage asks for them."""
+    from cosserat_fenicsx.identification.data import THESIS_TESTS, THESIS_UNLOADING
+    asked = {k for st in stages for k in st.kinds or ()}
+    return {k for k, _ in THESIS_TESTS} | ({k for k, _ in THESIS_UNLOADING} & asked)
 
 
 def read_json(path, what):
@@ -128,7 +169,7 @@ def load_data(args, config):
         out.append(read_test(e["file"], e["kind"], e.get("confining"), quantities=e.get("quantities"),
                              normalisation=e.get("normalisation"), scatter=e.get("scatter"),
                              n_steps=args.model_steps and int(args.model_steps),
-                             start_pressure=e.get("start_pressure", 0.0)))
+                             start_pressure=e.get("start_pressure", 0.0), unload_at=e.get("unload_at")))
     return out
 
 
@@ -142,8 +183,7 @@ def main(argv=None):
     # ---- every input checked before any model run
     try:
         config = read_json(args.config, "config") if args.config else {}
-        stages = parse_stages(args.params or [",".join(s) if isinstance(s, list) else s
-                                              for s in config.get("stages", config.get("params", []))])
+        stages = parse_stages(args.params, config.get("stages", config.get("params", [])), args.stepwise)
         base = dict(eta=args.eta, micropolar=args.micropolar)
         if config.get("base"):
             base.update(config["base"])
@@ -160,14 +200,17 @@ def main(argv=None):
         virtual = data is None
         start_values = reference.as_dict()
         if virtual:
-            all_names = {n for st in stages for n in ParameterSet(st, reference).names}
+            all_names = {n for st in stages for n in ParameterSet(st.params, reference).names}
             for n in all_names:
                 start_values[n] = start_values[n] * (1.0 + args.disturb) if start_values[n] != 0 else 0.0
         start = EhlersParameters(**start_values)
-        for st in stages:   # names, bounds and constraints at the start, stage by stage
-            names = ParameterSet(st, start).names
+        for st in stages:   # names, bounds, constraints and data at the start, stage by stage
+            names = ParameterSet(st.params, start).names
             check_homogeneous(names)
-            ParameterSet(st, start, {k: v for k, v in bounds.items() if k in names})
+            ParameterSet(st.params, start, {k: v for k, v in bounds.items() if k in names})
+            kinds = {d.test.kind for d in data} if data is not None else virtual_kinds(stages)
+            if st.kinds is not None and not kinds & set(st.kinds):
+                raise InputError(f"stage {','.join(st.params)}: no data of the kinds {list(st.kinds)}")
     except (InputError, ValueError) as error:
         parser.refuse(error)
     os.makedirs(args.out, exist_ok=True)
@@ -175,13 +218,13 @@ def main(argv=None):
     from cosserat_fenicsx.identification.run import run_stages, write_outputs
     from cosserat_fenicsx.run_guard import RunGuard
     guard = RunGuard(None, os.path.join(args.out, "summary.json"),
-                     dict(stages=[list(s) for s in stages], method=args.method, sensitivity=args.sensitivity),
+                     dict(stages=[st.describe() for st in stages], method=args.method, sensitivity=args.sensitivity),
                      label="identify")
     if virtual:
         print(f"identify: re-identification from virtual data of the Hostun set, start disturbed by "
               f"{100 * args.disturb:+g} %, noise {args.noise:g} phi_0")
-        data = thesis_virtual_data(reference, args.steps, args.every, args.noise,
-                                   np.random.default_rng(args.seed))
+        data = thesis_virtual_data(reference, args.steps, args.every, args.noise, np.random.default_rng(args.seed),
+                                   unloading="triaxial_unloading" in virtual_kinds(stages))
     for d in data:
         print(f"  {d.label}: {len(d.x)} points, quantities {list(d.y)}, normalisation "
               + ", ".join(f"{q} {v:.4g}" for q, v in d.normalisation.items()) + f"  ({d.source})")

@@ -25,7 +25,7 @@ import os
 import numpy as np
 
 from ..validation import InputError
-from .virtual_tests import KINDS, VirtualTest
+from .virtual_tests import KINDS, UNLOADING, VirtualTest
 
 #: Table 6.2 of the thesis: normalisation factors of (6.3) for the Hostun tests [Pa, -]
 TABLE_6_2 = {("triaxial", 100e3): dict(axial_stress=500e3, volumetric_strain=0.1),
@@ -66,7 +66,8 @@ def default_normalisation(kind, confining, quantity, values, thesis=False):
         if k == kind and (p is None or (key[1] is not None and math.isclose(p, key[1], rel_tol=1e-6))):
             if quantity in table:
                 return table[quantity]
-    m = float(np.max(np.abs(values)))
+    # an unloading branch: its range (the stress level itself is not what it measures)
+    m = float(np.ptp(values) if kind in UNLOADING else np.max(np.abs(values)))
     if not m > 0:
         raise InputError(f"{kind} test: all {quantity} data are zero; give its normalisation explicitly")
     return m
@@ -93,7 +94,7 @@ def _read_columns(path):
 
 
 def read_test(path, kind, confining, quantities=None, normalisation=None, scatter=None,
-              n_steps=None, n_consolidation=40, start_pressure=0.0):
+              n_steps=None, n_consolidation=40, start_pressure=0.0, unload_at=None):
     """TestData of one CSV file.  kind, confining [Pa]: the test (confining: cell pressure, or
     the final pressure of an isotropic test -- by default the largest pressure in the file);
     quantities: the measured quantities to fit (default: all of the kind's present in the
@@ -101,13 +102,22 @@ def read_test(path, kind, confining, quantities=None, normalisation=None, scatte
     quantity when the file has no <quantity>_std column; n_steps: load steps of the model
     run (default: enough for 1e-3 axial strain or 1/100 of the pressure per step);
     start_pressure (isotropic kinds): the pressure the test starts from, its strains counted
-    from there (e.g. a DEM cell prepared at p0)."""
+    from there (e.g. a DEM cell prepared at p0); unload_at (triaxial_unloading, required): the
+    axial compression at which the recorded unloading branch starts."""
     if kind not in KINDS:
         raise InputError(f"data file {path!r}: test kind {kind!r} is not one of {sorted(KINDS)}")
     cols = _read_columns(path)
     abscissa, measured = KINDS[kind]
     if abscissa == "pressure" and "pressure" not in cols and "mean_stress" in cols:
         cols["pressure"] = -cols["mean_stress"]
+    if kind in UNLOADING and "axial_stress_change" not in cols and "axial_stress" in cols and abscissa in cols:
+        # the change from the branch's start, the first row (axial strain 0)
+        if abs(cols[abscissa][0]) > 1e-12:
+            raise InputError(f"data file {path!r}: an unloading branch given by axial_stress must start at "
+                             "axial strain 0 (or give axial_stress_change)")
+        cols["axial_stress_change"] = cols["axial_stress"] - cols["axial_stress"][0]
+        if "axial_stress_std" in cols:
+            cols["axial_stress_change_std"] = cols["axial_stress_std"]
     if abscissa not in cols:
         raise InputError(f"data file {path!r} ({kind}): column {abscissa!r} missing (columns: {sorted(cols)})")
     wanted = list(quantities) if quantities else [q for q in measured if q in cols]
@@ -139,13 +149,26 @@ def read_test(path, kind, confining, quantities=None, normalisation=None, scatte
     else:
         if confining is None:
             raise InputError(f"data file {path!r}: a {kind} test needs its confining pressure")
-        if np.any(x > 1e-12):
-            raise InputError(f"data file {path!r}: axial strains must be <= 0 (compression, tension positive)")
-        reach = float(-x.min())
+        extra = {}
+        if kind in UNLOADING:
+            if unload_at is None:
+                raise InputError(f"data file {path!r}: a {kind} test needs 'unload_at' (the axial compression "
+                                 "where its unloading starts)")
+            if np.any(x < -1e-12):
+                raise InputError(f"data file {path!r}: an unloading branch has axial strains >= 0 "
+                                 "(counted from its start, tension positive)")
+            reach = float(x.max())
+            extra = dict(unload_at=float(unload_at))
+            default_steps = max(10, int(math.ceil(reach / 5e-5)))
+        else:
+            if np.any(x > 1e-12):
+                raise InputError(f"data file {path!r}: axial strains must be <= 0 (compression, tension positive)")
+            reach = float(-x.min())
+            default_steps = max(20, int(math.ceil(reach / 1e-3)))
         if not reach > 0:
             raise InputError(f"data file {path!r}: the axial strain never leaves 0")
-        steps = n_steps or max(20, int(math.ceil(reach / 1e-3)))
-        test = VirtualTest(kind, float(confining), axial_strain=reach, n_steps=steps, n_consolidation=n_consolidation)
+        test = VirtualTest(kind, float(confining), axial_strain=reach, n_steps=n_steps or default_steps,
+                           n_consolidation=n_consolidation, **extra)
     y = {q: cols[q] for q in wanted}
     std = {}
     for q in wanted:
@@ -200,20 +223,27 @@ THESIS_TESTS = (("hydrostatic", 1.0e6), ("triaxial", 100e3), ("triaxial", 300e3)
                 ("biaxial", 100e3))
 
 
-def thesis_virtual_data(reference, n_steps=75, every=3, noise=0.0, rng=None):
+#: unloading branches for the elastic step 1(a) (4.3): the triaxial tests of 6.1 unloaded by
+#: 5e-4 at 2 % axial compression (the thesis uses unloading-reloading cycles; no values given)
+THESIS_UNLOADING = tuple(("triaxial_unloading", p) for k, p in THESIS_TESTS if k == "triaxial")
+
+
+def thesis_virtual_data(reference, n_steps=75, every=3, noise=0.0, rng=None, unloading=False):
     """Virtual data of the five tests of 6.1 run with the parameter set `reference`
     (re-identification, thesis 6.2.3's method); noise: Gaussian, as a fraction of each
-    quantity's phi_0 of Table 6.2, recorded as the data's scatter."""
+    quantity's phi_0 of Table 6.2, recorded as the data's scatter; unloading: the three
+    unloading branches of THESIS_UNLOADING (10 steps each, every point kept) come first."""
     from ..materials.ehlers import EhlersMaterial
     material = EhlersMaterial(**reference.as_dict())
     rng = rng or np.random.default_rng(0)
     data = []
-    for kind, p in THESIS_TESTS:
-        test = VirtualTest(kind, p, n_steps=n_steps)
+    for kind, p in (THESIS_UNLOADING if unloading else ()) + THESIS_TESTS:
+        test = VirtualTest(kind, p, n_steps=10 if kind in UNLOADING else n_steps,
+                           axial_strain=5e-4 if kind in UNLOADING else 0.15)
         h = test.run(material)
         sig = None
         if noise > 0:
             sig = {q: noise * default_normalisation(kind, p, q, np.asarray(h[q]), thesis=True)
                    for q in test.quantities}
-        data.append(from_history(test, h, every=every, noise=sig, rng=rng))
+        data.append(from_history(test, h, every=1 if kind in UNLOADING else every, noise=sig, rng=rng))
     return data

@@ -91,7 +91,9 @@ def evaluate_test(parameters, test, names, jacobian, sensitivity):
     """(h, dh) of one test: the history of the model run and, with `jacobian`, d(record)/ds."""
     if jacobian:
         from .sensitivity import test_sensitivities
-        return test_sensitivities(parameters, test, list(names), method=sensitivity)
+        h, dh = test_sensitivities(parameters, test, list(names), method=sensitivity)
+        test.derive(h, dh)
+        return h, dh
     from ..materials.ehlers import EhlersMaterial
     h = test.run(EhlersMaterial(**parameters.as_dict()), stop_on_failure=True)
     return h, None

@@ -20,6 +20,22 @@ from .parameter_set import ParameterSet
 from .sqp import identify
 
 
+@dataclasses.dataclass(frozen=True)
+class Stage:
+    """One step of the stepwise identification (4.3): the parameters (names or groups) and
+    the kinds of test whose data it fits (None: all), e.g. the elastic step 1(a) on the
+    unloading branches only."""
+
+    params: tuple
+    kinds: tuple = None
+
+    def select(self, data):
+        return [d for d in data if self.kinds is None or d.test.kind in self.kinds]
+
+    def describe(self):
+        return dict(params=list(self.params), kinds=list(self.kinds) if self.kinds else "all")
+
+
 @dataclasses.dataclass
 class StageResult:
     names: tuple
@@ -44,11 +60,12 @@ def run_stages(data, stages, start, bounds, args, log=print, out=None, guard=Non
         rows.writerow(["stage", "iteration", "objective", "projected_gradient", "wall_time", "values"])
     try:
         for k, stage in enumerate(stages, start=1):
-            pset = ParameterSet(stage, current, {n: b for n, b in bounds.items()
-                                                 if n in ParameterSet(stage, current).names})
-            objective = Objective(data, pset, sensitivity=args.sensitivity, processes=args.processes)
+            pset = ParameterSet(stage.params, current, {n: b for n, b in bounds.items()
+                                                        if n in ParameterSet(stage.params, current).names})
+            objective = Objective(stage.select(data), pset, sensitivity=args.sensitivity, processes=args.processes)
             log(f"stage {k}: {len(pset.names)} parameters {', '.join(pset.names)} "
-                f"({args.method}, {args.sensitivity} sensitivities, {objective.n_data} data points)")
+                f"({args.method}, {args.sensitivity} sensitivities, {objective.n_data} data points of "
+                f"{'all tests' if stage.kinds is None else ', '.join(stage.kinds)})")
 
             def progress(rec, k=k):
                 vals = " ".join(f"{n}={v:.5g}" for n, v in rec.values.items())
@@ -116,7 +133,8 @@ def write_outputs(result, data, args, reference=None):
                    stages=[])
     for st in stages:
         r = st.identification
-        entry = dict(parameters=list(st.names), start=dict(zip(st.names, map(float, r.start))),
+        entry = dict(parameters=list(st.names), tests=[d.label for d in st.objective.data],
+                     start=dict(zip(st.names, map(float, r.start))),
                      identified=r.values_dict(), f_start=r.f_start, f=r.f, converged=r.converged,
                      message=r.message, iterations=r.iterations, evaluations=r.evaluations,
                      wall_time_s=r.wall_time, terms=st.objective.terms(r.best),
@@ -148,9 +166,13 @@ def _plot_fit(stages, data, path):
     ncol = min(4, len(panels))
     nrow = (len(panels) + ncol - 1) // ncol
     fig, axes = plt.subplots(nrow, ncol, figsize=(3.6 * ncol, 3.0 * nrow), squeeze=False)
-    first, last = stages[0].start_evaluation, stages[-1].identification.best
     for ax, (d, q) in zip(axes.flat, panels):
-        scale = 1e-3 if q in ("axial_stress",) else 1.0
+        # the start of the first stage that fits this test, the result of the last one
+        fits = [st for st in stages if d.label in st.start_evaluation.curves]
+        if not fits:
+            continue
+        first, last = fits[0].start_evaluation, fits[-1].identification.best
+        scale = 1e-3 if q.startswith("axial_stress") else 1.0
         xs = 1e-3 if d.test.abscissa == "pressure" else 1.0
         ax.plot(d.x * xs, d.y[q] * scale, "k.", ms=3, label="data")
         for ev, style, lab in ((first, "b--", "start"), (last, "r-", "identified")):

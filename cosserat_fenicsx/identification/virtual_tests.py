@@ -12,6 +12,9 @@ kind                       loading                                 measured (abs
                            at sig22 = sig33 = -p                   volumetric_strain
 ``biaxial``                plane strain (eps33 = 0), consolidation axial_strain -> axial_stress,
                            to -p, eps11 decreased at sig22 = -p    volumetric_strain
+``triaxial_unloading``     triaxial to eps11 = -unload_at, then    axial_strain (>= 0, from the
+                           eps11 increased by axial_strain         unloading start) ->
+                           (elastic: step 1(a) of 4.3)             axial_stress_change, volumetric_strain
 =========================  ======================================  ===================================
 
 SI units, tension positive (spec section 0): axial strains of a compression test are
@@ -33,7 +36,10 @@ KINDS = {
     "isotropic_plane_strain": ("pressure", ("volumetric_strain",)),
     "triaxial": ("axial_strain", ("axial_stress", "volumetric_strain")),
     "biaxial": ("axial_strain", ("axial_stress", "volumetric_strain")),
+    "triaxial_unloading": ("axial_strain", ("axial_stress_change", "volumetric_strain")),
 }
+#: kinds whose abscissa grows from 0 (an unloading branch); the others compress (axial strain <= 0)
+UNLOADING = ("triaxial_unloading",)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -50,6 +56,7 @@ class VirtualTest:
     n_consolidation: int = 40
     start_pressure: float = 0.0
     max_cuts: int = 4
+    unload_at: float = 0.02
 
     def __post_init__(self):
         if self.kind not in KINDS:
@@ -59,6 +66,7 @@ class VirtualTest:
         check(f"{self.kind} test n_steps", self.n_steps, STEPS)
         check(f"{self.kind} test n_consolidation", self.n_consolidation, STEPS)
         check(f"{self.kind} test start pressure", self.start_pressure, NON_NEGATIVE)
+        check(f"{self.kind} test unload_at", self.unload_at, AXIAL_STRAIN)
         if self.start_pressure > 0 and (self.abscissa != "pressure" or not self.start_pressure < self.confining):
             raise InputError(f"{self.kind} test: a start pressure needs an isotropic test and must be below "
                              f"its final pressure ({self.start_pressure:g} >= {self.confining:g} Pa?)")
@@ -79,6 +87,8 @@ class VirtualTest:
 
     @property
     def label(self):
+        if self.kind in UNLOADING:
+            return f"{self.kind}_{self.confining / 1e3:g}kPa_at_{100 * self.unload_at:g}%"
         return f"{self.kind}_{self.confining / 1e3:g}kPa"
 
     def run(self, material, point=None, on_record=None, stop_on_failure=False):
@@ -94,10 +104,24 @@ class VirtualTest:
             run = mp.hydrostatic_test if self.kind == "hydrostatic" else mp.isotropic_plane_strain_test
             h = run(material, self.confining, n_steps=self.n_steps, p_start=self.start_pressure,
                     n_consolidation=self.n_consolidation, **common)
+        elif self.kind == "triaxial_unloading":
+            h = mp.unloading_test(material, self.confining, self.unload_at, self.axial_strain, self.n_steps,
+                                  self.n_consolidation, **common)
         else:
             run = mp.triaxial_test if self.kind == "triaxial" else mp.biaxial_test
             h = run(material, self.confining, self.axial_strain, self.n_steps, self.n_consolidation, **common)
         h["pressure"] = self.pressure(h)
+        return self.derive(h)
+
+    def derive(self, h, dh=None):
+        """Add the quantities computed from the records, to h and (when given) to its
+        sensitivities dh: an unloading branch measures the axial stress *change* from its
+        start, which the plasticity before the unloading does not set."""
+        if self.kind in UNLOADING:
+            a = np.asarray(h["axial_stress"])
+            h["axial_stress_change"] = a - a[0]
+            if dh is not None:
+                dh["axial_stress_change"] = dh["axial_stress"] - dh["axial_stress"][0]
         return h
 
     def pressure(self, h):
@@ -111,4 +135,6 @@ class VirtualTest:
         """(lo, hi) of the abscissa the test covers: data outside it cannot be compared."""
         if self.abscissa == "pressure":
             return self.start_pressure, self.confining
+        if self.kind in UNLOADING:
+            return 0.0, self.axial_strain
         return -self.axial_strain, 0.0

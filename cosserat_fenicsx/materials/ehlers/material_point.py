@@ -273,18 +273,22 @@ def isotropic_plane_strain_test(material, p_max=1.0e6, n_steps=200, dt=1.0, stop
                      stop_on_failure)
 
 
-def _compression(pt, recs, mask, lateral, confining, axial_strain, n_steps, dt):
+def _compression(pt, recs, mask, lateral, confining, axial_strain, n_steps, dt, change=None):
     """The deviatoric phase of the triaxial and biaxial tests: eps11 decreased by
-    axial_strain in n_steps from the consolidated state, -confining on the `lateral`
-    components; strains counted from the start of the phase."""
+    axial_strain in n_steps from the current state (or changed by the signed `change`),
+    -confining on the `lateral` components; strains counted from the start of the phase.
+    recs None: the phase is not recorded."""
     e_ref = pt.strain.copy()
-    _record(pt, recs, e_ref)
+    change = -axial_strain if change is None else change
+    if recs is not None:
+        _record(pt, recs, e_ref)
     for k in range(1, n_steps + 1):
         tgt = np.zeros(7)
-        tgt[0] = e_ref[0] - axial_strain * k / n_steps
+        tgt[0] = e_ref[0] + change * k / n_steps
         tgt[lateral] = -confining
         pt.advance(mask, tgt, dt)
-        _record(pt, recs, e_ref)
+        if recs is not None:
+            _record(pt, recs, e_ref)
 
 
 def triaxial_test(material, confining=100e3, axial_strain=0.15, n_steps=600, n_consolidation=40, dt=1.0,
@@ -300,6 +304,29 @@ def triaxial_test(material, confining=100e3, axial_strain=0.15, n_steps=600, n_c
         consolidate(pt, -confining, n_steps=n_consolidation, dt=dt)
         mask = np.array([False, True, True, False, False, False, False])
         _compression(pt, recs, mask, [1, 2], confining, axial_strain, n_steps, dt)
+    return _run_test(pt, recs, load, stop_on_failure)
+
+
+def unloading_test(material, confining=100e3, unload_at=0.02, axial_strain=5e-4, n_steps=10, n_consolidation=40,
+                   dt=1.0, stop_on_failure=False, on_record=None, point=None, n_loading=None):
+    """An unloading branch of a triaxial test, the data of the elastic step 1(a) of the
+    thesis' stepwise identification (4.3, eq. 4.19): consolidation to -p, axial compression
+    to eps11 = -unload_at at sig22 = sig33 = -p (n_loading steps, 1e-3 each by default, not
+    recorded), then eps11 *increased* by axial_strain in n_steps, recorded with the strains
+    counted from the start of the unloading (positive axial strains).  Inside the yield
+    surface the branch is elastic (2.70-2.74): it sees mu, lmbda and n_max, not the plasticity."""
+    _check_test(confining, axial_strain, n_steps, n_consolidation, dt)
+    check("unload_at", unload_at, AXIAL_STRAIN)
+    n_loading = max(10, int(np.ceil(unload_at / 1e-3))) if n_loading is None else n_loading
+    check("n_loading", n_loading, STEPS)
+    pt = _new_point(material, point)
+    recs = _Records(on_record)
+
+    def load():
+        consolidate(pt, -confining, n_steps=n_consolidation, dt=dt)
+        mask = np.array([False, True, True, False, False, False, False])
+        _compression(pt, None, mask, [1, 2], confining, unload_at, n_loading, dt)
+        _compression(pt, recs, mask, [1, 2], confining, 0.0, n_steps, dt, change=axial_strain)
     return _run_test(pt, recs, load, stop_on_failure)
 
 

@@ -34,7 +34,10 @@ TESTS = {"hydrostatic": VirtualTest("hydrostatic", 1e6, n_steps=60),
          # a start pressure (a DEM cell prepared at p0): strains counted from its state
          "isotropic_from_p0": VirtualTest("isotropic_plane_strain", 1e6, n_steps=40, start_pressure=2e5),
          "triaxial": VirtualTest("triaxial", 300e3, n_steps=60, n_consolidation=20),
-         "biaxial": VirtualTest("biaxial", 100e3, n_steps=60, n_consolidation=20)}
+         "biaxial": VirtualTest("biaxial", 100e3, n_steps=60, n_consolidation=20),
+         # the elastic branch of step 1(a): its axial stress change, derived from the records
+         "triaxial_unloading": VirtualTest("triaxial_unloading", 300e3, axial_strain=5e-4, n_steps=10,
+                                           n_consolidation=20)}
 TIGHT = dict(driver_tol=1e-9, kernel_tol=1e-12)
 
 
@@ -49,6 +52,7 @@ def semi(hostun):
     for kind, test in TESTS.items():
         diag = {}
         h, dh = sens.test_sensitivities(hostun, test, NAMES, "semi-analytical", diagnostics=diag)
+        test.derive(h, dh)
         out[kind] = (h, dh, diag)
     return out
 
@@ -58,6 +62,7 @@ def test_semi_analytical_equals_central_differences(hostun, semi, kind):
     test = TESTS[kind]
     h, dsa, diag = semi[kind]
     h_fd, dfd = sens.test_sensitivities(hostun, test, NAMES, "numerical", **TIGHT)
+    test.derive(h_fd, dfd)
     assert len(h_fd["axial_stress"]) == len(h["axial_stress"]) == dsa["axial_stress"].shape[0]
     for q in test.quantities:
         assert dsa[q].shape == (len(h[q]), len(NAMES))

@@ -103,8 +103,9 @@ def main():
                   base=dict(n0=float(solid), n_max=0.99))
     with open(os.path.join(out, "config.json"), "w") as f:
         json.dump(config, f, indent=1)
+    # the points of a DEM curve share its loading path: their errors are correlated
     cmd = [sys.executable, os.path.join(ROOT, "demos", "identify.py"), "--config", os.path.join(out, "config.json"),
-           "--out", os.path.join(out, "identify")]
+           "--serial-correlation", "--out", os.path.join(out, "identify")]
     print("dem_calibration:", " ".join(cmd))
     proc = subprocess.run(cmd)
     with open(os.path.join(out, "identify", "summary.json")) as f:

@@ -76,6 +76,9 @@ def build_parser():
                    help="worker processes evaluating the tests in parallel (default %(default)s)")
     p.add_argument("--confidence", type=number(Range(0.5, 1.0, high_open=True)), default=0.95,
                    help="confidence level of the intervals (4.30) (default %(default)g)")
+    p.add_argument("--serial-correlation", action="store_true",
+                   help="errors of neighbouring points of a curve correlated (e.g. DEM curves): covariance from "
+                        "the Newey-West sandwich instead of (4.28)")
     p.add_argument("--out", default="out/identify", help="output directory (default %(default)s)")
     v = p.add_argument_group("virtual data (no --data: re-identification, section 6.2.3)")
     v.add_argument("--disturb", type=number(Range(-0.5, 0.5)), default=0.1,

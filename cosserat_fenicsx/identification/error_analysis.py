@@ -14,7 +14,9 @@ J_nk = d phi_n / d s_k (chapter 5):
   That l bounds the *joint* ellipsoid (s - s_hat)^T K^-1 (s - s_hat) <= P F (Scheffe), so
   each interval of (4.30) holds its parameter with probability >= 1 - alpha; the marginal
   interval with exactly 1 - alpha is l = t_{N-P, 1-alpha/2}.  Both are reported;
-* correlation (4.31): r_ij = K_ij / sqrt(K_ii K_jj) (Table 6.5, 6.7).
+* correlation (4.31): r_ij = K_ij / sqrt(K_ii K_jj) (Table 6.5, 6.7);
+* optionally, errors correlated along each curve (serial_blocks): K from the Newey-West
+  sandwich instead of (4.28).
 
 Everything works on plain arrays; scipy.stats gives the F and t quantiles.
 """
@@ -43,6 +45,7 @@ class ErrorAnalysis:
     marginal_factor: float     # t_{N-P,1-alpha/2}
     condition_number: float
     rank_deficient: bool
+    serially_correlated: bool = False   # K from the Newey-West sandwich
 
     def intervals(self, joint=True):
         """(lower, upper) per parameter: (4.30) when joint, else the marginal t interval."""
@@ -71,16 +74,58 @@ class ErrorAnalysis:
                     scatter_known=self.scatter_known, confidence=1.0 - self.alpha,
                     joint_factor=self.joint_factor, marginal_factor=self.marginal_factor,
                     condition_number=self.condition_number if np.isfinite(self.condition_number) else None,
-                    rank_deficient=self.rank_deficient,
+                    rank_deficient=self.rank_deficient, serially_correlated=self.serially_correlated,
                     parameters=per, correlation=self.correlation.tolist(), names=list(self.names))
 
 
-def analyse(names, values, jacobian, residual, sigma=None, weights=None, alpha=0.05):
+def _newey_west(J, w, r, blocks, lags):
+    """B = sum over blocks of sum_{|l| <= L} (1 - |l|/(L + 1)) sum_i g_i g_{i+l}^T, g_i = w_i r_i J_i:
+    the variance of the score when the errors of neighbouring points of a curve are correlated
+    (Newey & West 1987, Bartlett weights), points of different blocks independent."""
+    g = (w * r)[:, None] * J
+    B = np.zeros((J.shape[1], J.shape[1]))
+    rho = _lag1_autocorrelation(np.sqrt(w) * r, blocks)
+    start = 0
+    for n in blocks:
+        gb = g[start:start + n]
+        if lags is None:
+            # Andrews (1991) bandwidth of the Bartlett kernel for AR(1) errors
+            a = 4.0 * rho ** 2 / ((1.0 - rho) ** 2 * (1.0 + rho) ** 2)
+            L = int(np.ceil(1.1447 * (a * n) ** (1.0 / 3.0)))
+        else:
+            L = lags
+        B += gb.T @ gb
+        for lag in range(1, min(L, n - 1) + 1):
+            c = gb[lag:].T @ gb[:-lag]
+            B += (1.0 - lag / (L + 1.0)) * (c + c.T)
+        start += n
+    return B
+
+
+def _lag1_autocorrelation(e, blocks):
+    """Pooled lag-1 autocorrelation of the (weighted) residuals within blocks, in [0, 0.97]."""
+    num = den = 0.0
+    start = 0
+    for n in blocks:
+        b = e[start:start + n] - e[start:start + n].mean()
+        num += float(b[1:] @ b[:-1])
+        den += float(b @ b)
+        start += n
+    return float(np.clip(num / den, 0.0, 0.97)) if den > 0 else 0.0
+
+
+def analyse(names, values, jacobian, residual, sigma=None, weights=None, alpha=0.05, serial_blocks=None,
+            lags=None):
     """Error analysis at the optimum.
 
     jacobian (N, P): d phi_n / d s_k; residual (N,): phi_n(s_hat) - phi~_n;
     sigma (N,): data scatter sigma_n (4.26), or None: then `weights` (N,) (the objective's
     w_n) fix the relative scatter sigma_n ~ 1/sqrt(w_n) and s0 carries the common factor.
+    serial_blocks (list of lengths summing to N, the curves in data order): the errors of
+    neighbouring points of one curve may be correlated (a DEM curve's points share its loading
+    path); (4.28) assumes them independent and then understates K.  K becomes the sandwich
+    A^-1 B A^-1 with B of Newey-West over `lags` neighbours (default: Andrews' AR(1) plug-in
+    bandwidth from the residuals' lag-1 autocorrelation).
     """
     from scipy import stats
     J = np.asarray(jacobian, dtype=float)
@@ -108,7 +153,14 @@ def analyse(names, values, jacobian, residual, sigma=None, weights=None, alpha=0
     cond = float(ev[-1] / ev[0]) if ev[0] > 0 else float("inf")
     deficient = not np.isfinite(cond) or cond > 1e14
     Ainv = np.linalg.pinv(An, rcond=1e-14) / np.outer(d, d)
-    K = s0sq * Ainv                                                      # (4.28)
+    if serial_blocks is None:
+        K = s0sq * Ainv                                                  # (4.28)
+    else:
+        if sum(serial_blocks) != N:
+            raise ValueError(f"error analysis: serial blocks of {sum(serial_blocks)} points for {N} data")
+        # sandwich; (N / (N - P)) is the small-sample factor that makes it equal to (4.28)
+        # for independent errors
+        K = (N / (N - P)) * Ainv @ _newey_west(J, w, r, serial_blocks, lags) @ Ainv
     std = np.sqrt(np.clip(np.diag(K), 0.0, None))                        # (4.29)
     with np.errstate(invalid="ignore", divide="ignore"):
         corr = K / np.outer(std, std)                                    # (4.31)
@@ -119,7 +171,8 @@ def analyse(names, values, jacobian, residual, sigma=None, weights=None, alpha=0
     return ErrorAnalysis(names=list(names), values=np.asarray(values, dtype=float), n_data=N,
                          s0=float(np.sqrt(s0sq)), scatter_known=known, covariance=K, std=std,
                          correlation=corr, alpha=alpha, joint_factor=joint, marginal_factor=marginal,
-                         condition_number=cond, rank_deficient=deficient)
+                         condition_number=cond, rank_deficient=deficient,
+                         serially_correlated=serial_blocks is not None)
 
 
 def plot_correlation(analysis, path, title="parameter correlation (4.31)"):

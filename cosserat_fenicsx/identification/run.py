@@ -96,9 +96,10 @@ def run_stages(data, stages, start, bounds, args, log=print, out=None, guard=Non
             if at_bound:
                 log(f"  at a bound (held fixed in the error analysis): {', '.join(at_bound)}")
             try:
+                blocks = [n for _, _, n in objective.blocks] if args.serial_correlation else None
                 analysis = analyse([pset.names[k] for k in free], res.values[free], best.raw_jacobian[:, free],
                                    best.raw_residual, sigma=objective.scatter, weights=objective.weights,
-                                   alpha=1.0 - args.confidence)
+                                   alpha=1.0 - args.confidence, serial_blocks=blocks)
             except ValueError as error:
                 log(f"  error analysis not possible: {error}")
             results.append(StageResult(pset.names, res, analysis, objective, start_eval, at_bound))

@@ -315,3 +315,30 @@ def test_serially_correlated_errors_need_the_sandwich():
             sandwich += lo[1] <= truth[1] <= hi[1]
         assert plain_range[0] < plain / n < plain_range[1], (rho, plain / n)
         assert sandwich_range[0] < sandwich / n < sandwich_range[1], (rho, sandwich / n)
+
+
+def test_interrupted_identification_leaves_its_files_and_no_workers(tmp_path):
+    """Ctrl-C during an identification with worker processes: exit 130, summary.json says it
+    was interrupted after the iterations it completed, and no worker outlives the run."""
+    import signal
+    import subprocess
+    import sys
+    import time
+    from conftest import ROOT
+    out = tmp_path / "int"
+    cmd = [sys.executable, os.path.join(ROOT, "demos", "identify.py"), "--params", "plastic", "--steps", "3000",
+           "--every", "1", "--processes", "2", "--out", str(out)]
+    proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, cwd=ROOT)
+    rows = out / "iterations.csv"
+    deadline = time.time() + 120
+    while time.time() < deadline and not (rows.exists() and len(rows.read_text().splitlines()) >= 2):
+        time.sleep(0.2)
+    proc.send_signal(signal.SIGINT)
+    _, err = proc.communicate(timeout=60)
+    assert proc.returncode == 128 + signal.SIGINT, err
+    with open(out / "summary.json") as f:
+        summary = json.load(f)
+    assert summary["completed"] is False and "interrupted by SIGINT" in summary["reason"]
+    time.sleep(2.0)          # a worker notices its parent is gone within 0.5 s
+    left = subprocess.run(["pgrep", "-f", str(out)], capture_output=True, text=True).stdout.split()
+    assert not left, f"worker processes left behind: {left}"

@@ -20,6 +20,7 @@ independent: with processes > 1 they are evaluated in parallel worker processes.
 from __future__ import annotations
 
 import dataclasses
+import os
 import time
 
 import numpy as np
@@ -141,11 +142,21 @@ def check_homogeneous(names):
 
 def _quiet_worker():
     """A worker leaves Ctrl-C and SIGTERM to its parent (whose RunGuard writes summary.json
-    and exits; the workers end when their task queue closes): the forked copy of the parent's
-    handler must not write the summary too."""
+    and exits): the forked copy of the parent's handler must not write the summary too.  A
+    worker ends itself when its parent is gone (an interrupted run exits without shutting
+    the pool down, and the forked siblings keep the task pipe open, so no EOF would come)."""
     import signal
+    import threading
     signal.signal(signal.SIGINT, signal.SIG_IGN)
     signal.signal(signal.SIGTERM, signal.SIG_DFL)
+    parent = os.getppid()
+
+    def watch():
+        while os.getppid() == parent:
+            time.sleep(0.5)
+        os._exit(0)
+
+    threading.Thread(target=watch, daemon=True).start()
 
 
 class Objective:

@@ -53,6 +53,7 @@ benchmark: deps
 	$(PYTHON) benchmarks/convergence.py --np $(NP) --out $(OUT)/benchmarks
 	$(PYTHON) benchmarks/ehlers_kernel_throughput.py --json $(OUT)/benchmarks/ehlers_kernel_throughput.json
 	$(PYTHON) benchmarks/dem_speed.py --out $(OUT)/benchmarks/dem_speed
+	$(PYTHON) benchmarks/dem_profile.py --identity --out $(OUT)/benchmarks/dem_profile
 	$(PYTHON) benchmarks/dem_tangent.py --out $(OUT)/benchmarks/dem_tangent
 	$(PYTHON) benchmarks/dem_relaxation.py --out $(OUT)/benchmarks/dem_relaxation
 	$(PYTHON) benchmarks/softening_layer.py --out $(OUT)/benchmarks/softening_layer

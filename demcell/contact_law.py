@@ -129,38 +129,49 @@ def contact_update(overlap, d_overlap, d_ut, d_theta_r, fs_old, mr_old, bonded,
     Normal: fn = kn h + cn dh/dt; tangential: elastic predictor fs = fs_old - ks d_ut, then
     the Coulomb return |fs| <= mu fn_el (+ bond shear strength) (000 eq. 10).
     """
-    kn = law[KN]
+    return contact_update_params(overlap, d_overlap, d_ut, d_theta_r, fs_old, mr_old, bonded,
+                                 law[KN], law[KS], law[MU], law[KR], law[ETA_R], law[XI_N], law[XI_T],
+                                 law[COH_N], law[COH_T], m_eff, r_eff, dt)
+
+
+@njit(cache=True)
+def contact_update_params(overlap, d_overlap, d_ut, d_theta_r, fs_old, mr_old, bonded,
+                          kn, ks, mu, kr, eta_r, xi_n, xi_t, coh_n, coh_t, m_eff, r_eff, dt):
+    """``contact_update`` with the law parameters as scalars (kn, ks [N/m], mu [-], kr [N m/rad],
+    eta_r [-], xi_n, xi_t [-], cohesions [N]): the force loop reads the law array once per
+    call instead of once per contact (the stores into the pair arrays otherwise force the
+    compiler to reload it, as it cannot prove that they do not alias). Same arithmetic."""
     fn_el = kn * overlap
-    if bonded == 1 and fn_el < -law[COH_N]:
+    if bonded == 1 and fn_el < -coh_n:
         bonded = 0
     if bonded == 0 and overlap <= 0.0:
         return 0.0, 0.0, 0.0, 0.0, 0.0, 0, 0
     fn = fn_el
-    if law[XI_N] > 0.0:
-        fn += 2.0 * law[XI_N] * math.sqrt(m_eff * kn) * d_overlap / dt
+    if xi_n > 0.0:
+        fn += 2.0 * xi_n * math.sqrt(m_eff * kn) * d_overlap / dt
     # tangential spring, Coulomb limit (000 eq. 10)
-    fs = fs_old - law[KS] * d_ut
+    fs = fs_old - ks * d_ut
     # (inf * 0 is avoided: a contact without normal force carries no friction)
-    limit = law[MU] * fn_el if fn_el > 0.0 else 0.0
+    limit = mu * fn_el if fn_el > 0.0 else 0.0
     if bonded == 1:
-        limit += law[COH_T]
+        limit += coh_t
     sliding = 0
     if abs(fs) > limit:
         if bonded == 1:
             bonded = 0
-            limit = law[MU] * fn_el if fn_el > 0.0 else 0.0
+            limit = mu * fn_el if fn_el > 0.0 else 0.0
         if abs(fs) > limit:
             fs = math.copysign(limit, fs)
             sliding = 1
     fs_el = fs
-    if law[XI_T] > 0.0 and sliding == 0:
-        fs -= 2.0 * law[XI_T] * math.sqrt(m_eff * law[KS]) * d_ut / dt
+    if xi_t > 0.0 and sliding == 0:
+        fs -= 2.0 * xi_t * math.sqrt(m_eff * ks) * d_ut / dt
     # rolling resistance (003, Table 1): elastic-perfectly plastic spring on theta_j - theta_i
     mr = 0.0
-    if law[KR] > 0.0:
-        mr = mr_old - law[KR] * d_theta_r
-        mlim = law[ETA_R] * r_eff * fn_el if fn_el > 0.0 else 0.0
-        if math.isinf(law[ETA_R]) and bonded == 1:
+    if kr > 0.0:
+        mr = mr_old - kr * d_theta_r
+        mlim = eta_r * r_eff * fn_el if fn_el > 0.0 else 0.0
+        if math.isinf(eta_r) and bonded == 1:
             mlim = math.inf
         if abs(mr) > mlim:
             mr = math.copysign(mlim, mr)

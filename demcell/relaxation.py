@@ -22,10 +22,10 @@ from dataclasses import dataclass
 import numpy as np
 from numba import njit
 
-from .contact_law import FROZEN, KN, KR, KS, ROTATIONS, XI_N, XI_T, contact_update
+from .contact_law import (COH_N, COH_T, ETA_R, FROZEN, KN, KR, KS, MU, ROTATIONS, XI_N, XI_T,
+                          contact_update_params)
 from .errors import SolveError
 from .neighbours import build_pairs, cell_strain_norm, max_displacement, merge_history
-from .periodic_cell import branch_vector
 
 # status codes of the kernel
 CONVERGED, MAX_STEPS, NEED_CAPACITY, NO_CONTACTS, NONFINITE, CELL_TOO_SMALL = range(6)
@@ -59,20 +59,40 @@ def compute_forces(radius, mass, s, dtheta, force, moment, h, pair_i, pair_j, fn
     """Contact forces and resultants at the current positions; the tangential and rolling
     increments are those of the last step (d - d_prev, dtheta). Also fills the Cauchy
     stress sigma = (1/|Y|) sum_c f^{j->i} (x) (x_j - x_i) (001 eq. 8, tension positive),
-    the potential energy (000 eq. 32), contact counts and the largest overlap / radius."""
+    the potential energy (000 eq. 32), contact counts and the largest overlap / radius.
+
+    Speed (issue 9 item 7, benchmarks/dem_profile.py): the cell matrix and the law are read
+    into scalars once (the stores into the pair arrays would otherwise make the compiler
+    reload them for every pair), pair indices are used as unsigned integers (no negative-index
+    wraparound code per array access) and the minimum-image rounding uses np.floor (a float;
+    math.floor returns an integer, i.e. two extra conversions). The arithmetic and its order
+    are those of ``branch_vector`` and ``contact_update``: results are bit-identical."""
     n = radius.shape[0]
     for i in range(n):
         force[i, 0] = 0.0
         force[i, 1] = 0.0
         moment[i] = 0.0
-    area = abs(h[0, 0] * h[1, 1] - h[0, 1] * h[1, 0])
+    h00 = h[0, 0]
+    h01 = h[0, 1]
+    h10 = h[1, 0]
+    h11 = h[1, 1]
+    area = abs(h00 * h11 - h01 * h10)
+    kn = law[KN]
+    ks = law[KS]
+    mu = law[MU]
+    kr = law[KR]
+    eta_r = law[ETA_R]
+    xi_n = law[XI_N]
+    xi_t = law[XI_T]
+    coh_n = law[COH_N]
+    coh_t = law[COH_T]
     frozen = law[FROZEN] > 0.5
-    viscous = law[XI_N] > 0.0
-    need_eff = viscous or law[XI_T] > 0.0 or law[KR] > 0.0
+    viscous = xi_n > 0.0
+    need_eff = viscous or xi_t > 0.0 or kr > 0.0
     # spring energies f^2 / (2 k) (000 eq. 32); a zero stiffness carries no force
-    half_inv_kn = 0.5 / law[KN]
-    half_inv_ks = 0.5 / law[KS] if law[KS] > 0.0 else 0.0
-    half_inv_kr = 0.5 / law[KR] if law[KR] > 0.0 else 0.0
+    half_inv_kn = 0.5 / kn
+    half_inv_ks = 0.5 / ks if ks > 0.0 else 0.0
+    half_inv_kr = 0.5 / kr if kr > 0.0 else 0.0
     s11 = 0.0
     s12 = 0.0
     s21 = 0.0
@@ -82,12 +102,38 @@ def compute_forces(radius, mass, s, dtheta, force, moment, h, pair_i, pair_j, fn
     nslide = 0
     fsum = 0.0
     maxovl = 0.0
-    for k in range(n_pairs):
-        i = pair_i[k]
-        j = pair_j[k]
-        dx, dy = branch_vector(h, s, i, j)
+    # the resultant on particle i is kept in registers (fix, fiy, mi) while consecutive pairs
+    # share i (the list is sorted by i) and written back whenever i changes: the same
+    # additions in the same order (exact for any pair order, as j > i never equals the
+    # current i), without a store-to-load round trip through memory per pair
+    none = np.uint64(n)
+    cur = none
+    fix = 0.0
+    fiy = 0.0
+    mi = 0.0
+    for k in range(np.uint64(n_pairs)):
+        i = np.uint64(pair_i[k])
+        j = np.uint64(pair_j[k])
+        if i != cur:
+            if cur != none:
+                force[cur, 0] = fix
+                force[cur, 1] = fiy
+                moment[cur] = mi
+            cur = i
+            fix = force[i, 0]
+            fiy = force[i, 1]
+            mi = moment[i]
+        # minimum-image branch vector (branch_vector, 001 eq. A.1)
+        a = s[j, 0] - s[i, 0]
+        b = s[j, 1] - s[i, 1]
+        a -= np.floor(a + 0.5)
+        b -= np.floor(b + 0.5)
+        dx = h00 * a + h01 * b
+        dy = h10 * a + h11 * b
         dist = math.sqrt(dx * dx + dy * dy)
-        overlap = radius[i] + radius[j] - dist
+        ri = radius[i]
+        rj = radius[j]
+        overlap = ri + rj - dist
         if frozen:
             if touching[k] == 0:
                 continue
@@ -106,8 +152,8 @@ def compute_forces(radius, mass, s, dtheta, force, moment, h, pair_i, pair_j, fn
         tx = -ny
         ty = nx
         # lever arms to the contact point in the middle of the overlap (001 eqs. A.5-A.6)
-        ai = radius[i] - 0.5 * overlap
-        aj = radius[j] - 0.5 * overlap
+        ai = ri - 0.5 * overlap
+        aj = rj - 0.5 * overlap
         if touching[k] == 1:
             ux = dx - d_prev[k, 0]
             uy = dy - d_prev[k, 1]
@@ -128,9 +174,10 @@ def compute_forces(radius, mass, s, dtheta, force, moment, h, pair_i, pair_j, fn
         r_eff = 0.0
         if need_eff:          # only the dashpots and the rolling limit use them
             m_eff = mass[i] * mass[j] / (mass[i] + mass[j])
-            r_eff = radius[i] * radius[j] / (radius[i] + radius[j])
-        fnt, fne, fst, fse, mrk, sl, bond = contact_update(overlap, d_ovl, d_ut, d_thr, fs_old,
-                                                           mr_old, bond, law, m_eff, r_eff, dt)
+            r_eff = ri * rj / (ri + rj)
+        fnt, fne, fst, fse, mrk, sl, bond = contact_update_params(
+            overlap, d_ovl, d_ut, d_thr, fs_old, mr_old, bond, kn, ks, mu, kr, eta_r, xi_n, xi_t,
+            coh_n, coh_t, m_eff, r_eff, dt)
         if not frozen:
             bonded[k] = bond
             if fne == 0.0 and fst == 0.0 and overlap <= 0.0:
@@ -149,9 +196,9 @@ def compute_forces(radius, mass, s, dtheta, force, moment, h, pair_i, pair_j, fn
         fjy = fnt * ny + fst * ty
         force[j, 0] += fjx
         force[j, 1] += fjy
-        force[i, 0] -= fjx
-        force[i, 1] -= fjy
-        moment[i] += -ai * fst - mrk
+        fix -= fjx
+        fiy -= fjy
+        mi += -ai * fst - mrk
         moment[j] += -aj * fst + mrk
         s11 -= fjx * dx
         s12 -= fjx * dy
@@ -161,9 +208,13 @@ def compute_forces(radius, mass, s, dtheta, force, moment, h, pair_i, pair_j, fn
         ncont += 1
         nslide += sl
         fsum += abs(fnt)
-        rmin_ij = min(radius[i], radius[j])
+        rmin_ij = min(ri, rj)
         if overlap > maxovl * rmin_ij:
             maxovl = overlap / rmin_ij
+    if cur != none:
+        force[cur, 0] = fix
+        force[cur, 1] = fiy
+        moment[cur] = mi
     out[O_S11] = s11 / area
     out[O_S12] = s12 / area
     out[O_S21] = s21 / area
@@ -184,6 +235,13 @@ def _inv2(a):
     r[1, 0] = -a[1, 0] / det
     r[1, 1] = a[0, 0] / det
     return r
+
+
+@njit(cache=True)
+def _inv2_scalars(a00, a01, a10, a11):
+    """Entries (00, 01, 10, 11) of the inverse of a 2x2 matrix, as _inv2 computes them."""
+    det = a00 * a11 - a01 * a10
+    return a11 / det, -a01 / det, -a10 / det, a00 / det
 
 
 @njit(cache=True, nogil=True)   # long: lets run_guard's watchdog act on a signal meanwhile
@@ -322,11 +380,12 @@ def advance(radius, mass, inertia, s, v, theta, omega, dtheta, force, moment, s_
             for b in range(2):
                 h[a, b] = Fm[a, 0] * h_ref[0, b] + Fm[a, 1] * h_ref[1, b]
         # macroscopic spin increment: skew part of dF F^-1
-        hi = _inv2(h_old)
-        g01 = (h[0, 0] - h_old[0, 0]) * hi[0, 1] + (h[0, 1] - h_old[0, 1]) * hi[1, 1]
-        g10 = (h[1, 0] - h_old[1, 0]) * hi[0, 0] + (h[1, 1] - h_old[1, 1]) * hi[1, 0]
+        # (scalar inverses: no 2x2 array allocated per step; same arithmetic as _inv2)
+        hi00, hi01, hi10, hi11 = _inv2_scalars(h_old[0, 0], h_old[0, 1], h_old[1, 0], h_old[1, 1])
+        g01 = (h[0, 0] - h_old[0, 0]) * hi01 + (h[0, 1] - h_old[0, 1]) * hi11
+        g10 = (h[1, 0] - h_old[1, 0]) * hi00 + (h[1, 1] - h_old[1, 1]) * hi10
         spin = 0.5 * (g10 - g01)
-        hinv = _inv2(h)
+        hinv00, hinv01, hinv10, hinv11 = _inv2_scalars(h[0, 0], h[0, 1], h[1, 0], h[1, 1])
         damp = alpha
         if fire:
             damp = 0.0
@@ -373,8 +432,8 @@ def advance(radius, mass, inertia, s, v, theta, omega, dtheta, force, moment, s_
                 vmax2 = v2
             dxs = v[i, 0] * dt
             dys = v[i, 1] * dt
-            s[i, 0] += hinv[0, 0] * dxs + hinv[0, 1] * dys
-            s[i, 1] += hinv[1, 0] * dxs + hinv[1, 1] * dys
+            s[i, 0] += hinv00 * dxs + hinv01 * dys
+            s[i, 1] += hinv10 * dxs + hinv11 * dys
             if s[i, 0] >= 1.0 or s[i, 0] < 0.0:
                 s[i, 0] -= math.floor(s[i, 0])
             if s[i, 1] >= 1.0 or s[i, 1] < 0.0:

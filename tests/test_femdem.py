@@ -191,8 +191,11 @@ def test_one_and_two_ranks_give_the_same_history(demo, tmp_path):
         assert np.allclose(h1[key], h2[key], rtol=0, atol=tol * scale), key
     assert np.abs(h1["newton_iterations"] - h2["newton_iterations"]).max() <= 1
     assert np.allclose(g1["x"], g2["x"]) and np.allclose(g1["y"], g2["y"])
-    # a stress error tol |sigma| in each component moves the ratio (s1 - s2) / (s1 + s2) by at most tol
-    assert np.allclose(g1["stress_ratio"], g2["stress_ratio"], rtol=0, atol=tol)
+    # a stress error tol |sigma| in each component moves the ratio (s1 - s2) / (s1 + s2) by at most
+    # tol; each run's cell is within tol of equilibrium, so two runs are within 2 tol of each other
+    # (measured: two 2-rank runs differ by up to 6e-4 themselves -- MUMPS on 2 processes is not
+    # bit-reproducible -- and 1 against 2 ranks by 3.5e-4 to just over 1e-3)
+    assert np.allclose(g1["stress_ratio"], g2["stress_ratio"], rtol=0, atol=2 * tol)
 
 
 @pytest.mark.serial

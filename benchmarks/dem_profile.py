@@ -17,7 +17,7 @@ on the same state (Numba wrappers loop inside compiled code, so no Python per ca
   nearest image: the difference is the cost of the periodic images;
 * neighbour list: ``build_pairs`` + ``merge_history`` called K times; with the number of
   rebuilds counted in the timed run this gives the rebuild share;
-* integration: a replica of the leapfrog loop of ``advance`` run K times at fixed forces;
+* integration: ``relaxation.leapfrog``, the integration of ``advance``, run K times at fixed forces;
 * other: the rest (full step - the above; cell update, loop control, and whatever the kernels
   cost more inside the full step than alone on a fixed state: the forces change from step
   to step there, so the branches of the contact law are predicted less well);
@@ -50,7 +50,7 @@ sys.path.insert(0, os.path.join(os.path.dirname(os.path.abspath(__file__)), ".."
 import demcell as dc  # noqa: E402
 from demcell.neighbours import build_pairs, merge_history  # noqa: E402
 from demcell.periodic_cell import branch_vector  # noqa: E402
-from demcell.relaxation import N_OUT, NO_CHECK, compute_forces, run  # noqa: E402
+from demcell.relaxation import N_OUT, NO_CHECK, compute_forces, leapfrog, run  # noqa: E402
 
 KN, PRESSURE, FRICTION, DAMPING = 1.0e4, 10.0, 0.4, 0.7
 STRAIN = 2.0e-3      # total imposed e22 = -e11 over the timed steps (small: the state stays comparable)
@@ -141,37 +141,16 @@ def _rebuild_k(k, n, h, s, radius, skin, n_pairs, pair_i, pair_j, fs, mr, bonded
 
 @njit(cache=True)
 def _integrate_k(k, mass, inertia, force, moment, v, s, omega, dtheta, theta, h, dt, damp):
-    """A replica of the leapfrog + local damping loop of ``relaxation.advance`` (same
-    operations), run k times at fixed forces: the cost of the integration alone."""
+    """``relaxation.leapfrog`` (the integration of ``advance``) run k times at fixed forces:
+    the cost of the integration alone."""
     det = h[0, 0] * h[1, 1] - h[0, 1] * h[1, 0]
     hinv00, hinv01, hinv10, hinv11 = h[1, 1] / det, -h[0, 1] / det, -h[1, 0] / det, h[0, 0] / det
     inv_m = 1.0 / mass
     inv_i = 1.0 / inertia
     vmax2 = 0.0
     for _ in range(k):
-        for i in range(mass.shape[0]):
-            for c in range(2):
-                f = force[i, c]
-                if damp > 0.0 and v[i, c] != 0.0:
-                    f -= damp * abs(f) * math.copysign(1.0, v[i, c])
-                v[i, c] += dt * inv_m[i] * f
-            v2 = v[i, 0] * v[i, 0] + v[i, 1] * v[i, 1]
-            if v2 > vmax2:
-                vmax2 = v2
-            dxs = v[i, 0] * dt
-            dys = v[i, 1] * dt
-            s[i, 0] += hinv00 * dxs + hinv01 * dys
-            s[i, 1] += hinv10 * dxs + hinv11 * dys
-            if s[i, 0] >= 1.0 or s[i, 0] < 0.0:
-                s[i, 0] -= math.floor(s[i, 0])
-            if s[i, 1] >= 1.0 or s[i, 1] < 0.0:
-                s[i, 1] -= math.floor(s[i, 1])
-            mo = moment[i]
-            if damp > 0.0 and omega[i] != 0.0:
-                mo -= damp * abs(mo) * math.copysign(1.0, omega[i])
-            omega[i] += dt * inv_i[i] * mo
-            dtheta[i] = omega[i] * dt
-            theta[i] += dtheta[i]
+        vmax2 = leapfrog(force, moment, v, s, omega, dtheta, theta, inv_m, inv_i, hinv00, hinv01, hinv10, hinv11,
+                         dt, damp, True, 0.0)
     return vmax2
 
 

@@ -244,6 +244,44 @@ def _inv2_scalars(a00, a01, a10, a11):
     return a11 / det, -a01 / det, -a10 / det, a00 / det
 
 
+@njit(cache=True, nogil=True)
+def leapfrog(force, moment, v, s, omega, dtheta, theta, inv_m, inv_i, hinv00, hinv01, hinv10, hinv11,
+             dt, damp, rot, spin):
+    """One leapfrog step with local non-viscous damping (000 section 3.2.1): velocities from
+    the forces, scaled positions s advanced with h^-1 (entries hinv..) and wrapped into [0, 1),
+    rotations from the moments (rot False: locked) plus the macroscopic spin increment.
+    Returns max |v|^2 (the bound on the displacement since the last neighbour build)."""
+    vmax2 = 0.0
+    for i in range(s.shape[0]):
+        for c in range(2):
+            f = force[i, c]
+            if damp > 0.0 and v[i, c] != 0.0:
+                f -= damp * abs(f) * math.copysign(1.0, v[i, c])
+            v[i, c] += dt * inv_m[i] * f
+        v2 = v[i, 0] * v[i, 0] + v[i, 1] * v[i, 1]
+        if v2 > vmax2:
+            vmax2 = v2
+        dxs = v[i, 0] * dt
+        dys = v[i, 1] * dt
+        s[i, 0] += hinv00 * dxs + hinv01 * dys
+        s[i, 1] += hinv10 * dxs + hinv11 * dys
+        if s[i, 0] >= 1.0 or s[i, 0] < 0.0:
+            s[i, 0] -= math.floor(s[i, 0])
+        if s[i, 1] >= 1.0 or s[i, 1] < 0.0:
+            s[i, 1] -= math.floor(s[i, 1])
+        if rot:
+            mo = moment[i]
+            if damp > 0.0 and omega[i] != 0.0:
+                mo -= damp * abs(mo) * math.copysign(1.0, omega[i])
+            omega[i] += dt * inv_i[i] * mo
+            dtheta[i] = omega[i] * dt + spin
+        else:
+            omega[i] = 0.0
+            dtheta[i] = 0.0
+        theta[i] += dtheta[i]
+    return vmax2
+
+
 @njit(cache=True, nogil=True)   # long: lets run_guard's watchdog act on a signal meanwhile
 def advance(radius, mass, inertia, s, v, theta, omega, dtheta, force, moment, s_build, h,
             h_build, h_ref, pair_i, pair_j, fn, fs, mr, bonded, touching, d_prev,
@@ -419,35 +457,8 @@ def advance(radius, mass, inertia, s, v, theta, omega, dtheta, force, moment, s_
                 fire_npos = 0
                 v[:] = 0.0
                 omega[:] = 0.0
-        # --- leapfrog with local non-viscous damping (000 section 3.2.1)
-        vmax2 = 0.0
-        for i in range(n):
-            for c in range(2):
-                f = force[i, c]
-                if damp > 0.0 and v[i, c] != 0.0:
-                    f -= damp * abs(f) * math.copysign(1.0, v[i, c])
-                v[i, c] += dt * inv_m[i] * f
-            v2 = v[i, 0] * v[i, 0] + v[i, 1] * v[i, 1]
-            if v2 > vmax2:
-                vmax2 = v2
-            dxs = v[i, 0] * dt
-            dys = v[i, 1] * dt
-            s[i, 0] += hinv00 * dxs + hinv01 * dys
-            s[i, 1] += hinv10 * dxs + hinv11 * dys
-            if s[i, 0] >= 1.0 or s[i, 0] < 0.0:
-                s[i, 0] -= math.floor(s[i, 0])
-            if s[i, 1] >= 1.0 or s[i, 1] < 0.0:
-                s[i, 1] -= math.floor(s[i, 1])
-            if rot:
-                mo = moment[i]
-                if damp > 0.0 and omega[i] != 0.0:
-                    mo -= damp * abs(mo) * math.copysign(1.0, omega[i])
-                omega[i] += dt * inv_i[i] * mo
-                dtheta[i] = omega[i] * dt + spin
-            else:
-                omega[i] = 0.0
-                dtheta[i] = 0.0
-            theta[i] += dtheta[i]
+        vmax2 = leapfrog(force, moment, v, s, omega, dtheta, theta, inv_m, inv_i,
+                         hinv00, hinv01, hinv10, hinv11, dt, damp, rot, spin)
         disp += math.sqrt(vmax2) * dt
         ipar[I_FCUR] = 0
         ctrl[C_TIME] += dt

@@ -136,6 +136,22 @@ def _solve(A, B, n):
 
 
 @njit(cache=True, error_model="numpy")
+def _elastic_response(Ce, sc, dc, dE, dEp, nc, out):
+    """out[:7, :nc] = C_e (dE - dE_p) + sc dc tr(dE_p): the change of the elastic stress
+    (2.73, 2.74) with the total and plastic strains, the compression point moving with
+    eps_p^V (2.70).  C_e is block diagonal (normal 3x3, shear 2x2, couple diagonal)."""
+    for i in range(7):
+        k0 = 0 if i < 3 else (3 if i < 5 else i)
+        k1 = 3 if i < 3 else (5 if i < 5 else i + 1)
+        for j in range(nc):
+            s = 0.0
+            for kk in range(k0, k1):
+                s += Ce[i, kk] * (dE[kk, j] - dEp[kk, j])
+            s += sc[i] * dc * (dEp[0, j] + dEp[1, j] + dEp[2, j])
+            out[i, j] = s
+
+
+@njit(cache=True, error_model="numpy")
 def _elastic_sensitivity(Ee, epv0, params, pidx, fd_step, dSds):
     """dS^e/ds at fixed elastic strain Ee and eps_p^V (elastic substep), central differences
     of (2.70), (2.73), (2.74) in the parameter (hardening constants and initial values: 0)."""
@@ -334,15 +350,8 @@ def step_sensitivity(E_new, dt, state_old, state_new, params, mask, pidx, fd_ste
             # elastic substep: S = S^e(E - E_p, c(eps_p^V)), history unchanged
             if not _elastic_sensitivity(Ee, epv0, params, pidx, fd_step, dSe):
                 return SENS_INVALID, nsub
+            _elastic_response(Ce, sc, dc0, dEsub, GEp, nc, GS)
             for i in range(7):
-                k0 = 0 if i < 3 else (3 if i < 5 else i)
-                k1 = 3 if i < 3 else (5 if i < 5 else i + 1)
-                for j in range(nc):
-                    s = 0.0
-                    for kk in range(k0, k1):
-                        s += Ce[i, kk] * (dEsub[kk, j] - GEp[kk, j])
-                    s += sc[i] * dc0 * (GEp[0, j] + GEp[1, j] + GEp[2, j])
-                    GS[i, j] = s
                 for k in range(m):
                     GS[i, 7 + k] += dSe[i, k]
             continue
@@ -359,15 +368,7 @@ def step_sensitivity(E_new, dt, state_old, state_new, params, mask, pidx, fd_ste
         v = n[0] + n[1] + n[2]
         c, dc = compression_point(epv0 + lam * v, params)
         # right-hand side -[dG/dE dE/dc + dG/dE_p0 dE_p0/dc + dG/dp0 dp0/dc + dG/ds]
-        for i in range(7):
-            k0 = 0 if i < 3 else (3 if i < 5 else i)
-            k1 = 3 if i < 3 else (5 if i < 5 else i + 1)
-            for j in range(nc):
-                s = 0.0
-                for kk in range(k0, k1):
-                    s += Ce[i, kk] * (dEsub[kk, j] - GEp[kk, j])
-                s += sc[i] * dc * (GEp[0, j] + GEp[1, j] + GEp[2, j])
-                B[i, j] = s
+        _elastic_response(Ce, sc, dc, dEsub, GEp, nc, B)
         for j in range(nc):
             B[7, j] = 0.0
             for k in range(4):

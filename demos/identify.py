@@ -208,9 +208,7 @@ def main(argv=None):
                 start_values[n] = start_values[n] * (1.0 + args.disturb) if start_values[n] != 0 else 0.0
         start = EhlersParameters(**start_values)
         for st in stages:   # names, bounds, constraints and data at the start, stage by stage
-            names = ParameterSet(st.params, start).names
-            check_homogeneous(names)
-            ParameterSet(st.params, start, {k: v for k, v in bounds.items() if k in names})
+            check_homogeneous(ParameterSet.for_stage(st.params, start, bounds).names)
             kinds = {d.test.kind for d in data} if data is not None else virtual_kinds(stages)
             if st.kinds is not None and not kinds & set(st.kinds):
                 raise InputError(f"stage {','.join(st.params)}: no data of the kinds {list(st.kinds)}")

@@ -61,6 +61,16 @@ _CONSTRAINT_NAMES = {"compression point exists: n_max - n0 > 0 (2.70)": ("n_max"
                      "bulk modulus lmbda + 2 mu/3 > 0": ("mu", "lmbda")}
 
 
+def expand(names):
+    """The parameter names with the groups (GROUPS) expanded, in order, without repeats."""
+    out = []
+    for n in names:
+        for m in GROUPS.get(n, (n,)):
+            if m not in out:
+                out.append(m)
+    return tuple(out)
+
+
 @dataclasses.dataclass
 class ParameterSet:
     """names: identified parameters; base: EhlersParameters with the values of all others and
@@ -73,12 +83,7 @@ class ParameterSet:
     def __post_init__(self):
         fields = {f.name: f for f in dataclasses.fields(EhlersParameters)}
         numeric = sorted(n for n in DEFAULT_BOUNDS)
-        names = []
-        for n in self.names:
-            for m in GROUPS.get(n, (n,)):
-                if m not in names:
-                    names.append(m)
-        self.names = tuple(names)
+        self.names = expand(self.names)
         if not self.names:
             raise InputError("identification: no parameters named")
         for n in self.names:
@@ -104,6 +109,13 @@ class ParameterSet:
                 raise InputError(f"identification: the start violates the constraint '{cname}' "
                                  f"(value {g:g})")
         self.scale = np.array([abs(v) if v != 0 else TYPICAL.get(n, 1.0) for n, v in zip(self.names, start)])
+
+    @classmethod
+    def for_stage(cls, names, base, bounds):
+        """The set of one stage of a stepwise identification: of `bounds` (given for all
+        stages) it takes those of its own parameters."""
+        own = expand(names)
+        return cls(own, base, {n: b for n, b in bounds.items() if n in own})
 
     def _constraints_as_bounds(self):
         """A constraint with one identified parameter is a bound on it (so that a bounds-only

@@ -60,8 +60,7 @@ def run_stages(data, stages, start, bounds, args, log=print, out=None, guard=Non
         rows.writerow(["stage", "iteration", "objective", "projected_gradient", "wall_time", "values"])
     try:
         for k, stage in enumerate(stages, start=1):
-            pset = ParameterSet(stage.params, current, {n: b for n, b in bounds.items()
-                                                        if n in ParameterSet(stage.params, current).names})
+            pset = ParameterSet.for_stage(stage.params, current, bounds)
             objective = Objective(stage.select(data), pset, sensitivity=args.sensitivity, processes=args.processes)
             log(f"stage {k}: {len(pset.names)} parameters {', '.join(pset.names)} "
                 f"({args.method}, {args.sensitivity} sensitivities, {objective.n_data} data points of "

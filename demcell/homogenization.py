@@ -14,6 +14,11 @@ t_i = sigma_ij n_j; couple stress mu_3j with couple traction m_3 = mu_3j n_j.
   about each centre (tangential force times lever arm, plus the rolling moment) and x_i
   measured from the cell centre. At equilibrium it is independent of that origin. For a
   cell under a homogeneous F (no imposed curvature) it is a fluctuation around zero.
+  In a micropolar cell (docs/micropolar_cell.md) the positions are the reference lever
+  positions X = h_ref (s - c) and branch vectors D = h_ref (s_j - s_i + n): the couple stress
+  is then the work conjugate of the imposed curvature, m = (1/|Y|) dW/dkappa (Hill-Mandel),
+  and the Cauchy stress is not symmetric: |Y| (sigma12 - sigma21) = sum_c fs_c |d_c|, the
+  reaction of the held mean rotation.
 * Fabric tensor (000 eq. 39): Phi = 1/(2C) sum_p sum_c n_pc (x) n_pc = 1/C sum_c n_c (x) n_c;
   anisotropy (000 eq. 38): A = Phi_1 / Phi_2 - 1 with Phi_1 >= Phi_2 the eigenvalues.
 * Coordination number n = 2C / N (000 section 4.1) and the mechanical coordination number
@@ -30,9 +35,10 @@ from .periodic_cell import branch_vector, cauchy_to_pk1
 
 
 @njit(cache=True)
-def contact_sums(h, s, radius, pair_i, pair_j, fn, fs, mr, touching, n_pairs, mu):
+def contact_sums(h, s, radius, pair_i, pair_j, fn, fs, mr, touching, n_pairs, mu, h_lever):
     """Per-cell sums over the touching pairs. Returns (sigma (2,2) [N/m], couple (2,) [N],
-    fabric (2,2) [-], n_contacts, n_sliding, contacts per particle (N,))."""
+    fabric (2,2) [-], n_contacts, n_sliding, contacts per particle (N,)). The couple stress
+    takes its lever positions from h_lever (s - c): h (current positions) or h_ref (micropolar)."""
     area = abs(h[0, 0] * h[1, 1] - h[0, 1] * h[1, 0])
     sigma = np.zeros((2, 2))
     couple = np.zeros(2)
@@ -60,10 +66,11 @@ def contact_sums(h, s, radius, pair_i, pair_j, fn, fs, mr, touching, n_pairs, mu
         overlap = radius[i] + radius[j] - dist
         mi = -(radius[i] - 0.5 * overlap) * fs[k] - mr[k]
         mj = -(radius[j] - 0.5 * overlap) * fs[k] + mr[k]
-        xi0 = h[0, 0] * (s[i, 0] - 0.5) + h[0, 1] * (s[i, 1] - 0.5)
-        xi1 = h[1, 0] * (s[i, 0] - 0.5) + h[1, 1] * (s[i, 1] - 0.5)
-        couple[0] -= mi * xi0 + mj * (xi0 + dx)
-        couple[1] -= mi * xi1 + mj * (xi1 + dy)
+        xi0 = h_lever[0, 0] * (s[i, 0] - 0.5) + h_lever[0, 1] * (s[i, 1] - 0.5)
+        xi1 = h_lever[1, 0] * (s[i, 0] - 0.5) + h_lever[1, 1] * (s[i, 1] - 0.5)
+        lx, ly = branch_vector(h_lever, s, i, j)     # the same image of j, mapped by h_lever
+        couple[0] -= mi * xi0 + mj * (xi0 + lx)
+        couple[1] -= mi * xi1 + mj * (xi1 + ly)
         fabric[0, 0] += nx * nx
         fabric[0, 1] += nx * ny
         fabric[1, 1] += ny * ny
@@ -123,11 +130,13 @@ def anisotropy(fabric):
     return float(w[1] / w[0] - 1.0) if w[0] > 0.0 else 0.0
 
 
-def homogenize(state, law):
-    """All homogenized outputs of ``state`` (its forces must be current)."""
+def homogenize(state, law, micropolar=False):
+    """All homogenized outputs of ``state`` (its forces must be current); ``micropolar``: the
+    couple stress of a micropolar cell (reference lever positions)."""
     sig, couple, fab, nc, nsl, z = contact_sums(state.h, state.s, state.radius, state.pair_i,
                                                 state.pair_j, state.fn, state.fs, state.mr,
-                                                state.touching, state.n_pairs, float(law[MU]))
+                                                state.touching, state.n_pairs, float(law[MU]),
+                                                state.h_ref if micropolar else state.h)
     F = state.F
     area = abs(np.linalg.det(state.h))
     active = z >= 2

@@ -24,15 +24,21 @@ from dataclasses import dataclass, fields
 
 import numpy as np
 
-from .contact_law import ContactLaw, MU, COH_N, COH_T, ETA_R
+from .contact_law import ContactLaw, MU, COH_N, COH_T, ETA_R, ROTATIONS
 from .errors import InputError
 from .homogenization import homogenize
 from .periodic_cell import deformation_path, reduce_cell
-from .relaxation import (ENERGY_RATIO, FIRE, LOCAL_DAMPING, NO_CONTACTS, UNBALANCED_FORCE, run,
-                         stable_time_step)
+from .relaxation import (ENERGY_RATIO, FIRE, LOCAL_DAMPING, NO_CONTACTS, ROT_MICROPOLAR,
+                         UNBALANCED_FORCE, run, stable_time_step)
 from .state import CellState
-from .tangent import (demqo_tangent, dsigma_to_dpk1, kruyt_operator, perturbation_tangent,
-                      pstlo_operator)
+from .tangent import (demqo_tangent, dsigma_to_dpk1, kruyt_operator, micropolar_tangent,
+                      perturbation_tangent, pstlo_operator)
+
+#: how the grains of a cell rotate: 'free' (rotations follow the contact moments, the macro spin
+#: is added: symmetric stress at equilibrium), 'locked' (no grain rotation, 000 section 4.3.2),
+#: 'micropolar' (mean rotation held at the imposed phi, curvature kappa as a rotation jump across
+#: the periodic images: skew stress and couple stress, docs/micropolar_cell.md)
+ROTATION_MODES = ("free", "locked", "micropolar")
 
 
 @dataclass(frozen=True)
@@ -157,9 +163,13 @@ class MicroCell(abc.ABC):
 
 class DemCell(MicroCell):
     """A periodic DEM cell (see package docs). Create with ``DemCell(state, law, options)`` or
-    ``create_cells``. The reference configuration (F = I) is the state it was created from."""
+    ``create_cells``. The reference configuration (F = I) is the state it was created from.
+    ``rotation_mode``: one of ROTATION_MODES; None = 'free', or 'locked' for a law with
+    rotations=False. A 'micropolar' cell takes ``set_deformation(F, rotation=phi,
+    curvature=kappa)`` and answers a non-symmetric ``cauchy_stress()``, ``couple_stress()`` and
+    ``tangent(kind, measure="micropolar")`` (6x6)."""
 
-    def __init__(self, state, law=None, options=None, reset_reference=True):
+    def __init__(self, state, law=None, options=None, reset_reference=True, rotation_mode=None):
         if not isinstance(state, CellState):
             raise InputError("DemCell needs a CellState (e.g. from load_packing or generate_packing)")
         law = ContactLaw() if law is None else law
@@ -168,22 +178,48 @@ class DemCell(MicroCell):
         options = RelaxationOptions() if options is None else options
         if isinstance(options, dict):
             options = RelaxationOptions.from_kwargs(**options)
+        if rotation_mode is None:
+            rotation_mode = "free" if law.rotations else "locked"
+        if rotation_mode not in ROTATION_MODES:
+            raise InputError(f"unknown rotation_mode {rotation_mode!r}: one of {', '.join(ROTATION_MODES)}")
+        if law.rotations != (rotation_mode != "locked"):
+            raise InputError(f"rotation_mode {rotation_mode!r} contradicts ContactLaw(rotations={law.rotations}): "
+                             "locked rotations cannot carry a micro-rotation or a curvature" if rotation_mode ==
+                             "micropolar" else f"rotation_mode {rotation_mode!r} contradicts "
+                             f"ContactLaw(rotations={law.rotations})")
+        self.rotation_mode = rotation_mode
         self.state = state
         if reset_reference:
             self.state.h_ref = state.h.copy()
+            if rotation_mode == "micropolar":
+                self.state.phi = 0.0
+                self.state.kappa = np.zeros(2)
         self.law = law
         self.options = options
         self._frozen = False
-        self._law_array = law.as_array()
+        self._law_array = self._law_to_array(law)
         self.dt = options.dt if options.dt is not None else stable_time_step(
             state.radius, state.mass, state.inertia, law, options.dt_safety)
         self._check_dt()
         self._target = state.F
+        self._target_phi = state.phi
+        self._target_kappa = state.kappa.copy()
         self._committed = state.copy()
         self.last_result = None
         self.last_tangent_steps = 0
 
+    @property
+    def micropolar(self):
+        """True when the cell carries rotation and curvature itself (FEM x DEM mode 'micropolar')."""
+        return self.rotation_mode == "micropolar"
+
     # ----- configuration
+    def _law_to_array(self, law, frozen=False):
+        a = law.as_array(frozen=frozen)
+        if self.rotation_mode == "micropolar":
+            a[ROTATIONS] = ROT_MICROPOLAR
+        return a
+
     def _check_dt(self):
         """A user time step above the stability estimate (safety 1) is refused before work."""
         limit = stable_time_step(self.state.radius, self.state.mass, self.state.inertia, self.law, 1.0)
@@ -196,8 +232,11 @@ class DemCell(MicroCell):
         """Change the contact law (e.g. friction after compaction); the time step follows."""
         if not isinstance(law, ContactLaw):
             raise InputError("law must be a ContactLaw")
+        if law.rotations != (self.rotation_mode != "locked"):
+            raise InputError(f"a cell with rotation_mode {self.rotation_mode!r} needs "
+                             f"ContactLaw(rotations={self.rotation_mode != 'locked'})")
         self.law = law
-        self._law_array = law.as_array(frozen=self._frozen)
+        self._law_array = self._law_to_array(law, frozen=self._frozen)
         if self._frozen:
             self._set_frozen_array()
         if self.options.dt is None:
@@ -212,7 +251,7 @@ class DemCell(MicroCell):
         self._set_frozen_array()
 
     def _set_frozen_array(self):
-        a = self.law.as_array(frozen=True)
+        a = self._law_to_array(self.law, frozen=True)
         a[MU] = math.inf
         a[COH_N] = math.inf
         a[COH_T] = math.inf
@@ -225,13 +264,42 @@ class DemCell(MicroCell):
         self.state.bonded[:np_] = self.state.touching[:np_]
 
     # ----- MicroCell interface
-    def set_deformation(self, F):
+    def set_deformation(self, F, rotation=None, curvature=None):
+        """Target F (2x2); for a micropolar cell also the micro-rotation phi [rad] and the
+        curvature kappa = grad phi (2,) [1/length of the cell] (None: keep the current target)."""
         F = np.array(F, dtype=float)
         if F.shape != (2, 2) or not np.all(np.isfinite(F)):
             raise InputError(f"F must be a finite 2x2 array, got {F!r}")
         if np.linalg.det(F) <= 0.0:
             raise InputError(f"det F = {np.linalg.det(F):.3g} <= 0: not an admissible deformation")
+        if (rotation is not None or curvature is not None) and not self.micropolar:
+            if self.rotation_mode == "locked":
+                raise InputError("rotations are locked in this cell: a micro-rotation or a curvature cannot be "
+                                 "imposed (use rotation_mode='micropolar' with ContactLaw(rotations=True))")
+            raise InputError("rotation and curvature need a cell created with rotation_mode='micropolar' "
+                             "(this cell's grains rotate freely and its stress is symmetric)")
+        if rotation is not None:
+            try:
+                rotation = float(rotation)
+            except (TypeError, ValueError):
+                raise InputError(f"rotation must be a number [rad], got {rotation!r}") from None
+            if not math.isfinite(rotation):
+                raise InputError(f"rotation must be finite, got {rotation!r}")
+        if curvature is not None:
+            curvature = np.array(curvature, dtype=float).reshape(-1)
+            if curvature.shape != (2,) or not np.all(np.isfinite(curvature)):
+                raise InputError(f"curvature must be two finite numbers (kappa31, kappa32), got {curvature!r}")
+            # a rotation jump kappa . Y across the cell beyond 1 rad is no longer a gradient of a
+            # small rotation field: refuse it before the cell is torn
+            jump = float(np.abs(curvature @ self.state.h_ref).max())
+            if jump > 1.0:
+                raise InputError(f"curvature {curvature.tolist()} turns the periodic images by {jump:.3g} rad "
+                                 "across the cell (> 1 rad): too large for this cell")
         self._target = F
+        if rotation is not None:
+            self._target_phi = rotation
+        if curvature is not None:
+            self._target_kappa = curvature
 
     def deformation_gradient(self):
         return self.state.F
@@ -266,23 +334,30 @@ class DemCell(MicroCell):
         else:
             n = max(1, int(math.ceil(np.abs((self._target - F0)[~mask]).max(initial=0.0) / o.max_increment)))
             path = [F0 + (k / n) * (self._target - F0) for k in range(1, n + 1)]
+        rotations = [(None, None)] * len(path)
+        if self.micropolar:
+            path, rotations = self._micropolar_path(path)
         steps = 0
         max_ovl = 0.0
         msgs = []
         no_contacts = False
         converged = True
         limit = o.max_steps if max_steps is None else int(max_steps)
-        for Fk in path:
-            reduce_cell(self.state)          # large shears: keep a compact base cell
+        for Fk, (phi_k, kappa_k) in zip(path, rotations):
+            if not self.micropolar:          # (the curvature's images follow the base cell's lattice)
+                reduce_cell(self.state)      # large shears: keep a compact base cell
             Fcur = self.state.F
             dF = np.abs(Fk - Fcur) if mask is None else np.abs(Fk - Fcur)[~mask]
-            n_ramp = int(math.ceil(dF.max(initial=0.0) / o.strain_rate))
+            size = dF.max(initial=0.0)
+            if phi_k is not None:
+                size = max(size, self._rotation_size(phi_k, kappa_k))
+            n_ramp = int(math.ceil(size / o.strain_rate))
             rep = run(self.state, self._law_array, self.dt, Fk, n_ramp, n_ramp + limit, criterion=crit,
                       tol=o.tol, check_every=o.check_every, damping=o.damping,
                       skin=o.skin_ratio * float(self.state.radius.min()), stress_mask=mask,
                       stress_target=stress_target, stress_tol=o.stress_tol, servo_gain=o.servo_gain,
                       max_rate=max(o.strain_rate, 1e-12), method=FIRE if o.method == "fire" else LOCAL_DAMPING,
-                      fire_dt_max=o.fire_dt_max)
+                      fire_dt_max=o.fire_dt_max, phi_end=phi_k, kappa_end=kappa_k)
             steps += rep.steps
             if rep.status == NO_CONTACTS:
                 no_contacts = True
@@ -309,6 +384,26 @@ class DemCell(MicroCell):
                                        substeps=len(path), message=msg, max_overlap_ratio=max_ovl)
         return self.last_result
 
+    def _rotation_size(self, phi, kappa):
+        """Size of a change of (phi, kappa) measured like a strain: |dphi| (the slip it causes
+        at a contact, per unit lever arm) and the largest change of the rotation jump across the
+        cell, |dkappa . Y_k|."""
+        dk = np.asarray(kappa) - self.state.kappa
+        return max(abs(phi - self.state.phi), float(np.abs(dk @ self.state.h_ref).max()))
+
+    def _micropolar_path(self, path):
+        """Sub-steps of a micropolar solve: the F path, refined until each sub-step also changes
+        (phi, kappa) by at most max_increment, with phi and kappa linear along it."""
+        n_rot = int(math.ceil(self._rotation_size(self._target_phi, self._target_kappa) / self.options.max_increment))
+        if n_rot > len(path):
+            path = deformation_path(self.state.F, self._target, self.options.max_increment, steps=n_rot)
+        n = len(path)
+        phi0, kap0 = self.state.phi, self.state.kappa.copy()
+        rotations = [(phi0 + (k / n) * (self._target_phi - phi0),
+                      kap0 + (k / n) * (self._target_kappa - kap0)) for k in range(1, n + 1)]
+        rotations[-1] = (self._target_phi, self._target_kappa.copy())
+        return path, rotations
+
     def run_dynamics(self, n_steps, damping=0.0):
         """Plain explicit dynamics for n_steps at fixed F (no convergence test), e.g. for a
         collision or an energy-conservation check. Returns the RunReport."""
@@ -319,7 +414,7 @@ class DemCell(MicroCell):
 
     def homogenized(self):
         """All homogenized outputs (``homogenization.Homogenized``)."""
-        return homogenize(self.state, self._law_array)
+        return homogenize(self.state, self._law_array, micropolar=self.micropolar)
 
     def cauchy_stress(self):
         return self.homogenized().cauchy
@@ -336,9 +431,20 @@ class DemCell(MicroCell):
         kind: 'kruyt' (001 eq. 13, closed form), 'demqo' (001 eq. 20, 4 frozen-contact
         relaxations), 'pstlo' (001 appendix B, one sparse solve of the same linearized
         problem), 'perturbation' (CTO, 001 eq. 6, 4 full solves from the last commit).
-        measure: 'dsigma_dF' (d sigma_ij/dF_kl = d sigma/d Grad u) or 'dP_dF'."""
-        if measure not in ("dsigma_dF", "dP_dF"):
-            raise InputError(f"unknown tangent measure {measure!r}: 'dsigma_dF' or 'dP_dF'")
+        measure: 'dsigma_dF' (d sigma_ij/dF_kl = d sigma/d Grad u) or 'dP_dF'; for a micropolar
+        cell also 'micropolar': the 6x6 d(sigma, m)/d(F, kappa) at fixed phi in the FE callback's
+        order (rows sigma11, sigma22, sigma12, sigma21, m31, m32; columns eps11, eps22, eps12,
+        eps21, kappa31, kappa32), kinds 'perturbation', 'demqo' (6 perturbations), 'pstlo' (the
+        frozen network solved exactly, demcell/network.py) and 'kruyt' (uniform strain and
+        rotation field: the assumption of 003 eqs 21-24)."""
+        if measure not in ("dsigma_dF", "dP_dF", "micropolar"):
+            raise InputError(f"unknown tangent measure {measure!r}: 'dsigma_dF', 'dP_dF' or 'micropolar'")
+        if measure == "micropolar":
+            if not self.micropolar:
+                raise InputError("measure='micropolar' needs a cell created with rotation_mode='micropolar'")
+            C, results = micropolar_tangent(self, kind, eps)
+            self.last_tangent_steps = sum(r.steps for r in results)
+            return C
         results = []
         if kind == "kruyt":
             C = kruyt_operator(self.state, self._law_array)
@@ -361,6 +467,8 @@ class DemCell(MicroCell):
     def rollback(self):
         self.state = self._committed.copy()
         self._target = self.state.F
+        self._target_phi = self.state.phi
+        self._target_kappa = self.state.kappa.copy()
 
     def copy(self):
         new = DemCell.__new__(DemCell)
@@ -369,6 +477,7 @@ class DemCell(MicroCell):
         new._committed = self._committed.copy()
         new._law_array = self._law_array.copy()
         new._target = self._target.copy()
+        new._target_kappa = self._target_kappa.copy()
         return new
 
     def memory_bytes(self):

@@ -47,9 +47,9 @@ def polar(F):
     return angle, 0.5 * (U + U.T)
 
 
-def deformation_path(F0, F1, max_increment):
+def deformation_path(F0, F1, max_increment, steps=None):
     """Intermediate deformation gradients from F0 to F1 (F1 included), each sub-step with
-    max|dF| <= max_increment. The rotation and the stretch of the polar decompositions are
+    max|dF| <= max_increment (or at least ``steps`` sub-steps). The rotation and the stretch of the polar decompositions are
     interpolated separately, so a rigid rotation stays a rigid rotation on the way (a linear
     path in F would shrink the cell half-way through a large rotation).
     """
@@ -58,7 +58,7 @@ def deformation_path(F0, F1, max_increment):
     da = a1 - a0
     da -= 2.0 * math.pi * math.floor((da + math.pi) / (2.0 * math.pi))
     size = max(np.abs(np.asarray(F1) - np.asarray(F0)).max(), abs(da) * max(np.abs(U0).max(), 1.0))
-    n = max(1, int(math.ceil(size / max_increment)))
+    n = max(1, int(math.ceil(size / max_increment)), steps or 1)
     out = []
     for k in range(1, n + 1):
         tau = k / n

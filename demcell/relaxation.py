@@ -45,19 +45,29 @@ I_NPAIRS, I_FCUR, I_NRAMP, I_KRAMP, I_MAXSTEPS, I_CHECK, I_CRIT = range(7)
 C_DT, C_ALPHA, C_TOL, C_STOL, C_GAIN, C_MAXRATE, C_SKIN, C_TIME = range(8)
 C_MASK, C_TARGET = 8, 12          # 4 + 4 slots, component order 11, 12, 21, 22
 C_METHOD, C_DTMAX = 16, 17        # 0 = local damping (000), 1 = FIRE; FIRE's dt_max / dt
-N_CTRL = 18
+# micropolar cell (law[ROTATIONS] == 2, docs/micropolar_cell.md): ramp of the micro-rotation phi
+# and of the curvature kappa (start, end, current), and the curvature increment of the last step
+# mapped to the reference lattice, g = dkappa^T h_ref (the rotation jump of an image shifted by
+# n lattice vectors grows by g . n), kept here so that a resumed call still applies it
+C_PHI_START, C_PHI_END, C_PHI = 18, 19, 20
+C_KAP_START, C_KAP_END, C_KAP, C_G = 21, 23, 25, 27   # 2 slots each
+N_CTRL = 29
+ROT_LOCKED, ROT_FREE, ROT_MICROPOLAR = 0, 1, 2     # law[ROTATIONS]
 LOCAL_DAMPING, FIRE = 0, 1
 # output slots
 (O_STEPS, O_EKIN, O_EPOT, O_NCONT, O_NSLIDE, O_UNBAL, O_S11, O_S12, O_S21, O_S22,
- O_REBUILDS, O_MAXOVL, O_BONDLOST, O_FMEAN) = range(14)
-N_OUT = 14
+ O_REBUILDS, O_MAXOVL, O_BONDLOST, O_FMEAN, O_REACTION) = range(15)
+N_OUT = 15
 
 
 @njit(cache=True)
 def compute_forces(radius, mass, s, dtheta, force, moment, h, pair_i, pair_j, fn, fs, mr,
-                   bonded, touching, d_prev, n_pairs, law, dt, out):
+                   bonded, touching, d_prev, n_pairs, law, dt, out, image_g0=0.0, image_g1=0.0):
     """Contact forces and resultants at the current positions; the tangential and rolling
-    increments are those of the last step (d - d_prev, dtheta). Also fills the Cauchy
+    increments are those of the last step (d - d_prev, dtheta). In a micropolar cell
+    (law[ROTATIONS] == 2) the image of j shifted by n = -round(s_j - s_i) lattice vectors turned
+    by dtheta_j + g . n in the last step, g = (image_g0, image_g1) = dkappa^T h_ref: the rotation
+    jump kappa . Y across the periodic images (docs/micropolar_cell.md). Also fills the Cauchy
     stress sigma = (1/|Y|) sum_c f^{j->i} (x) (x_j - x_i) (001 eq. 8, tension positive),
     the potential energy (000 eq. 32), contact counts and the largest overlap / radius.
 
@@ -87,6 +97,7 @@ def compute_forces(radius, mass, s, dtheta, force, moment, h, pair_i, pair_j, fn
     coh_n = law[COH_N]
     coh_t = law[COH_T]
     frozen = law[FROZEN] > 0.5
+    image_spin = law[ROTATIONS] > 1.5 and (image_g0 != 0.0 or image_g1 != 0.0)
     viscous = xi_n > 0.0
     need_eff = viscous or xi_t > 0.0 or kr > 0.0
     # spring energies f^2 / (2 k) (000 eq. 32); a zero stiffness carries no force
@@ -126,8 +137,10 @@ def compute_forces(radius, mass, s, dtheta, force, moment, h, pair_i, pair_j, fn
         # minimum-image branch vector (branch_vector, 001 eq. A.1)
         a = s[j, 0] - s[i, 0]
         b = s[j, 1] - s[i, 1]
-        a -= np.floor(a + 0.5)
-        b -= np.floor(b + 0.5)
+        round_a = np.floor(a + 0.5)
+        round_b = np.floor(b + 0.5)
+        a -= round_a
+        b -= round_b
         dx = h00 * a + h01 * b
         dy = h10 * a + h11 * b
         dist = math.sqrt(dx * dx + dy * dy)
@@ -160,8 +173,11 @@ def compute_forces(radius, mass, s, dtheta, force, moment, h, pair_i, pair_j, fn
             d_ovl = 0.0
             if viscous:       # the overlap rate is only needed by the normal dashpot
                 d_ovl = math.sqrt(d_prev[k, 0] ** 2 + d_prev[k, 1] ** 2) - dist
-            d_ut = ux * tx + uy * ty - ai * dtheta[i] - aj * dtheta[j]
-            d_thr = dtheta[j] - dtheta[i]
+            dth_j = dtheta[j]
+            if image_spin:    # image shift n = -(round_a, round_b)
+                dth_j -= image_g0 * round_a + image_g1 * round_b
+            d_ut = ux * tx + uy * ty - ai * dtheta[i] - aj * dth_j
+            d_thr = dth_j - dtheta[i]
             fs_old = fs[k]
             mr_old = mr[k]
         else:
@@ -282,6 +298,95 @@ def leapfrog(force, moment, v, s, omega, dtheta, theta, inv_m, inv_i, hinv00, hi
     return vmax2
 
 
+@njit(cache=True)
+def constrain_moments(moment, weight, inv_i, pair_i, pair_j, touching, n_pairs):
+    """Micropolar cell: the reaction of the held mean rotation. The constraint is
+    sum_p w_p dtheta~_p = 0 with w_p the number of touching contacts of disc p: the mean over
+    the contacts of the rotation fluctuation of their two discs, (1/2C) sum_c (dth~_i + dth~_j),
+    stays zero (docs/micropolar_cell.md; an area-weighted mean let the rattlers, which turn
+    for free, absorb the whole imposed rotation). Its reaction is a couple lambda w_p on disc
+    p, lambda = -sum(w_p M_p / I_p) / sum(w_p^2 / I_p), added to the contact moments, so that
+    ``moment`` then holds the net moments. Fills ``weight``; returns (lambda [N m per
+    contact], 1 / sum(w_p^2 / I_p), 0 when no disc touches)."""
+    n = moment.shape[0]
+    for i in range(n):
+        weight[i] = 0.0
+    for k in range(n_pairs):
+        if touching[k] == 1:
+            weight[pair_i[k]] += 1.0
+            weight[pair_j[k]] += 1.0
+    acc = 0.0
+    s2 = 0.0
+    for i in range(n):
+        acc += weight[i] * moment[i] * inv_i[i]
+        s2 += weight[i] * weight[i] * inv_i[i]
+    if s2 == 0.0:
+        return 0.0, 0.0
+    lam = -acc / s2
+    for i in range(n):
+        moment[i] += lam * weight[i]
+    return lam, 1.0 / s2
+
+
+@njit(cache=True, nogil=True)
+def leapfrog_micropolar(force, moment, v, s, omega, dtheta, theta, inv_m, inv_i, weight, inv_s2,
+                        hinv00, hinv01, hinv10, hinv11, href, dt, damp, dphi, kap_old, kap_new):
+    """``leapfrog`` for a micropolar cell (docs/micropolar_cell.md): the net moments (contact
+    + constraint reaction, ``constrain_moments``) drive the rotation fluctuation, whose rates are
+    projected back onto sum_p w_p omega_p = 0 (the local damping is not linear, so the
+    constrained accelerations alone would let the mean drift); the total rotation increment of
+    disc p is omega_p dt + dphi + the increment of the linear field kappa . X_p at its reference
+    lever position X_p = h_ref (s_p - c), taken before wrapping (a continuous path). theta_p is
+    the total rotation of the disc held in the base cell: when the disc leaves through a side,
+    the image that enters is turned by kappa . h_ref n. No macroscopic spin is added."""
+    vmax2 = 0.0
+    mean = 0.0
+    n = s.shape[0]
+    dk0 = kap_new[0] - kap_old[0]
+    dk1 = kap_new[1] - kap_old[1]
+    # kappa^T h_ref: rotation per unit of fractional coordinate
+    gk0 = kap_new[0] * href[0, 0] + kap_new[1] * href[1, 0]
+    gk1 = kap_new[0] * href[0, 1] + kap_new[1] * href[1, 1]
+    gd0 = dk0 * href[0, 0] + dk1 * href[1, 0]
+    gd1 = dk0 * href[0, 1] + dk1 * href[1, 1]
+    for i in range(n):
+        for c in range(2):
+            f = force[i, c]
+            if damp > 0.0 and v[i, c] != 0.0:
+                f -= damp * abs(f) * math.copysign(1.0, v[i, c])
+            v[i, c] += dt * inv_m[i] * f
+        v2 = v[i, 0] * v[i, 0] + v[i, 1] * v[i, 1]
+        if v2 > vmax2:
+            vmax2 = v2
+        dxs = v[i, 0] * dt
+        dys = v[i, 1] * dt
+        ds0 = hinv00 * dxs + hinv01 * dys
+        ds1 = hinv10 * dxs + hinv11 * dys
+        # increment of kappa . X_p along the step (old kappa at the old place -> new at the new)
+        dtheta[i] = dphi + gd0 * (s[i, 0] - 0.5) + gd1 * (s[i, 1] - 0.5) + gk0 * ds0 + gk1 * ds1
+        s[i, 0] += ds0
+        s[i, 1] += ds1
+        if s[i, 0] >= 1.0 or s[i, 0] < 0.0:
+            w = math.floor(s[i, 0])
+            s[i, 0] -= w
+            theta[i] -= gk0 * w
+        if s[i, 1] >= 1.0 or s[i, 1] < 0.0:
+            w = math.floor(s[i, 1])
+            s[i, 1] -= w
+            theta[i] -= gk1 * w
+        mo = moment[i]
+        if damp > 0.0 and omega[i] != 0.0:
+            mo -= damp * abs(mo) * math.copysign(1.0, omega[i])
+        omega[i] += dt * inv_i[i] * mo
+        mean += weight[i] * omega[i]
+    corr = mean * inv_s2
+    for i in range(n):
+        omega[i] -= weight[i] * inv_i[i] * corr
+        dtheta[i] += omega[i] * dt
+        theta[i] += dtheta[i]
+    return vmax2
+
+
 @njit(cache=True, nogil=True)   # long: lets run_guard's watchdog act on a signal meanwhile
 def advance(radius, mass, inertia, s, v, theta, omega, dtheta, force, moment, s_build, h,
             h_build, h_ref, pair_i, pair_j, fn, fs, mr, bonded, touching, d_prev,
@@ -294,6 +399,7 @@ def advance(radius, mass, inertia, s, v, theta, omega, dtheta, force, moment, s_
     alpha = ctrl[C_ALPHA]
     skin = ctrl[C_SKIN]
     rot = law[ROTATIONS] > 0.5
+    micropolar = law[ROTATIONS] > 1.5
     rmax = 0.0
     for i in range(n):
         rmax = max(rmax, radius[i])
@@ -314,6 +420,10 @@ def advance(radius, mass, inertia, s, v, theta, omega, dtheta, force, moment, s_
     Fm = np.empty((2, 2))
     inv_m = 1.0 / mass
     inv_i = 1.0 / inertia
+    weight = np.zeros(n)       # micropolar: contacts per disc, the weights of the mean rotation
+    inv_s2 = 0.0
+    kap_old = np.empty(2)
+    kap_new = np.empty(2)
     # FIRE (Bitzek et al., PRL 97, 170201, 2006): N_min 5, f_inc 1.1, f_dec 0.5,
     # alpha_start 0.1, f_alpha 0.99; time step between dt/2^k and dt_max = C_DTMAX dt
     fire = ctrl[C_METHOD] > 0.5
@@ -359,7 +469,11 @@ def advance(radius, mass, inertia, s, v, theta, omega, dtheta, force, moment, s_
                 disp = 0.0
                 out[O_REBUILDS] += 1
             compute_forces(radius, mass, s, dtheta, force, moment, h, pair_i, pair_j, fn, fs, mr,
-                           bonded, touching, d_prev, ipar[I_NPAIRS], law, dt, out)
+                           bonded, touching, d_prev, ipar[I_NPAIRS], law, dt, out,
+                           ctrl[C_G], ctrl[C_G + 1])
+            if micropolar:
+                out[O_REACTION], inv_s2 = constrain_moments(moment, weight, inv_i, pair_i, pair_j, touching,
+                                                            ipar[I_NPAIRS])
             ipar[I_FCUR] = 1
         # convergence test once the ramp is over
         if crit != NO_CHECK and ipar[I_KRAMP] >= n_ramp and step % check_every == 0 and step > 0:
@@ -457,8 +571,24 @@ def advance(radius, mass, inertia, s, v, theta, omega, dtheta, force, moment, s_
                 fire_npos = 0
                 v[:] = 0.0
                 omega[:] = 0.0
-        vmax2 = leapfrog(force, moment, v, s, omega, dtheta, theta, inv_m, inv_i,
-                         hinv00, hinv01, hinv10, hinv11, dt, damp, rot, spin)
+        if micropolar:
+            # micro-rotation and curvature follow the ramp (001 eq. 7 applied to phi, kappa)
+            phi_new = ctrl[C_PHI_START] + tau * (ctrl[C_PHI_END] - ctrl[C_PHI_START])
+            for c in range(2):
+                kap_old[c] = ctrl[C_KAP + c]
+                kap_new[c] = ctrl[C_KAP_START + c] + tau * (ctrl[C_KAP_END + c] - ctrl[C_KAP_START + c])
+                ctrl[C_KAP + c] = kap_new[c]
+            dk0 = kap_new[0] - kap_old[0]
+            dk1 = kap_new[1] - kap_old[1]
+            ctrl[C_G] = dk0 * h_ref[0, 0] + dk1 * h_ref[1, 0]
+            ctrl[C_G + 1] = dk0 * h_ref[0, 1] + dk1 * h_ref[1, 1]
+            vmax2 = leapfrog_micropolar(force, moment, v, s, omega, dtheta, theta, inv_m, inv_i,
+                                        weight, inv_s2, hinv00, hinv01, hinv10, hinv11, h_ref, dt,
+                                        damp, phi_new - ctrl[C_PHI], kap_old, kap_new)
+            ctrl[C_PHI] = phi_new
+        else:
+            vmax2 = leapfrog(force, moment, v, s, omega, dtheta, theta, inv_m, inv_i,
+                             hinv00, hinv01, hinv10, hinv11, dt, damp, rot, spin)
         disp += math.sqrt(vmax2) * dt
         ipar[I_FCUR] = 0
         ctrl[C_TIME] += dt
@@ -480,6 +610,7 @@ class RunReport:
     unbalanced_ratio: float
     max_overlap_ratio: float
     bonds_lost: int
+    reaction: float = 0.0     # micropolar cell: couple per contact lambda of the rotation constraint
 
     @property
     def converged(self):
@@ -503,8 +634,11 @@ def stable_time_step(radius, mass, inertia, law, safety=0.25):
 
 def run(state, law_array, dt, F_end, n_ramp, max_steps, criterion=ENERGY_RATIO, tol=1e-3,
         check_every=100, damping=0.7, skin=None, stress_mask=None, stress_target=None,
-        stress_tol=1e-3, servo_gain=0.05, max_rate=1e-4, method=LOCAL_DAMPING, fire_dt_max=2.0):
+        stress_tol=1e-3, servo_gain=0.05, max_rate=1e-4, method=LOCAL_DAMPING, fire_dt_max=2.0,
+        phi_end=None, kappa_end=None):
     """Ramp the cell from its current F to ``F_end`` in ``n_ramp`` steps, then relax.
+    A micropolar cell (law_array[ROTATIONS] == 2) also ramps its micro-rotation from state.phi
+    to ``phi_end`` and its curvature from state.kappa to ``kappa_end`` (None: unchanged).
     Stops at convergence, at ``max_steps`` steps, or on a failure status. ``stress_mask``
     (2x2 bool) selects the components of F driven by the servo to reach ``stress_target``
     (2x2 Cauchy stress, tension positive). Returns a RunReport; raises SolveError on
@@ -519,6 +653,11 @@ def run(state, law_array, dt, F_end, n_ramp, max_steps, criterion=ENERGY_RATIO, 
     if stress_mask is not None:
         ctrl[C_MASK:C_MASK + 4] = np.asarray(stress_mask, dtype=float).reshape(4)
         ctrl[C_TARGET:C_TARGET + 4] = np.asarray(stress_target, dtype=float).reshape(4)
+    ctrl[C_PHI_START] = ctrl[C_PHI] = state.phi
+    ctrl[C_PHI_END] = state.phi if phi_end is None else float(phi_end)
+    ctrl[C_KAP_START:C_KAP_START + 2] = state.kappa
+    ctrl[C_KAP:C_KAP + 2] = state.kappa
+    ctrl[C_KAP_END:C_KAP_END + 2] = state.kappa if kappa_end is None else np.asarray(kappa_end, float)
     ipar = np.zeros(7, np.int64)
     ipar[I_NPAIRS], ipar[I_FCUR], ipar[I_NRAMP] = state.n_pairs, state.forces_current, n_ramp
     ipar[I_CHECK], ipar[I_CRIT] = check_every, criterion
@@ -550,6 +689,8 @@ def run(state, law_array, dt, F_end, n_ramp, max_steps, criterion=ENERGY_RATIO, 
             continue
         break
     state.time = float(ctrl[C_TIME])
+    state.phi = float(ctrl[C_PHI])
+    state.kappa = ctrl[C_KAP:C_KAP + 2].copy()
     if status == NONFINITE:
         raise SolveError(STATUS_TEXT[NONFINITE] + f" (dt = {dt:.3e} s)")
     if status == CELL_TOO_SMALL:
@@ -558,5 +699,6 @@ def run(state, law_array, dt, F_end, n_ramp, max_steps, criterion=ENERGY_RATIO, 
                      rebuilds=int(total[O_REBUILDS]), kinetic_energy=float(out[O_EKIN]),
                      potential_energy=float(out[O_EPOT]), n_contacts=int(out[O_NCONT]),
                      n_sliding=int(out[O_NSLIDE]), unbalanced_ratio=float(out[O_UNBAL]),
-                     max_overlap_ratio=float(out[O_MAXOVL]), bonds_lost=int(total[O_BONDLOST]))
+                     max_overlap_ratio=float(out[O_MAXOVL]), bonds_lost=int(total[O_BONDLOST]),
+                     reaction=float(out[O_REACTION]))
 

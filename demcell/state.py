@@ -10,7 +10,7 @@ Y_i = F Y_i^R). Particle centres are stored as fractional coordinates ``s`` in
 [0, 1)^2, so the current centre is x = h s (the affine part, 000 eq. 6) and the
 fluctuation w of 000 eq. 6 is carried by how ``s`` changes.
 """
-from dataclasses import dataclass, fields
+from dataclasses import dataclass, field, fields
 
 import numpy as np
 
@@ -33,6 +33,8 @@ class CellState:
     bonded, touching : uint8 flags; d_prev : branch vector of the last step [m] (M, 2)
     n_pairs : number of valid pairs; forces_current : 1 if force/fn/fs match the positions
     time : simulated time [s]
+    phi : imposed micro-rotation [rad] and kappa : imposed curvature (2,) [1/m] of a micropolar
+        cell (rotation_mode='micropolar', docs/micropolar_cell.md); 0 for the other modes
     """
 
     radius: np.ndarray
@@ -60,6 +62,8 @@ class CellState:
     n_pairs: int = 0
     forces_current: int = 0
     time: float = 0.0
+    phi: float = 0.0
+    kappa: np.ndarray = field(default_factory=lambda: np.zeros(2))
 
     @classmethod
     def new(cls, radius, s, h, density, capacity=None):
@@ -153,7 +157,9 @@ class CellState:
             a = getattr(self, name)
             if not (np.isfinite(a).all() and (a > 0).all()):
                 raise ValueError(f"{name} must be finite and positive")
-        for name in ("s", "h", "h_ref"):
+        if np.shape(self.kappa) != (2,):
+            raise ValueError(f"kappa must have shape (2,), got {np.shape(self.kappa)}")
+        for name in ("s", "h", "h_ref", "kappa", "phi"):
             if not np.isfinite(getattr(self, name)).all():
                 raise ValueError(f"{name} has non-finite values")
         if not abs(np.linalg.det(self.h)) > 0 or not abs(np.linalg.det(self.h_ref)) > 0:
@@ -165,10 +171,15 @@ class CellState:
 
     @classmethod
     def from_dict(cls, d):
-        kw = {f.name: d[f.name] for f in fields(cls)}
+        # packings written before the micropolar cell existed have no phi / kappa
+        optional = {"phi": 0.0, "kappa": np.zeros(2)}
+        kw = {f.name: (d[f.name] if f.name in d or f.name not in optional else optional[f.name])
+              for f in fields(cls)}
         for k in ("n_pairs", "forces_current"):
             kw[k] = int(kw[k])
         kw["time"] = float(kw["time"])
+        kw["phi"] = float(kw["phi"])
+        kw["kappa"] = np.array(kw["kappa"], dtype=np.float64).reshape(-1)
         st = cls(**{k: (np.array(v) if isinstance(v, np.ndarray) else v) for k, v in kw.items()})
         cap = max(64, 3 * st.n_particles, st.n_pairs)
         if st.pair_i.shape[0] < cap:

@@ -23,6 +23,7 @@ import numpy as np
 from numba import njit
 
 from .contact_law import KN, KR, KS, MU
+from .errors import InputError
 from .homogenization import contact_sums
 from .periodic_cell import branch_vector
 
@@ -112,24 +113,38 @@ def _perturbation_options(cell, eps, rel=1e-5):
                                max_increment=max(opts.max_increment, 2.0 * eps))
 
 
-def _stress_differences(base, trial_from, F, eps, opts):
+def _stress_differences(base, trial_from, F, eps, opts, curvature_eps=None):
     """Relax `base` at F with the tight options `opts`, then for each component m, n solve
     the cell `trial_from(base)` at F + eps L^mn; returns (C 4x4 d sigma/dF, solve results).
     The reference is re-solved with the same options so that the relaxation of its own
-    residual does not enter dsigma / eps."""
+    residual does not enter dsigma / eps.
+    With ``curvature_eps`` (a micropolar cell) the curvature is perturbed too and the answer
+    is the 6x6 d(sigma, m)/d(F, kappa) in demcell's order (rows sigma 11, 12, 21, 22, m1, m2;
+    columns F 11, 12, 21, 22, kappa 1, 2), at the cell's target phi and kappa."""
+    micropolar = curvature_eps is not None
     base.options = opts
     base.set_deformation(F)
     results = [base.solve()]
-    sig0 = base.cauchy_stress()
-    C = np.zeros((4, 4))
-    for c, (m, n) in enumerate(COMPONENTS):
+    h0 = base.homogenized()
+    ref = np.concatenate([h0.cauchy.reshape(4), h0.couple_stress]) if micropolar else h0.cauchy.reshape(4)
+    kappa0 = base.state.kappa.copy()
+    C = np.zeros((ref.size, ref.size))
+    perturbations = [(mn, eps) for mn in COMPONENTS] + ([(k, curvature_eps) for k in (0, 1)] if micropolar else [])
+    for c, (what, size) in enumerate(perturbations):
         trial = trial_from(base)
         trial.options = opts
         Fp = F.copy()
-        Fp[m, n] += eps
-        trial.set_deformation(Fp)
+        if c < 4:
+            Fp[what] += size
+            trial.set_deformation(Fp)
+        else:
+            kp = kappa0.copy()
+            kp[what] += size
+            trial.set_deformation(Fp, curvature=kp)
         results.append(trial.solve())
-        C[:, c] = ((trial.cauchy_stress() - sig0) / eps).reshape(4)
+        h = trial.homogenized()
+        out = np.concatenate([h.cauchy.reshape(4), h.couple_stress]) if micropolar else h.cauchy.reshape(4)
+        C[:, c] = (out - ref) / size
     return C, results
 
 
@@ -154,6 +169,46 @@ def demqo_tangent(cell, eps=1e-6):
     base.freeze_contacts()
     return _stress_differences(base, lambda b: b.copy(), cell.deformation_gradient(), eps,
                                _perturbation_options(cell, eps))
+
+
+#: demcell's order (sigma 11, 12, 21, 22, m1, m2) -> the FE callback order
+#: (kinematics.FLUX_NAMES: sigma11, sigma22, sigma12, sigma21, m31, m32); the same for columns
+CELL_TO_CALLBACK6 = np.array([0, 3, 1, 2, 4, 5])
+
+
+def to_callback_order(C6):
+    """6x6 in demcell's order (F / sigma 11, 12, 21, 22, then kappa / m 1, 2) -> callback order."""
+    return C6[np.ix_(CELL_TO_CALLBACK6, CELL_TO_CALLBACK6)]
+
+
+def micropolar_tangent(cell, kind, eps=None):
+    """6x6 d(sigma, m)/d(F, kappa) of a micropolar cell at fixed phi, in the FE callback's order
+    (see DemCell.tangent). 'perturbation' and 'demqo' perturb F by eps and kappa by
+    eps / max|Y_k| (a rotation jump of eps across the cell). Returns (C, solve results)."""
+    from .network import affine_operator, micropolar_network_operator
+    if kind == "pstlo":
+        return micropolar_network_operator(cell.state, cell._law_array)[0], []
+    if kind == "kruyt":
+        return affine_operator(cell.state, cell._law_array), []
+    if kind not in ("perturbation", "demqo"):
+        raise InputError(f"unknown tangent kind {kind!r}: 'kruyt', 'demqo', 'pstlo' or 'perturbation'")
+    eps = (1e-5 if kind == "perturbation" else 1e-6) if eps is None else eps
+    k_eps = eps / float(np.abs(cell.state.h_ref).sum(axis=0).max())
+    F = cell.deformation_gradient()
+    if kind == "perturbation":
+        def rolled_back_copy(_):
+            trial = cell.copy()
+            trial.rollback()
+            trial.set_deformation(F, rotation=cell._target_phi, curvature=cell._target_kappa)
+            return trial
+        C, results = _stress_differences(rolled_back_copy(None), rolled_back_copy, F, eps,
+                                         _perturbation_options(cell, eps), curvature_eps=k_eps)
+    else:
+        base = cell.copy()
+        base.freeze_contacts()
+        C, results = _stress_differences(base, lambda b: b.copy(), F, eps, _perturbation_options(cell, eps),
+                                         curvature_eps=k_eps)
+    return to_callback_order(C), results
 
 
 @njit(cache=True)
@@ -316,7 +371,7 @@ def pstlo_operator(state, law):
     X = _solve_structurally_symmetric(K, -G, spla)   # unknowns per unit dF_kl
     C = (Sx @ X + SF) / area
     sigma = contact_sums(state.h, state.s, state.radius, state.pair_i, state.pair_j, state.fn, state.fs,
-                         state.mr, state.touching, state.n_pairs, float(law[MU]))[0]
+                         state.mr, state.touching, state.n_pairs, float(law[MU]), state.h)[0]
     trace_term = np.array([Finv[l, k] for (k, l) in COMPONENTS])   # d ln J / dF_kl
     C -= np.outer(sigma.reshape(4), trace_term)
     return C

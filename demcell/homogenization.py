@@ -15,7 +15,8 @@ t_i = sigma_ij n_j; couple stress mu_3j with couple traction m_3 = mu_3j n_j.
   measured from the cell centre. At equilibrium it is independent of that origin. For a
   cell under a homogeneous F (no imposed curvature) it is a fluctuation around zero.
   In a micropolar cell (docs/micropolar_cell.md) the positions are the reference lever
-  positions X = h_ref (s - c) and branch vectors D = h_ref (s_j - s_i + n): the couple stress
+  positions X = h_ref (s - c) and branch vectors D = h_ref (s_j - s_i + n), of the copy of
+  each contact whose contact point lies in the cell: the couple stress
   is then the work conjugate of the imposed curvature, m = (1/|Y|) dW/dkappa (Hill-Mandel),
   and the Cauchy stress is not symmetric: |Y| (sigma12 - sigma21) = sum_c fs_c |d_c|, the
   reaction of the held mean rotation.
@@ -35,10 +36,11 @@ from .periodic_cell import branch_vector, cauchy_to_pk1
 
 
 @njit(cache=True)
-def contact_sums(h, s, radius, pair_i, pair_j, fn, fs, mr, touching, n_pairs, mu, h_lever):
+def contact_sums(h, s, radius, pair_i, pair_j, fn, fs, mr, touching, n_pairs, mu, h_ref, micropolar):
     """Per-cell sums over the touching pairs. Returns (sigma (2,2) [N/m], couple (2,) [N],
     fabric (2,2) [-], n_contacts, n_sliding, contacts per particle (N,)). The couple stress
-    takes its lever positions from h_lever (s - c): h (current positions) or h_ref (micropolar)."""
+    takes its lever positions from h (s - c), or for a micropolar cell from h_ref (s - c) of the
+    copy of the contact whose contact point lies in the cell (relaxation.compute_forces)."""
     area = abs(h[0, 0] * h[1, 1] - h[0, 1] * h[1, 0])
     sigma = np.zeros((2, 2))
     couple = np.zeros(2)
@@ -66,9 +68,23 @@ def contact_sums(h, s, radius, pair_i, pair_j, fn, fs, mr, touching, n_pairs, mu
         overlap = radius[i] + radius[j] - dist
         mi = -(radius[i] - 0.5 * overlap) * fs[k] - mr[k]
         mj = -(radius[j] - 0.5 * overlap) * fs[k] + mr[k]
-        xi0 = h_lever[0, 0] * (s[i, 0] - 0.5) + h_lever[0, 1] * (s[i, 1] - 0.5)
-        xi1 = h_lever[1, 0] * (s[i, 0] - 0.5) + h_lever[1, 1] * (s[i, 1] - 0.5)
-        lx, ly = branch_vector(h_lever, s, i, j)     # the same image of j, mapped by h_lever
+        if micropolar:
+            a = s[j, 0] - s[i, 0]
+            b = s[j, 1] - s[i, 1]
+            a -= math.floor(a + 0.5)
+            b -= math.floor(b + 0.5)
+            lever = (radius[i] - 0.5 * overlap) / dist
+            si0 = s[i, 0] - math.floor(s[i, 0] + lever * a) - 0.5
+            si1 = s[i, 1] - math.floor(s[i, 1] + lever * b) - 0.5
+            xi0 = h_ref[0, 0] * si0 + h_ref[0, 1] * si1
+            xi1 = h_ref[1, 0] * si0 + h_ref[1, 1] * si1
+            lx = h_ref[0, 0] * a + h_ref[0, 1] * b
+            ly = h_ref[1, 0] * a + h_ref[1, 1] * b
+        else:
+            xi0 = h[0, 0] * (s[i, 0] - 0.5) + h[0, 1] * (s[i, 1] - 0.5)
+            xi1 = h[1, 0] * (s[i, 0] - 0.5) + h[1, 1] * (s[i, 1] - 0.5)
+            lx = dx
+            ly = dy
         couple[0] -= mi * xi0 + mj * (xi0 + lx)
         couple[1] -= mi * xi1 + mj * (xi1 + ly)
         fabric[0, 0] += nx * nx
@@ -136,7 +152,7 @@ def homogenize(state, law, micropolar=False):
     sig, couple, fab, nc, nsl, z = contact_sums(state.h, state.s, state.radius, state.pair_i,
                                                 state.pair_j, state.fn, state.fs, state.mr,
                                                 state.touching, state.n_pairs, float(law[MU]),
-                                                state.h_ref if micropolar else state.h)
+                                                state.h_ref, micropolar)
     F = state.F
     area = abs(np.linalg.det(state.h))
     active = z >= 2

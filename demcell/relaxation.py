@@ -67,7 +67,10 @@ def compute_forces(radius, mass, s, dtheta, force, moment, h, pair_i, pair_j, fn
     increments are those of the last step (d - d_prev, dtheta). In a micropolar cell
     (law[ROTATIONS] == 2) the image of j shifted by n = -round(s_j - s_i) lattice vectors turned
     by dtheta_j + g . n in the last step, g = (image_g0, image_g1) = dkappa^T h_ref: the rotation
-    jump kappa . Y across the periodic images (docs/micropolar_cell.md). Also fills the Cauchy
+    jump kappa . Y across the periodic images (docs/micropolar_cell.md). The two periodic copies
+    of a contact crossing the cell's side differ in rotation by kappa . Y, so the one counted is
+    the copy whose contact point lies in the cell (shifted by -floor(s_contact)): a rule that
+    does not depend on how the pair is labelled. Also fills the Cauchy
     stress sigma = (1/|Y|) sum_c f^{j->i} (x) (x_j - x_i) (001 eq. 8, tension positive),
     the potential energy (000 eq. 32), contact counts and the largest overlap / radius.
 
@@ -173,11 +176,18 @@ def compute_forces(radius, mass, s, dtheta, force, moment, h, pair_i, pair_j, fn
             d_ovl = 0.0
             if viscous:       # the overlap rate is only needed by the normal dashpot
                 d_ovl = math.sqrt(d_prev[k, 0] ** 2 + d_prev[k, 1] ** 2) - dist
+            dth_i = dtheta[i]
             dth_j = dtheta[j]
-            if image_spin:    # image shift n = -(round_a, round_b)
-                dth_j -= image_g0 * round_a + image_g1 * round_b
-            d_ut = ux * tx + uy * ty - ai * dtheta[i] - aj * dth_j
-            d_thr = dth_j - dtheta[i]
+            if image_spin:
+                # image shift n = -(round_a, round_b); the copy with its contact point in the
+                # cell is shifted by -m for both discs
+                m_a = np.floor(s[i, 0] + ai * inv_dist * a)
+                m_b = np.floor(s[i, 1] + ai * inv_dist * b)
+                copy_shift = image_g0 * m_a + image_g1 * m_b
+                dth_i -= copy_shift
+                dth_j -= image_g0 * round_a + image_g1 * round_b + copy_shift
+            d_ut = ux * tx + uy * ty - ai * dth_i - aj * dth_j
+            d_thr = dth_j - dth_i
             fs_old = fs[k]
             mr_old = mr[k]
         else:
@@ -299,33 +309,60 @@ def leapfrog(force, moment, v, s, omega, dtheta, theta, inv_m, inv_i, hinv00, hi
 
 
 @njit(cache=True)
+def _polar2(F):
+    """Polar decomposition F = R(angle) U of a 2x2 matrix (as periodic_cell.polar)."""
+    angle = math.atan2(F[1, 0] - F[0, 1], F[0, 0] + F[1, 1])
+    c = math.cos(angle)
+    s = math.sin(angle)
+    U = np.empty((2, 2))
+    for b in range(2):
+        U[0, b] = c * F[0, b] + s * F[1, b]
+        U[1, b] = -s * F[0, b] + c * F[1, b]
+    off = 0.5 * (U[0, 1] + U[1, 0])
+    U[0, 1] = off
+    U[1, 0] = off
+    return angle, U
+
+
+@njit(cache=True)
 def constrain_moments(moment, weight, inv_i, pair_i, pair_j, touching, n_pairs):
     """Micropolar cell: the reaction of the held mean rotation. The constraint is
-    sum_p w_p dtheta~_p = 0 with w_p the number of touching contacts of disc p: the mean over
-    the contacts of the rotation fluctuation of their two discs, (1/2C) sum_c (dth~_i + dth~_j),
-    stays zero (docs/micropolar_cell.md; an area-weighted mean let the rattlers, which turn
-    for free, absorb the whole imposed rotation). Its reaction is a couple lambda w_p on disc
+    sum_p w_p dtheta~_p = 0 with w_p the number of touching contacts of disc p (0 for discs with
+    fewer than two, ``contact_weights``): the mean over the contacts of the rotation fluctuation
+    of their two discs, (1/2C) sum_c (dth~_i + dth~_j), stays zero (docs/micropolar_cell.md; an
+    area-weighted mean let the rattlers, which turn for free, absorb the whole imposed rotation). Its reaction is a couple lambda w_p on disc
     p, lambda = -sum(w_p M_p / I_p) / sum(w_p^2 / I_p), added to the contact moments, so that
     ``moment`` then holds the net moments. Fills ``weight``; returns (lambda [N m per
     contact], 1 / sum(w_p^2 / I_p), 0 when no disc touches)."""
-    n = moment.shape[0]
-    for i in range(n):
+    inv_s2 = contact_weights(weight, inv_i, pair_i, pair_j, touching, n_pairs)
+    acc = 0.0
+    for i in range(moment.shape[0]):
+        acc += weight[i] * moment[i] * inv_i[i]
+    lam = -acc * inv_s2
+    for i in range(moment.shape[0]):
+        moment[i] += lam * weight[i]
+    return lam, inv_s2
+
+
+@njit(cache=True)
+def contact_weights(weight, inv_i, pair_i, pair_j, touching, n_pairs):
+    """Weights of the held mean rotation (``constrain_moments``): weight[p] = touching contacts
+    of disc p when it has at least two, else 0. A disc with one contact or none turns at no
+    cost (it rolls on its neighbour): held by the constraint, the reaction spins it up, and
+    when it then loses its contact its spin leaves the mean. Returns 1 / sum(w_p^2 / I_p)
+    (0 when no disc has two contacts)."""
+    for i in range(weight.shape[0]):
         weight[i] = 0.0
     for k in range(n_pairs):
         if touching[k] == 1:
             weight[pair_i[k]] += 1.0
             weight[pair_j[k]] += 1.0
-    acc = 0.0
     s2 = 0.0
-    for i in range(n):
-        acc += weight[i] * moment[i] * inv_i[i]
+    for i in range(weight.shape[0]):
+        if weight[i] < 2.0:
+            weight[i] = 0.0
         s2 += weight[i] * weight[i] * inv_i[i]
-    if s2 == 0.0:
-        return 0.0, 0.0
-    lam = -acc / s2
-    for i in range(n):
-        moment[i] += lam * weight[i]
-    return lam, 1.0 / s2
+    return 1.0 / s2 if s2 > 0.0 else 0.0
 
 
 @njit(cache=True, nogil=True)
@@ -418,10 +455,21 @@ def advance(radius, mass, inertia, s, v, theta, omega, dtheta, force, moment, s_
             smax_t = max(smax_t, abs(ctrl[C_TARGET + c]))
     h_old = np.empty((2, 2))
     Fm = np.empty((2, 2))
+    # micropolar cell: the ramp turns and stretches separately (polar path, as between the
+    # sub-steps of DemCell.solve): a straight line in F between two rotations would squeeze the
+    # cell half-way (by 1 - cos(da/2)), a real strain that moves contacts and, through the
+    # contact-weighted mean rotation, the rotation the grains are held at
+    polar_ramp = micropolar and not any_mask
+    ang0, U0 = _polar2(F_start)
+    ang1, U1 = _polar2(F_end)
+    dang = ang1 - ang0
+    dang -= 2.0 * math.pi * math.floor((dang + math.pi) / (2.0 * math.pi))
     inv_m = 1.0 / mass
     inv_i = 1.0 / inertia
     weight = np.zeros(n)       # micropolar: contacts per disc, the weights of the mean rotation
     inv_s2 = 0.0
+    if micropolar:             # (a resumed call with current forces needs them from its first step)
+        inv_s2 = contact_weights(weight, inv_i, pair_i, pair_j, touching, ipar[I_NPAIRS])
     kap_old = np.empty(2)
     kap_new = np.empty(2)
     # FIRE (Bitzek et al., PRL 97, 170201, 2006): N_min 5, f_inc 1.1, f_dec 0.5,
@@ -526,8 +574,19 @@ def advance(radius, mass, inertia, s, v, theta, omega, dtheta, force, moment, s_
                     dF = -ctrl[C_GAIN] * (out[O_S11 + c] - ctrl[C_TARGET + c]) / law[KN]
                     dF = min(max(dF, -ctrl[C_MAXRATE]), ctrl[C_MAXRATE])
                     Fm[a, b] = h_old[a, 0] * href_inv[0, b] + h_old[a, 1] * href_inv[1, b] + dF
-                else:
+                elif not polar_ramp:
                     Fm[a, b] = F_start[a, b] + tau * (F_end[a, b] - F_start[a, b])
+        if polar_ramp:
+            if tau >= 1.0:
+                Fm[:] = F_end
+            else:
+                ca = math.cos(ang0 + tau * dang)
+                sa = math.sin(ang0 + tau * dang)
+                for b in range(2):
+                    u0b = U0[0, b] + tau * (U1[0, b] - U0[0, b])
+                    u1b = U0[1, b] + tau * (U1[1, b] - U0[1, b])
+                    Fm[0, b] = ca * u0b - sa * u1b
+                    Fm[1, b] = sa * u0b + ca * u1b
         for a in range(2):
             for b in range(2):
                 h[a, b] = Fm[a, 0] * h_ref[0, b] + Fm[a, 1] * h_ref[1, b]

@@ -371,7 +371,7 @@ def pstlo_operator(state, law):
     X = _solve_structurally_symmetric(K, -G, spla)   # unknowns per unit dF_kl
     C = (Sx @ X + SF) / area
     sigma = contact_sums(state.h, state.s, state.radius, state.pair_i, state.pair_j, state.fn, state.fs,
-                         state.mr, state.touching, state.n_pairs, float(law[MU]), state.h)[0]
+                         state.mr, state.touching, state.n_pairs, float(law[MU]), state.h_ref, False)[0]
     trace_term = np.array([Finv[l, k] for (k, l) in COMPONENTS])   # d ln J / dF_kl
     C -= np.outer(sigma.reshape(4), trace_term)
     return C

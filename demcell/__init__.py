@@ -10,6 +10,9 @@ Main entry points:
 * ``isotropic_stage``, ``reference_cell``   preparation.py (000 section 4.1)
 * ``homogenize`` / ``Homogenized``    homogenization.py (000 eqs. 14, 16, 38-40; 001 eq. 8)
 * tangents                             tangent.py (001 eqs. 6, 13, 20)
+* micropolar cell: ``DemCell(..., rotation_mode="micropolar")`` takes a micro-rotation and a
+  curvature (docs/micropolar_cell.md); its frozen contact network solved exactly and the
+  uniform-field operator in network.py; closed forms and paper 003's moduli in estimates.py
 
 Conventions: tension positive, (Grad u)_ij = du_i/dX_j, t_i = sigma_ij n_j, 2D quantities
 per unit thickness (stress in N/m). See docs/demcell.md.
@@ -17,13 +20,13 @@ per unit thickness (stress in N/m). See docs/demcell.md.
 from .contact_law import ContactLaw
 from .errors import DemCellError, InputError, SolveError
 from .homogenization import Homogenized, homogenize
-from .interface import DemCell, MicroCell, RelaxationOptions, SolveResult, create_cells
+from .interface import ROTATION_MODES, DemCell, MicroCell, RelaxationOptions, SolveResult, create_cells
 from .io import load_packing, save_packing, write_vtk_snapshot
 from .packing import generate_packing, hexagonal_lattice, loose_state
 from .preparation import isotropic_stage, reference_cell
 from .state import CellState
 
 __all__ = ["ContactLaw", "DemCellError", "InputError", "SolveError", "Homogenized", "homogenize",
-           "DemCell", "MicroCell", "RelaxationOptions", "SolveResult", "create_cells",
+           "DemCell", "ROTATION_MODES", "MicroCell", "RelaxationOptions", "SolveResult", "create_cells",
            "load_packing", "save_packing", "write_vtk_snapshot", "generate_packing",
            "hexagonal_lattice", "loose_state", "CellState", "isotropic_stage", "reference_cell"]

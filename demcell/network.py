@@ -8,8 +8,8 @@ Kinematics and fluxes follow the micropolar cell conventions (issue 10):
 * macro inputs: dF (demcell order 11, 12, 21, 22), micro-rotation dphi [rad], curvature
   dkappa (2,) [1/m];
 * unknowns per disc p: periodic fluctuation displacement w_p (2) [m] and rotation fluctuation
-  th~_p [rad]; one Lagrange multiplier lambda [N m per contact] for sum_p w_p th~_p = 0
-  (w_p: contacts of disc p, see below); its reaction is the couple lambda w_p on every disc;
+  th~_p [rad]; one Lagrange multiplier lambda [m] for sum_p w_p th~_p = 0 (w_p: the normal
+  force disc p carries, see below); its reaction is the couple lambda w_p on every disc;
 * per contact k (i -> nearest image of j, shift n_k): branch increment
   dd = dw_j - dw_i + dF F^-1 d (001 eq. B.3); rotations dtheta_i = dphi + dkappa . X_i + dth~_i,
   image of j: dtheta_j = dphi + dkappa . (X_i + D_k) + dth~_j = ... + dkappa . (X_j + h_ref n_k),
@@ -28,7 +28,7 @@ no fn dn, fs dt, fs da, f (x) dd, no area terms). Rigid translation and mechanis
 rolling discs) get a regularization of 1e-10 of the largest diagonal entry, as PSTLO, taken per
 block (displacements, rotations).
 
-The constraint weights are the kernel's (``contact_weights``: contacts per disc, 0 below two): a
+The constraint weights are the kernel's (``contact_weights``: the normal force a disc carries): a
 disc whose rotation costs nothing (a rattler; a disc with one contact and kr = 0) would absorb
 an area-weighted constraint alone (lambda -> 0, c_phi -> 0). ``rotation_weights`` lets a caller
 weight it differently. Contacts crossing the cell's side are counted at the copy whose contact
@@ -294,13 +294,12 @@ def _solve(system, rhs_macro, weights, refine=3):
 
 
 def contact_weights(state):
-    """The kernel's weights of the held mean rotation (relaxation.contact_weights): touching
-    contacts per disc, 0 for discs with fewer than two."""
+    """The kernel's weights of the held mean rotation (relaxation.contact_weights): the sum of
+    |fn| over the touching contacts of each disc [N]."""
     k = np.flatnonzero(state.touching[:state.n_pairs] == 1)
-    w = (np.bincount(state.pair_i[k], minlength=state.n_particles)
-         + np.bincount(state.pair_j[k], minlength=state.n_particles)).astype(float)
-    w[w < 2] = 0.0
-    return w
+    f = np.abs(state.fn[k])
+    return (np.bincount(state.pair_i[k], weights=f, minlength=state.n_particles)
+            + np.bincount(state.pair_j[k], weights=f, minlength=state.n_particles))
 
 
 def _weights(state, rotation_weights):

@@ -325,16 +325,16 @@ def _polar2(F):
 
 
 @njit(cache=True)
-def constrain_moments(moment, weight, inv_i, pair_i, pair_j, touching, n_pairs):
+def constrain_moments(moment, weight, inv_i, pair_i, pair_j, touching, fn, n_pairs):
     """Micropolar cell: the reaction of the held mean rotation. The constraint is
-    sum_p w_p dtheta~_p = 0 with w_p the number of touching contacts of disc p (0 for discs with
-    fewer than two, ``contact_weights``): the mean over the contacts of the rotation fluctuation
-    of their two discs, (1/2C) sum_c (dth~_i + dth~_j), stays zero (docs/micropolar_cell.md; an
-    area-weighted mean let the rattlers, which turn for free, absorb the whole imposed rotation). Its reaction is a couple lambda w_p on disc
-    p, lambda = -sum(w_p M_p / I_p) / sum(w_p^2 / I_p), added to the contact moments, so that
-    ``moment`` then holds the net moments. Fills ``weight``; returns (lambda [N m per
-    contact], 1 / sum(w_p^2 / I_p), 0 when no disc touches)."""
-    inv_s2 = contact_weights(weight, inv_i, pair_i, pair_j, touching, n_pairs)
+    sum_p w_p dtheta~_p = 0 with w_p the sum of the normal forces on disc p
+    (``contact_weights``): the rotation fluctuation of the discs, averaged with the forces they
+    carry, (1/2 sum_c |fn_c|) sum_c |fn_c| (dth~_i + dth~_j), stays zero
+    (docs/micropolar_cell.md). Its reaction is a couple lambda w_p on disc p,
+    lambda = -sum(w_p M_p / I_p) / sum(w_p^2 / I_p), added to the contact moments, so that
+    ``moment`` then holds the net moments. Fills ``weight``; returns (lambda [m], the couple per
+    newton of contact force, 1 / sum(w_p^2 / I_p), 0 when no disc carries a force)."""
+    inv_s2 = contact_weights(weight, inv_i, pair_i, pair_j, touching, fn, n_pairs)
     acc = 0.0
     for i in range(moment.shape[0]):
         acc += weight[i] * moment[i] * inv_i[i]
@@ -345,22 +345,25 @@ def constrain_moments(moment, weight, inv_i, pair_i, pair_j, touching, n_pairs):
 
 
 @njit(cache=True)
-def contact_weights(weight, inv_i, pair_i, pair_j, touching, n_pairs):
-    """Weights of the held mean rotation (``constrain_moments``): weight[p] = touching contacts
-    of disc p when it has at least two, else 0. A disc with one contact or none turns at no
-    cost (it rolls on its neighbour): held by the constraint, the reaction spins it up, and
-    when it then loses its contact its spin leaves the mean. Returns 1 / sum(w_p^2 / I_p)
-    (0 when no disc has two contacts)."""
+def contact_weights(weight, inv_i, pair_i, pair_j, touching, fn, n_pairs):
+    """Weights of the held mean rotation (``constrain_moments``): weight[p] = sum of |fn| over
+    the touching contacts of disc p [N]. Why forces: a disc whose rotation costs (almost)
+    nothing -- a rattler, a disc with one contact, a disc held by weak sliding contacts --
+    cannot resist the reaction couple, so held in the mean it is spun up and takes the mean with
+    it (measured: with equal or contact-count weights, one disc with three sliding contacts of
+    1 % of the mean force turned by 2e-2 rad and most of the packing followed the material
+    rotation instead of phi). With force weights the reaction on a disc, lambda w_p, and the
+    friction it can mobilise, mu sum |fn| a, scale alike, and a contact that opens leaves the
+    weights continuously (fn -> 0). Returns 1 / sum(w_p^2 / I_p) (0 when no force)."""
     for i in range(weight.shape[0]):
         weight[i] = 0.0
     for k in range(n_pairs):
         if touching[k] == 1:
-            weight[pair_i[k]] += 1.0
-            weight[pair_j[k]] += 1.0
+            f = abs(fn[k])
+            weight[pair_i[k]] += f
+            weight[pair_j[k]] += f
     s2 = 0.0
     for i in range(weight.shape[0]):
-        if weight[i] < 2.0:
-            weight[i] = 0.0
         s2 += weight[i] * weight[i] * inv_i[i]
     return 1.0 / s2 if s2 > 0.0 else 0.0
 
@@ -458,7 +461,7 @@ def advance(radius, mass, inertia, s, v, theta, omega, dtheta, force, moment, s_
     # micropolar cell: the ramp turns and stretches separately (polar path, as between the
     # sub-steps of DemCell.solve): a straight line in F between two rotations would squeeze the
     # cell half-way (by 1 - cos(da/2)), a real strain that moves contacts and, through the
-    # contact-weighted mean rotation, the rotation the grains are held at
+    # force-weighted mean rotation, the rotation the grains are held at
     polar_ramp = micropolar and not any_mask
     ang0, U0 = _polar2(F_start)
     ang1, U1 = _polar2(F_end)
@@ -466,10 +469,10 @@ def advance(radius, mass, inertia, s, v, theta, omega, dtheta, force, moment, s_
     dang -= 2.0 * math.pi * math.floor((dang + math.pi) / (2.0 * math.pi))
     inv_m = 1.0 / mass
     inv_i = 1.0 / inertia
-    weight = np.zeros(n)       # micropolar: contacts per disc, the weights of the mean rotation
+    weight = np.zeros(n)       # micropolar: normal force per disc, the weights of the mean rotation
     inv_s2 = 0.0
     if micropolar:             # (a resumed call with current forces needs them from its first step)
-        inv_s2 = contact_weights(weight, inv_i, pair_i, pair_j, touching, ipar[I_NPAIRS])
+        inv_s2 = contact_weights(weight, inv_i, pair_i, pair_j, touching, fn, ipar[I_NPAIRS])
     kap_old = np.empty(2)
     kap_new = np.empty(2)
     # FIRE (Bitzek et al., PRL 97, 170201, 2006): N_min 5, f_inc 1.1, f_dec 0.5,
@@ -521,7 +524,7 @@ def advance(radius, mass, inertia, s, v, theta, omega, dtheta, force, moment, s_
                            ctrl[C_G], ctrl[C_G + 1])
             if micropolar:
                 out[O_REACTION], inv_s2 = constrain_moments(moment, weight, inv_i, pair_i, pair_j, touching,
-                                                            ipar[I_NPAIRS])
+                                                            fn, ipar[I_NPAIRS])
             ipar[I_FCUR] = 1
         # convergence test once the ramp is over
         if crit != NO_CHECK and ipar[I_KRAMP] >= n_ramp and step % check_every == 0 and step > 0:
@@ -669,7 +672,7 @@ class RunReport:
     unbalanced_ratio: float
     max_overlap_ratio: float
     bonds_lost: int
-    reaction: float = 0.0     # micropolar cell: couple per contact lambda of the rotation constraint
+    reaction: float = 0.0     # micropolar cell: lambda, the constraint's couple per newton of contact force [m]
 
     @property
     def converged(self):

@@ -8,7 +8,7 @@ nobody here wrote.
   field equilibrates every disc, so the bending modulus is exactly sqrt(3) kr;
 * the principle of virtual power (Hill-Mandel): at every equilibrium state of a loading path with
   sliding, the virtual power of the contact forces for random admissible rates (affine, micro-
-  rotation, curvature, periodic fluctuations and rotation fluctuations with zero contact-weighted
+  rotation, curvature, periodic fluctuations and rotation fluctuations with zero force-weighted
   mean) equals |Y| [sigma : (L + e phi_dot) + m . kappa_dot], computed here from the contact
   arrays independently of demcell's homogenization;
 * rigid-body invariance: F = R(a) with phi = a loads no contact;
@@ -159,7 +159,9 @@ def test_power_identity_along_a_path_with_sliding(prepared60):
         sliding.append(h.sliding_fraction)
         area = abs(np.linalg.det(st.h))
         c = contact_arrays(st)
-        weight = np.bincount(c["i"], minlength=st.n_particles) + np.bincount(c["j"], minlength=st.n_particles)
+        f = np.abs(c["fn"])      # the constraint weights: the normal force each disc carries
+        weight = (np.bincount(c["i"], weights=f, minlength=st.n_particles)
+                  + np.bincount(c["j"], weights=f, minlength=st.n_particles))
         scale = area * np.abs(h.cauchy).max()
         for _ in range(3):
             L = rng.standard_normal((2, 2))
@@ -216,7 +218,7 @@ def test_rigid_rotation_with_equal_micro_rotation_loads_no_contact(prepared60):
 
 def test_free_cell_is_the_micropolar_cell_at_its_own_mean_rotation(prepared60):
     """A free-rotation cell under a small symmetric strain: its grains turn on average by
-    phi_f (contact-weighted, as the micropolar constraint measures it); the micropolar cell held
+    phi_f (force-weighted, as the micropolar constraint measures it); the micropolar cell held
     at phi = phi_f gives the same stress and no skew stress. Held at phi = 0 instead (the
     material rotation of a symmetric F), it does carry a skew stress."""
     state, law, opts = prepared60
@@ -226,7 +228,9 @@ def test_free_cell_is_the_micropolar_cell_at_its_own_mean_rotation(prepared60):
     free.set_deformation(F)
     assert free.solve().converged
     c = contact_arrays(free.state)
-    weight = np.bincount(c["i"], minlength=len(state.radius)) + np.bincount(c["j"], minlength=len(state.radius))
+    f = np.abs(c["fn"])
+    weight = (np.bincount(c["i"], weights=f, minlength=len(state.radius))
+              + np.bincount(c["j"], weights=f, minlength=len(state.radius)))
     phi_f = float(weight @ (free.state.theta - state.theta) / weight.sum())
     s_free = free.cauchy_stress()
     mp = micropolar(prepared60, tol=1e-7)

@@ -56,6 +56,7 @@ benchmark: deps
 	$(PYTHON) benchmarks/dem_profile.py --identity --out $(OUT)/benchmarks/dem_profile
 	$(PYTHON) benchmarks/dem_tangent.py --out $(OUT)/benchmarks/dem_tangent
 	$(PYTHON) benchmarks/dem_relaxation.py --out $(OUT)/benchmarks/dem_relaxation
+	$(PYTHON) benchmarks/dem_micropolar_moduli.py --out $(OUT)/benchmarks/dem_micropolar_moduli
 	$(PYTHON) benchmarks/softening_layer.py --out $(OUT)/benchmarks/softening_layer
 	$(PYTHON) benchmarks/biaxial_regularisation.py --out $(OUT)/benchmarks/biaxial_regularisation
 	$(PYTHON) benchmarks/biaxial_convergence.py --out $(OUT)/benchmarks/biaxial_convergence

@@ -40,6 +40,7 @@ import numpy as np
 from numba import njit
 
 from .contact_law import KN, KR, KS, MU
+from .periodic_cell import contact_frame
 
 # demcell order of the 2x2 tensors (11, 12, 21, 22); internal macro columns:
 # (F11, F12, F21, F22, phi, kappa1, kappa2); internal flux rows: (s11, s12, s21, s22, m1, m2)
@@ -97,23 +98,16 @@ def _network_triplets(h, h_ref, s, radius, pair_i, pair_j, fn, fs, mr, touching,
         by = h[1, 0] * a0 + h[1, 1] * a1
         Dx = h_ref[0, 0] * a0 + h_ref[0, 1] * a1
         Dy = h_ref[1, 0] * a0 + h_ref[1, 1] * a1
-        l = math.sqrt(bx * bx + by * by)
+        l, nx, ny, tx, ty, ai, aj = contact_frame(bx, by, radius[i], radius[j])
         # the copy of the contact whose contact point lies in the cell (as the kernel,
         # relaxation.compute_forces): both discs shifted by -floor(s_i + a_i/l (s_j - s_i + n))
-        lever = (radius[i] - 0.5 * (radius[i] + radius[j] - l)) / l
+        lever = ai / l
         si0 = s[i, 0] - math.floor(s[i, 0] + lever * a0) - 0.5
         si1 = s[i, 1] - math.floor(s[i, 1] + lever * a1) - 0.5
         Xix = h_ref[0, 0] * si0 + h_ref[0, 1] * si1
         Xiy = h_ref[1, 0] * si0 + h_ref[1, 1] * si1
         Xjx = Xix + Dx           # image of j in that copy
         Xjy = Xiy + Dy
-        nx = bx / l
-        ny = by / l
-        tx = -ny
-        ty = nx
-        ovl = radius[i] + radius[j] - l
-        ai = radius[i] - 0.5 * ovl
-        aj = radius[j] - 0.5 * ovl
         f_n = fn[k]
         f_s = fs[k]
         m_r = mr[k]

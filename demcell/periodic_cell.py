@@ -26,6 +26,18 @@ def branch_vector(h, s, i, j):
 
 
 @njit(cache=True)
+def contact_frame(bx, by, ri, rj):
+    """Geometry of a contact with branch vector (bx, by) between discs of radii ri, rj:
+    (length l, normal n = b / l, tangent t = (-n_y, n_x), lever arms a_i = ri - ovl/2,
+    a_j = rj - ovl/2 to the middle of the overlap ovl = ri + rj - l (001 eqs. A.5-A.6))."""
+    l = math.sqrt(bx * bx + by * by)
+    nx = bx / l
+    ny = by / l
+    ovl = ri + rj - l
+    return l, nx, ny, -ny, nx, ri - 0.5 * ovl, rj - 0.5 * ovl
+
+
+@njit(cache=True)
 def cell_widths(h):
     """Perpendicular widths of the cell across Y2 and across Y1 [m]: area/|Y2|, area/|Y1|."""
     area = abs(h[0, 0] * h[1, 1] - h[0, 1] * h[1, 0])

@@ -271,6 +271,18 @@ def _inv2_scalars(a00, a01, a10, a11):
 
 
 @njit(cache=True, nogil=True)
+def _kick(force, v, inv_m, i, dt, damp):
+    """Velocity of particle i from its force with local non-viscous damping (000 section 3.2.1);
+    returns (|v|^2, the displacement v dt)."""
+    for c in range(2):
+        f = force[i, c]
+        if damp > 0.0 and v[i, c] != 0.0:
+            f -= damp * abs(f) * math.copysign(1.0, v[i, c])
+        v[i, c] += dt * inv_m[i] * f
+    return v[i, 0] * v[i, 0] + v[i, 1] * v[i, 1], v[i, 0] * dt, v[i, 1] * dt
+
+
+@njit(cache=True, nogil=True)
 def leapfrog(force, moment, v, s, omega, dtheta, theta, inv_m, inv_i, hinv00, hinv01, hinv10, hinv11,
              dt, damp, rot, spin):
     """One leapfrog step with local non-viscous damping (000 section 3.2.1): velocities from
@@ -279,16 +291,9 @@ def leapfrog(force, moment, v, s, omega, dtheta, theta, inv_m, inv_i, hinv00, hi
     Returns max |v|^2 (the bound on the displacement since the last neighbour build)."""
     vmax2 = 0.0
     for i in range(s.shape[0]):
-        for c in range(2):
-            f = force[i, c]
-            if damp > 0.0 and v[i, c] != 0.0:
-                f -= damp * abs(f) * math.copysign(1.0, v[i, c])
-            v[i, c] += dt * inv_m[i] * f
-        v2 = v[i, 0] * v[i, 0] + v[i, 1] * v[i, 1]
+        v2, dxs, dys = _kick(force, v, inv_m, i, dt, damp)
         if v2 > vmax2:
             vmax2 = v2
-        dxs = v[i, 0] * dt
-        dys = v[i, 1] * dt
         s[i, 0] += hinv00 * dxs + hinv01 * dys
         s[i, 1] += hinv10 * dxs + hinv11 * dys
         if s[i, 0] >= 1.0 or s[i, 0] < 0.0:
@@ -390,16 +395,9 @@ def leapfrog_micropolar(force, moment, v, s, omega, dtheta, theta, inv_m, inv_i,
     gd0 = dk0 * href[0, 0] + dk1 * href[1, 0]
     gd1 = dk0 * href[0, 1] + dk1 * href[1, 1]
     for i in range(n):
-        for c in range(2):
-            f = force[i, c]
-            if damp > 0.0 and v[i, c] != 0.0:
-                f -= damp * abs(f) * math.copysign(1.0, v[i, c])
-            v[i, c] += dt * inv_m[i] * f
-        v2 = v[i, 0] * v[i, 0] + v[i, 1] * v[i, 1]
+        v2, dxs, dys = _kick(force, v, inv_m, i, dt, damp)
         if v2 > vmax2:
             vmax2 = v2
-        dxs = v[i, 0] * dt
-        dys = v[i, 1] * dt
         ds0 = hinv00 * dxs + hinv01 * dys
         ds1 = hinv10 * dxs + hinv11 * dys
         # increment of kappa . X_p along the step (old kappa at the old place -> new at the new)

@@ -25,7 +25,7 @@ from numba import njit
 from .contact_law import KN, KR, KS, MU
 from .errors import InputError
 from .homogenization import contact_sums
-from .periodic_cell import branch_vector
+from .periodic_cell import branch_vector, contact_frame
 
 COMPONENTS = ((0, 0), (0, 1), (1, 0), (1, 1))   # order 11, 12, 21, 22 (001 eq. 11)
 
@@ -244,14 +244,7 @@ def _pstlo_triplets(h, s, radius, pair_i, pair_j, fn, fs, mr, touching, n_pairs,
         i = pair_i[k]
         j = pair_j[k]
         bx, by = branch_vector(h, s, i, j)
-        l = math.sqrt(bx * bx + by * by)
-        nx = bx / l
-        ny = by / l
-        tx = -ny
-        ty = nx
-        ovl = radius[i] + radius[j] - l
-        ai = radius[i] - 0.5 * ovl
-        aj = radius[j] - 0.5 * ovl
+        l, nx, ny, tx, ty, ai, aj = contact_frame(bx, by, radius[i], radius[j])
         f_n = fn[k]
         f_s = fs[k]
         for c in range(2):

@@ -40,7 +40,7 @@ import numpy as np
 from numba import njit
 
 from .contact_law import KN, KR, KS, MU
-from .periodic_cell import contact_frame
+from .periodic_cell import branch_vector, contact_frame
 
 # demcell order of the 2x2 tensors (11, 12, 21, 22); internal macro columns:
 # (F11, F12, F21, F22, phi, kappa1, kappa2); internal flux rows: (s11, s12, s21, s22, m1, m2)
@@ -296,6 +296,77 @@ def contact_weights(state):
             + np.bincount(state.pair_j[k], weights=f, minlength=state.n_particles))
 
 
+@njit(cache=True)
+def _reaction_triplets(h, s, radius, pair_i, pair_j, fn, fs, mr, touching, n_pairs, kn, Finv, weight):
+    """The change of the constraint's reaction with the weights. At a loaded equilibrium every
+    disc carries the couple lambda w_p (M_p + lambda w_p = 0, lambda = -sum w M / sum w^2), and
+    the force weights w_p = sum |fn| change with the normal forces: d(lambda w_p) contains
+    lambda dw_p, dw_p = sum_c sign(fn_c) dfn_c, dfn_c = -kn n . dd_c over the contacts of p
+    (dd = dw_j - dw_i + dF F^-1 d). Zero at a state without skew stress (lambda = 0).
+    Returns (lambda, COO triplets of K, the 3N x 4 coupling to dF)."""
+    n = radius.shape[0]
+    moment = np.zeros(n)
+    for k in range(n_pairs):
+        if touching[k] == 0:
+            continue
+        i = pair_i[k]
+        j = pair_j[k]
+        bx, by = branch_vector(h, s, i, j)
+        l, nx, ny, tx, ty, ai, aj = contact_frame(bx, by, radius[i], radius[j])
+        moment[i] += -ai * fs[k] - mr[k]
+        moment[j] += -aj * fs[k] + mr[k]
+    num = 0.0
+    den = 0.0
+    for p in range(n):
+        num += weight[p] * moment[p]
+        den += weight[p] * weight[p]
+    lam = -num / den if den > 0.0 else 0.0
+    rows = np.empty(8 * n_pairs, np.int64)
+    cols = np.empty(8 * n_pairs, np.int64)
+    vals = np.empty(8 * n_pairs)
+    G = np.zeros((3 * n, 4))
+    m = 0
+    for k in range(n_pairs):
+        if touching[k] == 0 or lam == 0.0:
+            continue
+        i = pair_i[k]
+        j = pair_j[k]
+        bx, by = branch_vector(h, s, i, j)
+        l, nx, ny, tx, ty, ai, aj = contact_frame(bx, by, radius[i], radius[j])
+        c = -lam * kn * (1.0 if fn[k] >= 0.0 else -1.0)     # lambda d|fn| / d(n . dd)
+        for p in (i, j):
+            for q, sign in ((i, -1.0), (j, 1.0)):
+                rows[m] = 3 * p + 2
+                cols[m] = 3 * q
+                vals[m] = sign * c * nx
+                m += 1
+                rows[m] = 3 * p + 2
+                cols[m] = 3 * q + 1
+                vals[m] = sign * c * ny
+                m += 1
+            for kl in range(4):
+                kk = kl // 2
+                ll = kl % 2
+                gb = Finv[ll, 0] * bx + Finv[ll, 1] * by
+                G[3 * p + 2, kl] += c * (nx if kk == 0 else ny) * gb
+    return lam, rows[:m], cols[:m], vals[:m], G
+
+
+def _with_reaction_change(system, state, law_array, weights):
+    """``system`` with the lambda dw_p terms of ``_reaction_triplets`` added to K and G."""
+    import scipy.sparse as sp
+    lam, rows, cols, vals, G = _reaction_triplets(
+        state.h, state.s, state.radius, state.pair_i, state.pair_j, state.fn, state.fs, state.mr,
+        state.touching, state.n_pairs, float(law_array[KN]), system["Finv"], weights)
+    if lam == 0.0:
+        return system
+    out = dict(system)
+    out["K"] = system["K"] + sp.csc_matrix((vals, (rows, cols)), shape=system["K"].shape)
+    out["G"] = system["G"].copy()
+    out["G"][:, :4] += G
+    return out
+
+
 def _weights(state, rotation_weights):
     if rotation_weights is None:
         return contact_weights(state)
@@ -326,8 +397,11 @@ def micropolar_network_operator(state, law_array, prestress=True, rotation_weigh
     sigma12, sigma21, m31, m32) [N/m, N], columns (F11 - 1, F22 - 1, F12, F21, kappa1, kappa2)
     [-, 1/m]; c_phi (6,) = d(sigma, m)/dphi [per rad], same rows. law_array: ContactLaw.as_array()."""
     system = network_system(state, law_array, prestress)
+    weights = _weights(state, rotation_weights)
+    if prestress and rotation_weights is None:
+        system = _with_reaction_change(system, state, law_array, weights)
     U = np.eye(N_MACRO)
-    X, _ = _solve(system, U, _weights(state, rotation_weights))
+    X, _ = _solve(system, U, weights)
     return _to_callback(_flux_response(system, X, U, prestress))
 
 
@@ -338,11 +412,14 @@ def network_response(state, law_array, dF, dphi, dkappa, prestress=True, rotatio
     (dphi + dkappa . X_p + dth~_p) [rad], 'theta_fluct' (N,) dth~_p, 'lambda' the increment of
     the reaction couple density [N m / m^2] (reaction lambda A_p on disc p)."""
     system = network_system(state, law_array, prestress)
+    weights = _weights(state, rotation_weights)
+    if prestress and rotation_weights is None:
+        system = _with_reaction_change(system, state, law_array, weights)
     U = np.zeros((N_MACRO, 1))
     U[:4, 0] = np.asarray(dF, dtype=float).reshape(4)
     U[4, 0] = float(dphi)
     U[5:, 0] = np.asarray(dkappa, dtype=float).reshape(2)
-    X, lam = _solve(system, U, _weights(state, rotation_weights))
+    X, lam = _solve(system, U, weights)
     d = _flux_response(system, X, U, prestress)[:, 0]
     n = state.n_particles
     x = X[:, 0]

@@ -21,7 +21,11 @@ Coupling modes (--mode): `classical` (a Cauchy continuum, as 000 and 001), `hybr
 a micropolar continuum whose symmetric stress comes from the cell, with elastic skew stress
 2 mu_c skw(eps) and couple stress m = 2 mu_c l_c^2 kappa, eq. 2.74; --mu-c defaults to the
 cell's initial shear modulus, --l-c to the mean grain diameter --grain-diameter), and
-`micropolar` (reserved for a cell that carries rotation and curvature itself). The macro
+`micropolar` (every flux and tangent block from a micropolar cell: the grains carry the
+rotation and the curvature of the point, demcell rotation_mode='micropolar'; the cell is
+scaled so that its mean grain diameter is --grain-diameter, which converts its curvature and
+couple stress; its Cosserat moduli G, mu_c, B = dm/dkappa and l_c = sqrt(B / 2 mu_c) at the
+reference state are printed and go to summary.json as cell_moduli). The macro
 Newton uses the cell operator --tangent (cto: 001 eq. 6, demqo: eq. 20, kruyt: eq. 13,
 pstlo: appendix B) and stops at FNORM/RNORM <= --force-rtol (001 section 6). A weak zone
 (--weak-size, --weak-friction: a square at the lower left corner whose cells have less
@@ -103,7 +107,7 @@ g.add_argument("--max-dem-steps", type=number(low=1, high=1e9, integer=True), de
 g = parser.add_argument_group("coupling")
 g.add_argument("--mode", choices=("classical", "hybrid", "micropolar"), default="hybrid",
                help="classical: Cauchy continuum; hybrid (default): micropolar, elastic skew and couple stress; "
-                    "micropolar: every flux from the cell (needs a micropolar cell)")
+                    "micropolar: every flux and tangent block from a micropolar cell")
 g.add_argument("--mu-c", type=number(POSITIVE), default=None, help="Cosserat modulus [N/m] (hybrid; default: the cell's initial shear modulus)")
 g.add_argument("--l-c", type=number(NON_NEGATIVE), default=None, help="internal length [m] (hybrid; default: --grain-diameter)")
 g.add_argument("--grain-diameter", type=number(POSITIVE), default=2.5e-4,
@@ -140,6 +144,9 @@ def femdem_settings(args):
 def check(args):
     if args.mode == "classical" and (args.mu_c is not None or args.l_c is not None):
         raise ValueError("--mu-c and --l-c are micropolar options: a classical (Cauchy) scene has no rotation field")
+    if args.mode == "micropolar" and (args.mu_c is not None or args.l_c is not None):
+        raise ValueError("--mu-c and --l-c are hybrid-mode options: in mode micropolar the skew and couple "
+                         "stresses come from the cells")
     femdem_settings(args).check()             # every option, before any cell exists
 
 
@@ -157,7 +164,10 @@ n_points = comm.allreduce(len(test.points))
 print0(comm, f"femdem: {args.mode} mode, {args.tangent} tangent, mesh {nx}x{ny}, {n_points} Gauss points "
              f"({test.n_weak_cells} weak elements), {test.packing_info['n_particles']} discs per cell, "
              f"{comm.size} rank(s); cells prepared in {test.preparation_time:.1f} s"
-             + (f"; mu_c = {test.mu_c:.4g} N/m, l_c = {test.l_c:.4g} m" if test.mu_c else ""))
+             + (f"; mu_c = {test.mu_c:.4g} N/m, l_c = {test.l_c:.4g} m" if test.mu_c else "")
+             + (f" (the cells' moduli, {test.cell_moduli['moduli_from']}: G = {test.cell_moduli['G']:.4g} N/m, "
+                f"B = {test.cell_moduli['bending_modulus']:.4g} N m, l_c / d = "
+                f"{test.cell_moduli['l_c_over_grain_diameter']:.3g})" if test.cell_moduli else ""))
 
 # --- outputs written as the run goes ---------------------------------------------------
 cb = test.callback
@@ -255,7 +265,8 @@ summary = {
     "wall_time": wall, "cell_preparation_time": test.preparation_time, "ranks": comm.size,
     "time_max_over_ranks": timing,
     "memory_per_cell_bytes": memory / n_points, "snapshots": snapshots,
-    "mode": test.material.describe(), "mu_c": test.mu_c, "l_c": test.l_c, "packing": test.packing_info,
+    "mode": test.material.describe(), "mu_c": test.mu_c, "l_c": test.l_c, "cell_moduli": test.cell_moduli,
+    "length_scale": test.length_scale, "packing": test.packing_info,
     "options": {k: v for k, v in vars(args).items() if k != "elasticity"},
 }
 guard.finish(summary)

@@ -16,6 +16,12 @@ lateral traction kept (dead load: the macro is geometrically linear). Smooth pla
 u2 = 0 at the bottom, u2 uniform at the top, u1 free except at a pin at the bottom centre;
 the rotation (micropolar scene) is free everywhere.
 
+Modes (materials/dem/modes.py): classical (Cauchy), hybrid (cell's symmetric stress, elastic
+skew and couple stress with mu_c, l_c) and micropolar (every flux and tangent block from a
+micropolar cell; the cell's grain diameter is placed at grain_diameter, which converts its
+curvature and couple stress; the cell's moduli G, mu_c, B and l_c at the reference state are
+reported as `cell_moduli`).
+
 Imperfection: a square of side `weak_size` at the lower left corner whose cells have the
 contact friction multiplied by `weak_friction_factor` (a weaker cell) triggers the band; 000
 has none (the band there comes from the noise of the cells).
@@ -110,6 +116,9 @@ class FemDemSettings:
         if self.mode == "classical" and (self.mu_c is not None or self.l_c is not None):
             raise ValueError("femdem: mu_c and l_c are micropolar options; a classical (Cauchy) scene has "
                              "no rotation field (use mode hybrid)")
+        if self.mode == "micropolar" and (self.mu_c is not None or self.l_c is not None):
+            raise ValueError("femdem: mu_c and l_c are hybrid-mode options; in mode micropolar the skew and "
+                             "couple stresses come from the cells (their moduli are reported)")
         if self.mu_c is not None and not (math.isfinite(self.mu_c) and self.mu_c > 0):
             raise ValueError(f"femdem: mu_c must be positive, got {self.mu_c!r}")
         if self.l_c is not None and not (math.isfinite(self.l_c) and self.l_c >= 0):
@@ -130,12 +139,9 @@ class FemDemSettings:
             if not (isinstance(v, (int, np.integer)) and v >= 1):
                 raise ValueError(f"femdem: {name} must be an integer >= 1, got {v!r}")
         meshes.check_node_at_centre(self.nx, self.degree_u)
-        if self.mode == "micropolar":
-            import demcell
-            if not getattr(demcell.DemCell, "micropolar", False):
-                raise ValueError("femdem: mode 'micropolar' needs a cell that carries rotation and curvature "
-                                 "itself; demcell's DemCell gives the force stress of a deformation only "
-                                 "(use mode hybrid)")
+        if self.mode == "micropolar" and not self.cell.rotation:
+            raise ValueError("femdem: mode micropolar needs grains that rotate (a micropolar cell imposes the "
+                             "rotation and curvature on them): drop the locked rotations or use mode hybrid")
         if self.cell_type not in ("triangle", "quadrilateral"):
             raise ValueError(f"femdem: cell_type must be triangle or quadrilateral, got {self.cell_type!r}")
         self.cell.check()
@@ -143,6 +149,33 @@ class FemDemSettings:
         if not cells_bytes <= MAX_CELL_BYTES:
             raise ValueError(f"femdem: a {self.nx}x{self.ny} mesh of {self.cell.particles}-disc cells needs about "
                              f"{cells_bytes / 1e9:.3g} GB for its cells; at most {MAX_CELL_BYTES / 1e9:g} GB")
+
+
+def reference_moduli(mode, cell, tangent, grain_diameter):
+    """Cosserat moduli of the micropolar reference cell in the specimen's units
+    (materials.dem.cells.micropolar_moduli: G, mu_c, B = dm/dkappa, l_c = sqrt(B / (2 mu_c))
+    against the grain diameter), read off the network tangent 'pstlo' and the frozen-contact
+    relaxations 'demqo' (both at the reference state). The headline values come from the
+    run's own tangent if that is one of these two, else from pstlo; if a tangent fails its
+    entry holds the error and the other one is used."""
+    from ..materials.dem.cells import micropolar_moduli
+    per_kind, errors = {}, {}
+    for name, kind in (("pstlo", "pstlo"), ("demqo", "demqo")):
+        block = np.zeros((6, 6))
+        try:
+            mode.tangent(cell, None, kind, block)
+        except Exception as error:          # the network operator is optional for the run
+            errors[name] = f"{type(error).__name__}: {error}"
+            continue
+        per_kind[name] = micropolar_moduli(block, grain_diameter)
+    if not per_kind:
+        raise RuntimeError(f"femdem: no micropolar tangent of the reference cell: {errors}")
+    source = tangent if tangent in per_kind else ("pstlo" if "pstlo" in per_kind else "demqo")
+    out = dict(per_kind[source], moduli_from=source, grain_diameter=grain_diameter,
+               moduli_by_tangent=per_kind)
+    if errors:
+        out["moduli_errors"] = errors
+    return out
 
 
 def parse_mesh(text):
@@ -160,7 +193,8 @@ class FemDemBiaxial:
     """Build and run one FEM x DEM biaxial test (see the module docstring)."""
 
     def __init__(self, comm, settings=None, verbose=True):
-        from ..materials.dem import (DemMaterial, initial_shear_modulus, make_mode, reference_cells)
+        from ..materials.dem import (DemMaterial, initial_shear_modulus, make_mode, mean_grain_diameter,
+                                     reference_cells)
         self.comm = comm
         self.s = s = settings or FemDemSettings()
         s.check()
@@ -169,15 +203,24 @@ class FemDemBiaxial:
         frictions = [s.cell.friction]
         if s.weak_size > 0 and s.weak_friction_factor < 1:
             frictions.append(s.cell.friction * s.weak_friction_factor)
-        self.reference_cells, self.packing_info = reference_cells(s.cell, frictions, comm)
+        self.reference_cells, self.packing_info = reference_cells(s.cell, frictions, comm,
+                                                                  micropolar=s.mode == "micropolar")
         self.preparation_time = time.perf_counter() - start
         ref = self.reference_cells[0]
+        # metres per length unit of the cell: places the cell's grains at grain_diameter
+        self.length_scale = s.grain_diameter / mean_grain_diameter(ref)
+        self.cell_moduli = None
         if s.mode == "classical":
             self.mu_c = self.l_c = None
-        else:
+            self.mode = make_mode(s.mode)
+        elif s.mode == "hybrid":
             self.mu_c = s.mu_c if s.mu_c is not None else initial_shear_modulus(ref)
             self.l_c = s.l_c if s.l_c is not None else s.grain_diameter
-        self.mode = make_mode(s.mode, self.mu_c, self.l_c)
+            self.mode = make_mode(s.mode, self.mu_c, self.l_c)
+        else:
+            self.mode = make_mode(s.mode, length_scale=self.length_scale)
+            self.cell_moduli = self.mode.moduli = reference_moduli(self.mode, ref, s.tangent, s.grain_diameter)
+            self.mu_c, self.l_c = self.cell_moduli["mu_c"], self.cell_moduli["l_c"]
         self.material = DemMaterial(self.reference_cells, self.mode, s.tangent)
 
         self.mesh, tags, names = meshes.rectangle(comm, s.width, s.height, cell_type=s.cell_type,

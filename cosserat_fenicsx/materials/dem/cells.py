@@ -11,7 +11,10 @@ specimen starts in equilibrium under the confining pressure.
 Units are the cell's (2D, per unit thickness): kn, ks, stresses in N/m. A 2D cell's stress
 does not depend on its length unit (forces and branch vectors scale together), so the cell
 is placed in the specimen by one length only, the mean grain diameter in the specimen's
-units, which sets the default internal length of the hybrid mode.
+units, which sets the default internal length of the hybrid mode. A micropolar cell's
+curvature [1/length] and couple stress [N/m x length] do depend on it: the micropolar mode
+converts them with length_scale = grain diameter [m] / mean_grain_diameter(cell)
+(modes.MicropolarMode).
 """
 from dataclasses import dataclass, field
 import math
@@ -98,10 +101,15 @@ class CellOptions:
         return dc.generate_packing(self.particles, pressure=self.pressure, law=self.law(), seed=self.seed)
 
 
-def reference_cells(options, frictions, comm=None):
+def reference_cells(options, frictions, comm=None, micropolar=False):
     """One prepared reference DemCell per zone (zone k: contact friction frictions[k]),
     built on rank 0 and broadcast (the packing generation is seeded, so every rank would
-    build the same; doing it once saves the time). Returns (cells, packing info)."""
+    build the same; doing it once saves the time). Returns (cells, packing info).
+
+    micropolar: the cells carry rotation and curvature (demcell rotation_mode='micropolar').
+    The reference state is prepared as for the other modes (grains free to rotate: the
+    isotropic stage of 000 section 4.1) and then wrapped as a micropolar cell without
+    re-referencing, so F = I, phi = 0 and kappa = 0 are that prepared state."""
     import demcell as dc
     payload = None
     if comm is None or comm.rank == 0:
@@ -117,7 +125,15 @@ def reference_cells(options, frictions, comm=None):
     if isinstance(payload, Exception):
         raise payload
     states, info = payload
-    cells = [dc.DemCell(s, options.law(mu), options.relaxation(), reset_reference=False)
+    if micropolar and not options.rotation:
+        raise ValueError("mode 'micropolar' needs grains that rotate (not rotation=False / --no-rotation)")
+    rotation_mode = "micropolar" if micropolar else None
+    for s in states:
+        if micropolar:      # the imposed values the prepared state is at
+            s.phi = 0.0
+            s.kappa = np.zeros(2)
+    cells = [dc.DemCell(s, options.law(mu), options.relaxation(), reset_reference=False,
+                        rotation_mode=rotation_mode)
              for s, mu in zip(states, frictions)]
     return cells, info
 
@@ -133,3 +149,26 @@ def mean_grain_diameter(cell):
     """Mean disc diameter of the cell in its own length unit."""
     return 2.0 * float(np.mean(cell.state.radius))
 
+
+def micropolar_moduli(C, grain_diameter=None):
+    """Moduli of a 6x6 micropolar tangent in the callback's order and the specimen's units
+    (rows sigma11, sigma22, sigma12, sigma21, m31, m32; columns eps11, eps22, eps12, eps21,
+    kappa31, kappa32), read as the isotropic Cosserat law of the hybrid mode (eq. 2.74):
+
+        sigma12 = G (eps12 + eps21) + mu_c (eps12 - eps21),  m = B kappa,  B = 2 mu_c l_c^2
+
+    G = d sym(sigma)_12 / d(eps12 + eps21) and mu_c = d skw(sigma)_12 / d(eps12 - eps21)
+    [N/m] (quarter sums of the shear block), B = dm/dkappa [N m] (m in N, kappa in 1/m) the
+    mean of the two diagonal bending entries, l_c = sqrt(B / (2 mu_c)) [m] (nan when mu_c <= 0 or
+    B < 0). With grain_diameter [m] also l_c / d."""
+    C = np.asarray(C, dtype=float)
+    S = C[2:4, 2:4]
+    G = 0.25 * float(S.sum())
+    mu_c = 0.25 * float(S[0, 0] - S[0, 1] - S[1, 0] + S[1, 1])
+    B = 0.5 * float(C[4, 4] + C[5, 5])
+    l_c = math.sqrt(B / (2.0 * mu_c)) if mu_c > 0.0 and B >= 0.0 else float("nan")
+    out = {"G": G, "mu_c": mu_c, "bending_modulus": B, "l_c": l_c,
+           "bending_anisotropy": float((C[4, 4] - C[5, 5]) / (C[4, 4] + C[5, 5])) if C[4, 4] + C[5, 5] else 0.0}
+    if grain_diameter is not None:
+        out["l_c_over_grain_diameter"] = l_c / float(grain_diameter)
+    return out

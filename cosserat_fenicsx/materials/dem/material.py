@@ -20,7 +20,9 @@ status). Status: 0 ok; 1 (flagged, the run goes on): the cell lost every contact
 stress is zero; < 0 (failed, the step is cut): -1 the cell did not relax within its step
 budget, -2 inadmissible F (det F <= 0), -3 the micro solve broke down (non-finite values,
 cell squeezed below the minimum-image size); a target F further than
-`max_strain_increment` from the committed F is refused as -2 before the cell is touched.
+`max_strain_increment` from the committed F is refused as -2 before the cell is touched
+(micropolar mode: also a curvature change whose rotation jump across the cell |dkappa . Y|
+exceeds it, modes.MicropolarMode.increment).
 """
 import time
 
@@ -54,9 +56,9 @@ class DemMaterial(Constitutive):
         if not reference_cells:
             raise ValueError("DemMaterial needs at least one reference cell")
         if mode.name == "micropolar" and not all(getattr(c, "micropolar", False) for c in reference_cells):
-            raise ValueError("mode 'micropolar' needs a cell that carries rotation and curvature itself "
-                             "(rotation_mode='micropolar'); demcell's DemCell gives the force stress of a "
-                             "deformation only: use mode 'hybrid'")
+            raise ValueError("mode 'micropolar' needs cells that carry rotation and curvature themselves "
+                             "(demcell.DemCell(..., rotation_mode='micropolar'), as "
+                             "reference_cells(..., micropolar=True) makes them)")
         if not (np.isfinite(max_strain_increment) and max_strain_increment > 0):
             raise ValueError(f"max_strain_increment must be positive, got {max_strain_increment!r}")
         self.max_strain_increment = float(max_strain_increment)
@@ -146,7 +148,8 @@ class DemMaterial(Constitutive):
         """(status, message, DEM steps) of one solve from the committed state."""
         import demcell as dc
         cell.rollback()
-        jump = float(np.abs(self.mode.deformation(gradients) - cell.deformation_gradient()).max())
+        # |dF| and, in micropolar mode, the change of the rotation jump across the cell
+        jump = self.mode.increment(cell, gradients)
         if not jump <= self.max_strain_increment:
             # a cell asked to jump this far is either a load step far too large or a Newton
             # iterate running away: refuse it (the step is cut) instead of tearing the cell
@@ -209,4 +212,6 @@ class DemMaterial(Constitutive):
         return sum(c.memory_bytes() for c in self.cells)
 
     def describe(self):
+        """The mode (micropolar: with the cell moduli of the reference state, see
+        cells.micropolar_moduli, once the scene has set them), the tangent and the zones."""
         return dict(self.mode.describe(), tangent=self.tangent_name, n_zones=len(self.reference_cells))

@@ -13,8 +13,8 @@ Cell tensors use demcell's order (11, 12, 21, 22) (001 eq. 11): C[r, c] = d sigm
 In the callback's order sigma11 -> 0, sigma22 -> 1, sigma12 -> 2, sigma21 -> 3, and the same
 for eps (F_kl - delta_kl -> eps_kl).
 
-Three modes, one object each, all with the same methods (`deformation`, `drive`,
-`fluxes`, `tangent`), so the material never needs to know which one it holds:
+Three modes, one object each, all with the same methods (`deformation`, `increment`,
+`drive`, `fluxes`, `tangent`), so the material never needs to know which one it holds:
 
 * `ClassicalMode`: a Cauchy scene (000, 001). sigma = the cell's Cauchy stress (001 eq. 8),
   no couple stress.
@@ -23,9 +23,10 @@ Three modes, one object each, all with the same methods (`deformation`, `drive`,
 * `MicropolarMode`: every flux from a cell that carries rotation and curvature itself
   (driven by F = I + eps, rotation 0, curvature kappa: at small strain the same as
   F = I + Grad u with the rotation phi, rotated by -phi). It needs a cell with
-  `micropolar = True` answering `set_deformation(F, rotation=, curvature=)`,
-  `cauchy_stress()` (non-symmetric), `couple_stress()` and
-  `tangent(kind, measure="micropolar")` (6x6 in the callback's order).
+  `micropolar = True` (demcell rotation_mode='micropolar') answering
+  `set_deformation(F, rotation=, curvature=)`, a non-symmetric Cauchy stress, a couple
+  stress and `tangent(kind, measure="micropolar")` (6x6 in the callback's order); curvature
+  and couple stress are converted between the cell's length unit and the specimen's.
 """
 import numpy as np
 
@@ -60,6 +61,10 @@ class _SymmetricDrive:
 
     def drive(self, cell, gradients):
         cell.set_deformation(self.deformation(gradients))
+
+    def increment(self, cell, gradients):
+        """Largest change of a component of F from the cell's committed state."""
+        return float(np.abs(self.deformation(gradients) - cell.deformation_gradient()).max())
 
 
 class ClassicalMode(_SymmetricDrive):
@@ -122,37 +127,79 @@ class HybridMode(_SymmetricDrive):
 
 
 class MicropolarMode:
-    """Every flux from a micropolar cell (rotation and curvature imposed on the grains)."""
+    """Every flux from a micropolar cell (rotation and curvature imposed on the grains; demcell
+    rotation_mode='micropolar', docs/micropolar_cell.md).
+
+    The cell is driven by F = I + eps (eps = Grad u + e phi, 2.49, not symmetrised), rotation 0
+    and curvature kappa: at small strain the cell at (I + Grad u, phi) seen in axes turned by
+    -phi, so the skew part of eps (the rotation of the material relative to the grains) is what
+    loads the contacts.
+
+    Units. The cell has its own length unit (cells.py): its force stress does not depend on it,
+    its curvature and couple stress do. `length_scale` [m per cell length unit] =
+    (grain diameter in the specimen [m]) / (mean grain diameter of the cell in its units):
+        kappa_cell = length_scale kappa        [1/cell unit] from [1/m]
+        m          = length_scale m_cell       [N] from [N/m x cell unit]
+    so in the 6x6 tangent d sigma/d kappa and d m/d eps carry one factor length_scale and
+    d m/d kappa two."""
     name = "micropolar"
     micropolar_scene = True
+
+    def __init__(self, length_scale=1.0):
+        length_scale = float(length_scale)
+        if not (np.isfinite(length_scale) and length_scale > 0.0):
+            raise ValueError(f"micropolar mode: length_scale must be a positive number, got {length_scale!r}")
+        self.length_scale = length_scale
+        # rows (sigma11, sigma22, sigma12, sigma21, m31, m32), cols (eps.., kappa31, kappa32)
+        scale = np.ones(6)
+        scale[4:] = length_scale
+        self._scale = np.outer(scale, scale)
+        self.moduli = None      # set by describe_cell (cells.micropolar_moduli)
 
     def deformation(self, gradients):
         return deformation_gradient(gradients, symmetric=False)
 
+    def curvature(self, gradients):
+        """kappa of the cell [1/cell unit] from the macro kappa [1/m]."""
+        return self.length_scale * np.array([gradients[4], gradients[5]], dtype=float)
+
+    def increment(self, cell, gradients):
+        """Size of the jump from the cell's committed state, measured like a strain: the
+        largest change of a component of F and the largest change of the rotation jump across
+        the cell |dkappa_cell . Y_k| (Y_k the periodicity vectors): that is the relative
+        rotation the curvature imposes on the grains at opposite sides of the cell."""
+        jump = float(np.abs(self.deformation(gradients) - cell.deformation_gradient()).max())
+        dk = self.curvature(gradients) - np.asarray(cell.state.kappa, dtype=float)
+        return max(jump, float(np.abs(dk @ cell.state.h_ref).max()))
+
     def drive(self, cell, gradients):
-        cell.set_deformation(self.deformation(gradients), rotation=0.0,
-                             curvature=(gradients[4], gradients[5]))
+        cell.set_deformation(self.deformation(gradients), rotation=0.0, curvature=self.curvature(gradients))
 
     def fluxes(self, homogenized, gradients, out):
         s, m = homogenized.cauchy, homogenized.couple_stress
-        out[:] = (s[0, 0], s[1, 1], s[0, 1], s[1, 0], m[0], m[1])
+        L = self.length_scale
+        out[:] = (s[0, 0], s[1, 1], s[0, 1], s[1, 0], L * m[0], L * m[1])
 
     def tangent(self, cell, gradients, kind, out):
-        out[:] = cell.tangent(kind, measure="micropolar")
+        out[:] = self._scale * cell.tangent(kind, measure="micropolar")
 
     def describe(self):
-        return {"mode": self.name}
+        d = {"mode": self.name, "length_scale": self.length_scale}
+        if self.moduli is not None:
+            d.update(self.moduli)
+        return d
 
 
 MODES = ("classical", "hybrid", "micropolar")
 
 
-def make_mode(name, mu_c=None, l_c=None):
-    """The mode object of `name`; hybrid needs mu_c and l_c."""
+def make_mode(name, mu_c=None, l_c=None, length_scale=1.0):
+    """The mode object of `name`; hybrid needs mu_c and l_c, micropolar the length scale of
+    the cell (MicropolarMode)."""
     if name == "classical":
         return ClassicalMode()
     if name == "hybrid":
         return HybridMode(mu_c, l_c)
     if name == "micropolar":
-        return MicropolarMode()
+        return MicropolarMode(length_scale)
     raise ValueError(f"unknown FEM x DEM mode {name!r}: one of {', '.join(MODES)}")

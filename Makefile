@@ -66,6 +66,7 @@ benchmark: deps
 	$(MPIRUN) -n $(NP) $(PYTHON) benchmarks/femdem_regularisation.py --out $(OUT)/benchmarks/femdem_regularisation
 	$(MPIRUN) -n $(NP) $(PYTHON) benchmarks/femdem_convergence.py --out $(OUT)/benchmarks/femdem_convergence
 	$(MPIRUN) -n $(NP) $(PYTHON) benchmarks/femdem_rotation.py --out $(OUT)/benchmarks/femdem_rotation
+	$(MPIRUN) -n $(NP) $(PYTHON) benchmarks/femdem_micropolar.py --out $(OUT)/benchmarks/femdem_micropolar
 	$(PYTHON) benchmarks/identification_sensitivity.py --out $(OUT)/benchmarks/identification_sensitivity
 	$(PYTHON) benchmarks/identification_cost.py --out $(OUT)/benchmarks/identification_cost
 	$(PYTHON) benchmarks/reidentification.py --draws 100 --out $(OUT)/benchmarks/reidentification

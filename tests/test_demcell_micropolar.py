@@ -180,6 +180,7 @@ def test_power_identity_along_a_path_with_sliding(prepared60):
         reaction = area * (h.cauchy[0, 1] - h.cauchy[1, 0])
         if abs(reaction) > 0.05 * scale:
             assert abs(spin_power) > 0.05 * scale
+    print("sliding fractions along the path", np.round(sliding, 3))
     assert max(sliding) > 0.02, sliding     # the path slides
 
 

@@ -19,7 +19,7 @@ moduli it imposes), wall and CPU seconds, Newton iterations and DEM steps.
 Budget: each case gets --case-minutes of wall time (by mesh); at the end of it the case is
 sent SIGTERM, ends after its current step and its record keeps what it reached
 (femdem_cases.Interrupted). Reruns resume from the records (delete one to rerun it).
-The defaults (60-disc cells, grain diameter 0.5 mm, 2 % in 10 steps, demqo) are chosen to
+The defaults (60-disc cells, grain diameter 0.5 mm, 2 % in 10 steps, pstlo) are chosen to
 finish in about 40 minutes on 2 processes of the 2-core machine (docs/femdem.md).
 
     mpirun -n 2 python3 benchmarks/femdem_micropolar.py --out /tmp/h/femdem_micropolar
@@ -165,10 +165,10 @@ def main():
     p.add_argument("--steps", type=int, default=10)
     p.add_argument("--weak-size", type=float, default=5e-3)
     p.add_argument("--weak-friction", type=float, default=0.5)
-    p.add_argument("--tangent", default="demqo",
-                   help="cell operator for both modes (demqo: the micropolar pstlo of demcell/network.py was "
-                        "being finished; see docs/femdem.md)")
-    p.add_argument("--case-minutes", default="2x4=5,4x8=14",
+    p.add_argument("--tangent", default="pstlo",
+                   help="cell operator for both modes (pstlo: the frozen network solved exactly; demqo gives the "
+                        "same operator at several times the cost; see docs/femdem.md)")
+    p.add_argument("--case-minutes", default="2x4=7,4x8=22",
                    help="wall budget per case by mesh, e.g. '2x4=5,4x8=14' (then SIGTERM: partial record)")
     p.add_argument("--report-only", action="store_true", help="tabulate the records, run nothing")
     a = p.parse_args()

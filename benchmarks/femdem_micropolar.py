@@ -20,9 +20,9 @@ Budget: each case gets --case-minutes of wall time (by mesh); at the end of it t
 sent SIGTERM, ends after its current step and its record keeps what it reached
 (femdem_cases.Interrupted). Reruns resume from the records (delete one to rerun it).
 The defaults (60-disc cells, grain diameter 0.5 mm, 2 % in 10 steps, pstlo) are chosen to
-finish in about 40 minutes on 2 processes of the 2-core machine (docs/femdem.md).
+finish in about 20 minutes on 2 processes of the 2-core machine (18 min measured, docs/femdem.md).
 
-    mpirun -n 2 python3 benchmarks/femdem_micropolar.py --out /tmp/h/femdem_micropolar
+    mpirun -n 2 python3 benchmarks/femdem_micropolar.py --out results/femdem_micropolar
 """
 import argparse
 import json

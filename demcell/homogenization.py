@@ -32,7 +32,7 @@ import numpy as np
 from numba import njit
 
 from .contact_law import KN, KR, KS, MU
-from .periodic_cell import branch_vector, cauchy_to_pk1
+from .periodic_cell import branch_vector, cauchy_to_pk1, contact_copy, fractional_branch
 
 
 @njit(cache=True)
@@ -69,13 +69,10 @@ def contact_sums(h, s, radius, pair_i, pair_j, fn, fs, mr, touching, n_pairs, mu
         mi = -(radius[i] - 0.5 * overlap) * fs[k] - mr[k]
         mj = -(radius[j] - 0.5 * overlap) * fs[k] + mr[k]
         if micropolar:
-            a = s[j, 0] - s[i, 0]
-            b = s[j, 1] - s[i, 1]
-            a -= math.floor(a + 0.5)
-            b -= math.floor(b + 0.5)
-            lever = (radius[i] - 0.5 * overlap) / dist
-            si0 = s[i, 0] - math.floor(s[i, 0] + lever * a) - 0.5
-            si1 = s[i, 1] - math.floor(s[i, 1] + lever * b) - 0.5
+            a, b = fractional_branch(s, i, j)
+            m_a, m_b = contact_copy(s, i, a, b, (radius[i] - 0.5 * overlap) / dist)
+            si0 = s[i, 0] - m_a - 0.5
+            si1 = s[i, 1] - m_b - 0.5
             xi0 = h_ref[0, 0] * si0 + h_ref[0, 1] * si1
             xi1 = h_ref[1, 0] * si0 + h_ref[1, 1] * si1
             lx = h_ref[0, 0] * a + h_ref[0, 1] * b

@@ -350,7 +350,7 @@ class DemCell(MicroCell):
             dF = np.abs(Fk - Fcur) if mask is None else np.abs(Fk - Fcur)[~mask]
             size = dF.max(initial=0.0)
             if phi_k is not None:
-                size = max(size, self._rotation_size(phi_k, kappa_k))
+                size = max(size, self.rotation_increment(phi_k, kappa_k))
             n_ramp = int(math.ceil(size / o.strain_rate))
             rep = run(self.state, self._law_array, self.dt, Fk, n_ramp, n_ramp + limit, criterion=crit,
                       tol=o.tol, check_every=o.check_every, damping=o.damping,
@@ -384,17 +384,18 @@ class DemCell(MicroCell):
                                        substeps=len(path), message=msg, max_overlap_ratio=max_ovl)
         return self.last_result
 
-    def _rotation_size(self, phi, kappa):
-        """Size of a change of (phi, kappa) measured like a strain: |dphi| (the slip it causes
-        at a contact, per unit lever arm) and the largest change of the rotation jump across the
-        cell, |dkappa . Y_k|."""
+    def rotation_increment(self, phi, kappa):
+        """Size of a change from the current (phi, kappa) to the given ones, measured like a
+        strain: |dphi| (the slip it causes at a contact, per unit lever arm) and the largest
+        change of the rotation jump across the cell, |dkappa . Y_k| (Y_k of the reference cell)."""
         dk = np.asarray(kappa) - self.state.kappa
         return max(abs(phi - self.state.phi), float(np.abs(dk @ self.state.h_ref).max()))
 
     def _micropolar_path(self, path):
         """Sub-steps of a micropolar solve: the F path, refined until each sub-step also changes
         (phi, kappa) by at most max_increment, with phi and kappa linear along it."""
-        n_rot = int(math.ceil(self._rotation_size(self._target_phi, self._target_kappa) / self.options.max_increment))
+        n_rot = int(math.ceil(self.rotation_increment(self._target_phi, self._target_kappa)
+                              / self.options.max_increment))
         if n_rot > len(path):
             path = deformation_path(self.state.F, self._target, self.options.max_increment, steps=n_rot)
         n = len(path)

@@ -34,13 +34,12 @@ an area-weighted constraint alone (lambda -> 0, c_phi -> 0). ``rotation_weights`
 weight it differently. Contacts crossing the cell's side are counted at the copy whose contact
 point lies in the cell, as in the kernel.
 """
-import math
 
 import numpy as np
 from numba import njit
 
 from .contact_law import KN, KR, KS, MU
-from .periodic_cell import branch_vector, contact_frame
+from .periodic_cell import branch_vector, contact_copy, contact_frame, fractional_branch
 
 # demcell order of the 2x2 tensors (11, 12, 21, 22); internal macro columns:
 # (F11, F12, F21, F22, phi, kappa1, kappa2); internal flux rows: (s11, s12, s21, s22, m1, m2)
@@ -88,22 +87,16 @@ def _network_triplets(h, h_ref, s, radius, pair_i, pair_j, fn, fs, mr, touching,
             continue
         i = pair_i[k]
         j = pair_j[k]
-        # fractional branch with the nearest-image shift n_k = -round(s_j - s_i)
-        # (same rounding as periodic_cell.branch_vector)
-        a0 = s[j, 0] - s[i, 0]
-        a1 = s[j, 1] - s[i, 1]
-        a0 -= math.floor(a0 + 0.5)
-        a1 -= math.floor(a1 + 0.5)
+        a0, a1 = fractional_branch(s, i, j)     # nearest image, shift n_k = -round(s_j - s_i)
         bx = h[0, 0] * a0 + h[0, 1] * a1
         by = h[1, 0] * a0 + h[1, 1] * a1
         Dx = h_ref[0, 0] * a0 + h_ref[0, 1] * a1
         Dy = h_ref[1, 0] * a0 + h_ref[1, 1] * a1
         l, nx, ny, tx, ty, ai, aj = contact_frame(bx, by, radius[i], radius[j])
-        # the copy of the contact whose contact point lies in the cell (as the kernel,
-        # relaxation.compute_forces): both discs shifted by -floor(s_i + a_i/l (s_j - s_i + n))
-        lever = ai / l
-        si0 = s[i, 0] - math.floor(s[i, 0] + lever * a0) - 0.5
-        si1 = s[i, 1] - math.floor(s[i, 1] + lever * a1) - 0.5
+        # the copy of the contact counted (periodic_cell.contact_copy, as the kernel)
+        m0, m1 = contact_copy(s, i, a0, a1, ai / l)
+        si0 = s[i, 0] - m0 - 0.5
+        si1 = s[i, 1] - m1 - 0.5
         Xix = h_ref[0, 0] * si0 + h_ref[0, 1] * si1
         Xiy = h_ref[1, 0] * si0 + h_ref[1, 1] * si1
         Xjx = Xix + Dx           # image of j in that copy

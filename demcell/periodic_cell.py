@@ -15,14 +15,33 @@ from numba import njit
 
 
 @njit(cache=True)
-def branch_vector(h, s, i, j):
-    """Minimum-image branch vector from centre i to centre j [m] (001 eq. A.1):
-    d = h (s_j - s_i - round(s_j - s_i)); the rounding picks the nearest periodic image."""
+def fractional_branch(s, i, j):
+    """Minimum-image branch from centre i to centre j in fractional coordinates:
+    s_j - s_i - round(s_j - s_i); the rounding picks the nearest periodic image, shifted by
+    n = -round(s_j - s_i) lattice vectors."""
     a = s[j, 0] - s[i, 0]
     b = s[j, 1] - s[i, 1]
     a -= math.floor(a + 0.5)
     b -= math.floor(b + 0.5)
+    return a, b
+
+
+@njit(cache=True)
+def branch_vector(h, s, i, j):
+    """Minimum-image branch vector from centre i to centre j [m] (001 eq. A.1):
+    d = h (s_j - s_i - round(s_j - s_i)) (``fractional_branch``)."""
+    a, b = fractional_branch(s, i, j)
     return h[0, 0] * a + h[0, 1] * b, h[1, 0] * a + h[1, 1] * b
+
+
+@njit(cache=True)
+def contact_copy(s, i, a, b, lever):
+    """Which periodic copy of a contact a micropolar cell counts (docs/micropolar_cell.md):
+    the two copies of a contact crossing the cell's side differ in rotation by kappa . Y, and
+    the one counted is the copy whose contact point s_i + lever (a, b) lies in the cell
+    (lever = a_i / |d|, (a, b) the fractional branch): both its discs are shifted by -m lattice
+    vectors. Returns m = floor(contact point), a rule independent of how the pair is labelled."""
+    return np.floor(s[i, 0] + lever * a), np.floor(s[i, 1] + lever * b)
 
 
 @njit(cache=True)
@@ -52,11 +71,21 @@ def rotation(angle):
     return np.array([[c, -s], [s, c]])
 
 
+@njit(cache=True)
 def polar(F):
-    """Polar decomposition F = R U in 2D; returns (angle of R [rad], U)."""
+    """Polar decomposition F = R U in 2D; returns (angle of R [rad], U). Also used inside the
+    relaxation kernel (the polar ramp of a micropolar cell)."""
     angle = math.atan2(F[1, 0] - F[0, 1], F[0, 0] + F[1, 1])
-    U = rotation(-angle) @ F
-    return angle, 0.5 * (U + U.T)
+    c = math.cos(angle)
+    s = math.sin(angle)
+    U = np.empty((2, 2))
+    for b in range(2):
+        U[0, b] = c * F[0, b] + s * F[1, b]
+        U[1, b] = -s * F[0, b] + c * F[1, b]
+    off = 0.5 * (U[0, 1] + U[1, 0])
+    U[0, 1] = off
+    U[1, 0] = off
+    return angle, U
 
 
 def deformation_path(F0, F1, max_increment, steps=None):

@@ -26,6 +26,7 @@ from .contact_law import (COH_N, COH_T, ETA_R, FROZEN, KN, KR, KS, MU, ROTATIONS
                           contact_update_params)
 from .errors import SolveError
 from .neighbours import build_pairs, cell_strain_norm, max_displacement, merge_history
+from .periodic_cell import contact_copy, polar
 
 # status codes of the kernel
 CONVERGED, MAX_STEPS, NEED_CAPACITY, NO_CONTACTS, NONFINITE, CELL_TOO_SMALL = range(6)
@@ -181,8 +182,7 @@ def compute_forces(radius, mass, s, dtheta, force, moment, h, pair_i, pair_j, fn
             if image_spin:
                 # image shift n = -(round_a, round_b); the copy with its contact point in the
                 # cell is shifted by -m for both discs
-                m_a = np.floor(s[i, 0] + ai * inv_dist * a)
-                m_b = np.floor(s[i, 1] + ai * inv_dist * b)
+                m_a, m_b = contact_copy(s, i, a, b, ai * inv_dist)
                 copy_shift = image_g0 * m_a + image_g1 * m_b
                 dth_i -= copy_shift
                 dth_j -= image_g0 * round_a + image_g1 * round_b + copy_shift
@@ -314,22 +314,6 @@ def leapfrog(force, moment, v, s, omega, dtheta, theta, inv_m, inv_i, hinv00, hi
 
 
 @njit(cache=True)
-def _polar2(F):
-    """Polar decomposition F = R(angle) U of a 2x2 matrix (as periodic_cell.polar)."""
-    angle = math.atan2(F[1, 0] - F[0, 1], F[0, 0] + F[1, 1])
-    c = math.cos(angle)
-    s = math.sin(angle)
-    U = np.empty((2, 2))
-    for b in range(2):
-        U[0, b] = c * F[0, b] + s * F[1, b]
-        U[1, b] = -s * F[0, b] + c * F[1, b]
-    off = 0.5 * (U[0, 1] + U[1, 0])
-    U[0, 1] = off
-    U[1, 0] = off
-    return angle, U
-
-
-@njit(cache=True)
 def constrain_moments(moment, weight, inv_i, pair_i, pair_j, touching, fn, n_pairs):
     """Micropolar cell: the reaction of the held mean rotation. The constraint is
     sum_p w_p dtheta~_p = 0 with w_p the sum of the normal forces on disc p
@@ -375,7 +359,7 @@ def contact_weights(weight, inv_i, pair_i, pair_j, touching, fn, n_pairs):
 
 @njit(cache=True, nogil=True)
 def leapfrog_micropolar(force, moment, v, s, omega, dtheta, theta, inv_m, inv_i, weight, inv_s2,
-                        hinv00, hinv01, hinv10, hinv11, href, dt, damp, dphi, kap_old, kap_new):
+                        hinv00, hinv01, hinv10, hinv11, dt, damp, dphi, gk0, gk1, gd0, gd1):
     """``leapfrog`` for a micropolar cell (docs/micropolar_cell.md): the net moments (contact
     + constraint reaction, ``constrain_moments``) drive the rotation fluctuation, whose rates are
     projected back onto sum_p w_p omega_p = 0 (the local damping is not linear, so the
@@ -383,17 +367,12 @@ def leapfrog_micropolar(force, moment, v, s, omega, dtheta, theta, inv_m, inv_i,
     disc p is omega_p dt + dphi + the increment of the linear field kappa . X_p at its reference
     lever position X_p = h_ref (s_p - c), taken before wrapping (a continuous path). theta_p is
     the total rotation of the disc held in the base cell: when the disc leaves through a side,
-    the image that enters is turned by kappa . h_ref n. No macroscopic spin is added."""
+    the image that enters is turned by kappa . h_ref n. No macroscopic spin is added.
+    (gk0, gk1) = kappa^T h_ref with the new kappa and (gd0, gd1) = dkappa^T h_ref: the rotation
+    per unit of fractional coordinate of the linear field and of its change in this step."""
     vmax2 = 0.0
     mean = 0.0
     n = s.shape[0]
-    dk0 = kap_new[0] - kap_old[0]
-    dk1 = kap_new[1] - kap_old[1]
-    # kappa^T h_ref: rotation per unit of fractional coordinate
-    gk0 = kap_new[0] * href[0, 0] + kap_new[1] * href[1, 0]
-    gk1 = kap_new[0] * href[0, 1] + kap_new[1] * href[1, 1]
-    gd0 = dk0 * href[0, 0] + dk1 * href[1, 0]
-    gd1 = dk0 * href[0, 1] + dk1 * href[1, 1]
     for i in range(n):
         v2, dxs, dys = _kick(force, v, inv_m, i, dt, damp)
         if v2 > vmax2:
@@ -461,8 +440,8 @@ def advance(radius, mass, inertia, s, v, theta, omega, dtheta, force, moment, s_
     # cell half-way (by 1 - cos(da/2)), a real strain that moves contacts and, through the
     # force-weighted mean rotation, the rotation the grains are held at
     polar_ramp = micropolar and not any_mask
-    ang0, U0 = _polar2(F_start)
-    ang1, U1 = _polar2(F_end)
+    ang0, U0 = polar(F_start)
+    ang1, U1 = polar(F_end)
     dang = ang1 - ang0
     dang -= 2.0 * math.pi * math.floor((dang + math.pi) / (2.0 * math.pi))
     inv_m = 1.0 / mass
@@ -471,8 +450,6 @@ def advance(radius, mass, inertia, s, v, theta, omega, dtheta, force, moment, s_
     inv_s2 = 0.0
     if micropolar:             # (a resumed call with current forces needs them from its first step)
         inv_s2 = contact_weights(weight, inv_i, pair_i, pair_j, touching, fn, ipar[I_NPAIRS])
-    kap_old = np.empty(2)
-    kap_new = np.empty(2)
     # FIRE (Bitzek et al., PRL 97, 170201, 2006): N_min 5, f_inc 1.1, f_dec 0.5,
     # alpha_start 0.1, f_alpha 0.99; time step between dt/2^k and dt_max = C_DTMAX dt
     fire = ctrl[C_METHOD] > 0.5
@@ -634,17 +611,19 @@ def advance(radius, mass, inertia, s, v, theta, omega, dtheta, force, moment, s_
         if micropolar:
             # micro-rotation and curvature follow the ramp (001 eq. 7 applied to phi, kappa)
             phi_new = ctrl[C_PHI_START] + tau * (ctrl[C_PHI_END] - ctrl[C_PHI_START])
-            for c in range(2):
-                kap_old[c] = ctrl[C_KAP + c]
-                kap_new[c] = ctrl[C_KAP_START + c] + tau * (ctrl[C_KAP_END + c] - ctrl[C_KAP_START + c])
-                ctrl[C_KAP + c] = kap_new[c]
-            dk0 = kap_new[0] - kap_old[0]
-            dk1 = kap_new[1] - kap_old[1]
+            k0 = ctrl[C_KAP_START] + tau * (ctrl[C_KAP_END] - ctrl[C_KAP_START])
+            k1 = ctrl[C_KAP_START + 1] + tau * (ctrl[C_KAP_END + 1] - ctrl[C_KAP_START + 1])
+            dk0 = k0 - ctrl[C_KAP]
+            dk1 = k1 - ctrl[C_KAP + 1]
+            ctrl[C_KAP] = k0
+            ctrl[C_KAP + 1] = k1
+            # kappa^T h_ref and dkappa^T h_ref (the latter also for the next force evaluation)
             ctrl[C_G] = dk0 * h_ref[0, 0] + dk1 * h_ref[1, 0]
             ctrl[C_G + 1] = dk0 * h_ref[0, 1] + dk1 * h_ref[1, 1]
             vmax2 = leapfrog_micropolar(force, moment, v, s, omega, dtheta, theta, inv_m, inv_i,
-                                        weight, inv_s2, hinv00, hinv01, hinv10, hinv11, h_ref, dt,
-                                        damp, phi_new - ctrl[C_PHI], kap_old, kap_new)
+                                        weight, inv_s2, hinv00, hinv01, hinv10, hinv11, dt, damp,
+                                        phi_new - ctrl[C_PHI], k0 * h_ref[0, 0] + k1 * h_ref[1, 0],
+                                        k0 * h_ref[0, 1] + k1 * h_ref[1, 1], ctrl[C_G], ctrl[C_G + 1])
             ctrl[C_PHI] = phi_new
         else:
             vmax2 = leapfrog(force, moment, v, s, omega, dtheta, theta, inv_m, inv_i,

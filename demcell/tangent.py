@@ -171,21 +171,11 @@ def demqo_tangent(cell, eps=1e-6):
                                _perturbation_options(cell, eps))
 
 
-#: demcell's order (sigma 11, 12, 21, 22, m1, m2) -> the FE callback order
-#: (kinematics.FLUX_NAMES: sigma11, sigma22, sigma12, sigma21, m31, m32); the same for columns
-CELL_TO_CALLBACK6 = np.array([0, 3, 1, 2, 4, 5])
-
-
-def to_callback_order(C6):
-    """6x6 in demcell's order (F / sigma 11, 12, 21, 22, then kappa / m 1, 2) -> callback order."""
-    return C6[np.ix_(CELL_TO_CALLBACK6, CELL_TO_CALLBACK6)]
-
-
 def micropolar_tangent(cell, kind, eps=None):
     """6x6 d(sigma, m)/d(F, kappa) of a micropolar cell at fixed phi, in the FE callback's order
     (see DemCell.tangent). 'perturbation' and 'demqo' perturb F by eps and kappa by
     eps / max|Y_k| (a rotation jump of eps across the cell). Returns (C, solve results)."""
-    from .network import affine_operator, micropolar_network_operator
+    from .network import CALLBACK_ROWS, affine_operator, micropolar_network_operator
     if kind == "pstlo":
         return micropolar_network_operator(cell.state, cell._law_array)[0], []
     if kind == "kruyt":
@@ -208,7 +198,10 @@ def micropolar_tangent(cell, kind, eps=None):
         base.freeze_contacts()
         C, results = _stress_differences(base, lambda b: b.copy(), F, eps, _perturbation_options(cell, eps),
                                          curvature_eps=k_eps)
-    return to_callback_order(C), results
+    # demcell's order (11, 12, 21, 22, then kappa / m 1, 2) -> the FE callback order, the same
+    # permutation for the rows (fluxes) and the columns (gradients)
+    order = list(CALLBACK_ROWS)
+    return C[np.ix_(order, order)], results
 
 
 @njit(cache=True)

@@ -169,8 +169,7 @@ class MicropolarMode:
         the cell |dkappa_cell . Y_k| (Y_k the periodicity vectors): that is the relative
         rotation the curvature imposes on the grains at opposite sides of the cell."""
         jump = float(np.abs(self.deformation(gradients) - cell.deformation_gradient()).max())
-        dk = self.curvature(gradients) - np.asarray(cell.state.kappa, dtype=float)
-        return max(jump, float(np.abs(dk @ cell.state.h_ref).max()))
+        return max(jump, cell.rotation_increment(0.0, self.curvature(gradients)))
 
     def drive(self, cell, gradients):
         cell.set_deformation(self.deformation(gradients), rotation=0.0, curvature=self.curvature(gradients))

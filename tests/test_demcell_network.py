@@ -66,7 +66,8 @@ def contact_geometry(st):
     """Per touching contact k: discs i, j, image shift n_k = -round(s_j - s_i), branch d (current)
     and D (reference), and the reference lever position X_i of the COUNTED copy (spec COPY RULE):
     the copy whose contact point lies in the cell, shifted by -m, m = floor(s_i + a_i/|d| (s_j -
-    s_i + n_k)); its image of j sits at X_i + D = h_ref (s_j + n_k - m - c)."""
+    s_i + n_k)); its image of j sits at X_i + D = h_ref (s_j + n_k - m - c). Also the contact
+    frame: length l, normal n, tangent t = (-n_y, n_x), lever arms a_i, a_j."""
     k = np.nonzero(st.touching[:st.n_pairs])[0]
     i, j = st.pair_i[k], st.pair_j[k]
     a = st.s[j] - st.s[i]
@@ -77,8 +78,10 @@ def contact_geometry(st):
     R = st.radius
     ai = R[i] - 0.5 * (R[i] + R[j] - l)
     m = np.floor(st.s[i] + (ai / l)[:, None] * a)
+    n = d / l[:, None]
     return dict(k=k, i=i, j=j, d=d, D=a @ st.h_ref.T, shift=shift, copy=m,
-                Xi=(st.s[i] - m - 0.5) @ st.h_ref.T)
+                Xi=(st.s[i] - m - 0.5) @ st.h_ref.T, l=l, n=n, t=np.column_stack((-n[:, 1], n[:, 0])),
+                ai=ai, aj=R[j] - 0.5 * (R[i] + R[j] - l))
 
 
 def nonlinear_network(st, kn, ks, kr, x, lam, dF, dphi, dkappa, weights=None):
@@ -96,11 +99,7 @@ def nonlinear_network(st, kn, ks, kr, x, lam, dF, dphi, dkappa, weights=None):
     th = x[2::3]
     E = np.asarray(dF, float).reshape(2, 2) @ np.linalg.inv(st.F)
     R = st.radius
-    l0 = np.linalg.norm(d, axis=1)
-    n0 = d / l0[:, None]
-    t0 = np.column_stack((-n0[:, 1], n0[:, 0]))
-    ai0 = R[i] - 0.5 * (R[i] + R[j] - l0)
-    aj0 = R[j] - 0.5 * (R[i] + R[j] - l0)
+    l0, t0, ai0, aj0 = g["l"], g["t"], g["ai"], g["aj"]      # the frame before the increment
     d1 = d + d @ E.T + w[j] - w[i]
     l1 = np.linalg.norm(d1, axis=1)
     n1 = d1 / l1[:, None]
@@ -182,13 +181,7 @@ def increments(st, resp, dF, dphi, dkappa):
     g = contact_geometry(st)
     i, j = g["i"], g["j"]
     shift, copy = g["shift"], g["copy"]
-    d = g["d"]
-    l = np.linalg.norm(d, axis=1)
-    n = d / l[:, None]
-    t = np.column_stack((-n[:, 1], n[:, 0]))
-    R = st.radius
-    ai = R[i] - 0.5 * (R[i] + R[j] - l)
-    aj = R[j] - 0.5 * (R[i] + R[j] - l)
+    d, l, n, t, ai, aj = g["d"], g["l"], g["n"], g["t"], g["ai"], g["aj"]
     E = np.asarray(dF, float).reshape(2, 2) @ np.linalg.inv(st.F)
     dd = resp["w"][j] - resp["w"][i] + d @ E.T
     dkappa = np.asarray(dkappa, float)
@@ -204,12 +197,7 @@ def state_fluxes(st):
     force (N, 2) and moment (N,) of the contacts on every disc."""
     g = contact_geometry(st)
     i, j, d, D, Xi, k = g["i"], g["j"], g["d"], g["D"], g["Xi"], g["k"]
-    l = np.linalg.norm(d, axis=1)
-    n = d / l[:, None]
-    t = np.column_stack((-n[:, 1], n[:, 0]))
-    R = st.radius
-    ai = R[i] - 0.5 * (R[i] + R[j] - l)
-    aj = R[j] - 0.5 * (R[i] + R[j] - l)
+    n, t, ai, aj = g["n"], g["t"], g["ai"], g["aj"]
     fn, fs, mr = st.fn[k], st.fs[k], st.mr[k]
     f = fn[:, None] * n + fs[:, None] * t
     area = abs(np.linalg.det(st.h))

@@ -294,13 +294,30 @@ def skew_stress_increment(C, dF, dphi):
     return float(skew_row @ deps + (skew_row[2] - skew_row[3]) * dphi)
 
 
-def plot_shear(history, path, rotation):
+def two_panels():
+    """(pyplot, figure, two axes side by side) for the micropolar tests' plots."""
     import matplotlib
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
+    fig, ax = plt.subplots(1, 2, figsize=(10, 4.2), sharex=True)
+    return plt, fig, ax
+
+
+def save_panels(plt, fig, ax, xlabel, title, path):
+    for a in ax:
+        a.set_xlabel(xlabel)
+        a.grid(True, alpha=0.3)
+        a.legend(fontsize=8)
+    fig.suptitle(title)
+    fig.tight_layout()
+    fig.savefig(path, dpi=120)
+    plt.close(fig)
+
+
+def plot_shear(history, path, rotation):
     h = np.atleast_2d(np.array(history))
     x = h[:, 0] * 100.0
-    fig, ax = plt.subplots(1, 2, figsize=(10, 4.2), sharex=True)
+    plt, fig, ax = two_panels()
     ax[0].plot(x, h[:, 3], "-", label="sigma12 (shear stress)")
     ax[0].plot(x, h[:, 4], "--", label="sigma21")
     ax[0].plot(x, h[:, 5], "-", label="sigma12 - sigma21 (skew stress)")
@@ -308,37 +325,21 @@ def plot_shear(history, path, rotation):
     ax[1].plot(x, h[:, 1], "-", label="sigma11")
     ax[1].plot(x, h[:, 2], "-", label="sigma22 (lateral, not controlled)")
     ax[1].set_ylabel("normal stress [N/m] (tension +)")
-    for a in ax:
-        a.set_xlabel("shear strain gamma = F12 [%]")
-        a.grid(True, alpha=0.3)
-        a.legend(fontsize=8)
-    fig.suptitle(f"demcell micropolar simple shear, micro-rotation {'phi = 0' if rotation == 'zero' else 'phi = -gamma/2'}")
-    fig.tight_layout()
-    fig.savefig(path, dpi=120)
-    plt.close(fig)
+    save_panels(plt, fig, ax, "shear strain gamma = F12 [%]", "demcell micropolar simple shear, micro-rotation "
+                f"{'phi = 0' if rotation == 'zero' else 'phi = -gamma/2'}", path)
 
 
 def plot_curvature(history, bending_tangent, m31_ref, path):
-    import matplotlib
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
     h = np.atleast_2d(np.array(history))
     k = h[:, 1]
-    fig, ax = plt.subplots(1, 2, figsize=(10, 4.2), sharex=True)
+    plt, fig, ax = two_panels()
     ax[0].plot(k, h[:, 2], "o-", ms=3, label="m31")
     ax[0].plot(k, h[:, 3], "-", label="m32")
     ax[0].plot(k, m31_ref + bending_tangent * k, ":", label="m31(0) + B kappa31 (DEMQO tangent)")
     ax[0].set_ylabel("couple stress [N]")
     ax[1].plot(k, h[:, 4], "-", label="sigma12 - sigma21")
     ax[1].set_ylabel("skew stress [N/m]")
-    for a in ax:
-        a.set_xlabel("curvature kappa31 [1/m]")
-        a.grid(True, alpha=0.3)
-        a.legend(fontsize=8)
-    fig.suptitle("demcell micropolar curvature test (F = I, phi = 0)")
-    fig.tight_layout()
-    fig.savefig(path, dpi=120)
-    plt.close(fig)
+    save_panels(plt, fig, ax, "curvature kappa31 [1/m]", "demcell micropolar curvature test (F = I, phi = 0)", path)
 
 
 def run_micropolar(a, guard, law, state, info, opts, t0):

@@ -98,6 +98,17 @@ class Constitutive(abc.ABC):
     def rollback(self):
         """The load step was cut: return to the committed state."""
 
+    # --- resident state: checkpoints (checkpoint.py), points moved between ranks ---------
+    def export_points(self, points):
+        """The committed resident state of `points` (what is not in the float history, e.g.
+        a DEM cell per point) as a dict of plain arrays, {} for a material without any.
+        Called between load steps (after a commit)."""
+        return {}
+
+    def import_points(self, points, arrays):
+        """Make `arrays` (from export_points, possibly on another rank or another run) the
+        committed and current resident state of `points`."""
+
 
 class LinearElasticMaterial(Constitutive):
     """Linear isotropic micropolar elasticity through the callback: the trivial

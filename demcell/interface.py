@@ -471,6 +471,22 @@ class DemCell(MicroCell):
         self._target_phi = self.state.phi
         self._target_kappa = self.state.kappa.copy()
 
+    @property
+    def committed_state(self):
+        """The last committed CellState (what a checkpoint saves; do not modify)."""
+        return self._committed
+
+    def restore(self, committed):
+        """Make `committed` (a CellState, e.g. read back from a checkpoint) the committed
+        state and roll back to it: the cell continues as the one it was saved from."""
+        if not isinstance(committed, CellState):
+            raise InputError("restore needs a CellState")
+        if committed.n_particles != self._committed.n_particles:
+            raise InputError(f"restore: a state of {committed.n_particles} particles for a cell of "
+                             f"{self._committed.n_particles}")
+        self._committed = committed
+        self.rollback()
+
     def copy(self):
         new = DemCell.__new__(DemCell)
         new.__dict__.update(self.__dict__)

@@ -185,3 +185,43 @@ class CellState:
         if st.pair_i.shape[0] < cap:
             st.grow_pairs(cap)
         return st
+
+
+#: per-particle fields (first axis N) and per-cell fields of a CellState, for pack_states
+PARTICLE_FIELDS = ("radius", "mass", "inertia", "s", "v", "theta", "omega", "dtheta", "force", "moment", "s_build")
+CELL_FIELDS = ("h", "h_build", "h_ref", "kappa", "n_pairs", "forces_current", "time", "phi")
+
+
+def pack_states(states):
+    """Many CellStates as one struct of arrays: every per-particle field concatenated over
+    the cells (counts in `n_particles`), every pair field over the cells at its full
+    capacity (counts in `pair_capacity`; capacities are kept so that a state unpacked runs
+    bit for bit as the original), per-cell fields stacked. Plain arrays: np.savez writes
+    them, mpi4py sends them. Inverse: unpack_states."""
+    states = list(states)
+    out = {"n_particles": np.array([st.n_particles for st in states], dtype=np.int64),
+           "pair_capacity": np.array([st.pair_i.shape[0] for st in states], dtype=np.int64)}
+    for name in PARTICLE_FIELDS + PAIR_FIELDS:
+        parts = [getattr(st, name) for st in states]
+        out[name] = np.concatenate(parts) if parts else np.zeros(0)
+    for name in CELL_FIELDS:
+        out[name] = np.array([getattr(st, name) for st in states])
+    return out
+
+
+def unpack_states(arrays):
+    """The CellStates of a pack_states struct of arrays (copies, in order)."""
+    n_particles = np.asarray(arrays["n_particles"], dtype=np.int64)
+    capacity = np.asarray(arrays["pair_capacity"], dtype=np.int64)
+    p_off = np.concatenate([[0], np.cumsum(n_particles)])
+    c_off = np.concatenate([[0], np.cumsum(capacity)])
+    states = []
+    for k in range(len(n_particles)):
+        kw = {name: np.array(arrays[name][p_off[k]:p_off[k + 1]]) for name in PARTICLE_FIELDS}
+        kw.update({name: np.array(arrays[name][c_off[k]:c_off[k + 1]]) for name in PAIR_FIELDS})
+        kw.update(h=np.array(arrays["h"][k]), h_build=np.array(arrays["h_build"][k]),
+                  h_ref=np.array(arrays["h_ref"][k]), kappa=np.array(arrays["kappa"][k]),
+                  n_pairs=int(arrays["n_pairs"][k]), forces_current=int(arrays["forces_current"][k]),
+                  time=float(arrays["time"][k]), phi=float(arrays["phi"][k]))
+        states.append(CellState(**kw))
+    return states

@@ -206,6 +206,31 @@ class DemMaterial(Constitutive):
             self.cells[p].rollback()
         self._touched.clear()
 
+    # --- resident state (checkpoint.py; a load balancer moves cells with the same pair) --
+    def export_points(self, points):
+        """zone and committed cell state of `points` (demcell.state.pack_states arrays)."""
+        from demcell.state import pack_states
+        points = np.asarray(points, dtype=np.int64)
+        return dict(pack_states(self.cells[p].committed_state for p in points), zone=self.zone[points].copy())
+
+    def import_points(self, points, arrays):
+        """Cells of `points` continue from exported states (zone included): a copy of the
+        zone's reference cell (law, options) restored to the state."""
+        from demcell.state import unpack_states
+        points = np.asarray(points, dtype=np.int64)
+        zone = np.asarray(arrays["zone"], dtype=np.int64)
+        states = unpack_states(arrays)
+        if len(states) != len(points) or len(zone) != len(points):
+            raise ValueError(f"DemMaterial.import_points: {len(states)} cell states for {len(points)} points")
+        if zone.size and (zone.min() < 0 or zone.max() >= len(self.reference_cells)):
+            raise ValueError("DemMaterial.import_points: zone index out of range")
+        for p, z, st in zip(points, zone, states):
+            cell = self.reference_cells[z].copy()
+            cell.restore(st)
+            self.cells[p] = cell
+            self.zone[p] = z
+            self._touched.discard(int(p))
+
     # --- diagnostics ---------------------------------------------------------------------
     def memory_bytes(self):
         """Bytes held by the cells of this rank (current and committed states)."""

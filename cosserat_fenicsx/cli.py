@@ -17,7 +17,7 @@ from petsc4py import PETSc
 
 from .elasticity import MicropolarElasticity
 from .output import FIELDS
-from .validation import NON_NEGATIVE, POSITIVE, STEPS, Parser, Range, number
+from .validation import COUNT, NON_NEGATIVE, POSITIVE, STEPS, Parser, Range, number
 
 PETSC_PREFIXES = ("-snes_", "-ksp_", "-pc_", "-mat_", "-log_view")
 
@@ -77,15 +77,84 @@ def add_stepping_options(parser, steps=1):
     g.add_argument("--steps", type=number(STEPS), default=steps, help="load increments (default %(default)s)")
 
 
+#: options a restart may give (everything else comes from the checkpoint)
+RUN_CONTROL = ("restart", "checkpoint_every", "stop_after")
+
+
+def add_checkpoint_options(parser, label):
+    """--checkpoint-every N, --stop-after K, --restart DIR (checkpoint.py, docs/restart.md);
+    `label` names the demo in its checkpoints."""
+    parser.checkpoint_label = label
+    g = parser.add_argument_group("checkpoint and restart (batch queues; docs/restart.md)")
+    g.add_argument("--checkpoint-every", type=number(COUNT), default=None, metavar="N",
+                   help="write a checkpoint to OUT/checkpoint after every N-th converged step")
+    g.add_argument("--stop-after", type=number(COUNT), default=None, metavar="K",
+                   help="stop cleanly after K converged steps in all, with a checkpoint (as a queue's time limit "
+                        "would); continue with --restart OUT")
+    g.add_argument("--restart", metavar="DIR", default=None,
+                   help="continue the run whose outputs are in DIR from its last checkpoint, with that run's "
+                        "options (only --checkpoint-every and --stop-after may be given) and its outputs continued")
+
+
+def restart_arguments(parser, args, argv=None):
+    """The options of the run a --restart continues: those saved in its checkpoint, with the
+    run-control options typed now. A typed option that differs from the saved one, a missing
+    checkpoint or one of another demo is a ValueError naming it."""
+    from .checkpoint import CheckpointError, read_meta
+    try:
+        meta = read_meta(args.restart)
+    except CheckpointError as error:
+        raise ValueError(f"--restart {args.restart}: {error}") from None
+    label = getattr(parser, "checkpoint_label", None)
+    if meta.get("label") != label:
+        raise ValueError(f"--restart {args.restart}: the checkpoint there is of {meta.get('label')!r}, not {label!r}")
+    saved = meta["options"]
+    typed = parser.given_options(argv) - set(RUN_CONTROL)
+    for dest in sorted(typed):
+        if dest == "out" and os.path.abspath(args.out) == os.path.abspath(args.restart):
+            continue
+        if dest not in saved or saved[dest] != getattr(args, dest):
+            option = "--" + dest.replace("_", "-")
+            raise ValueError(f"{option} cannot be given with --restart (the run continues with the options it was "
+                             f"started with{f': {option} {saved[dest]}' if dest in saved else ''}); only "
+                             "--checkpoint-every and --stop-after may change")
+    typed_now = parser.given_options(argv)
+    for dest, value in saved.items():
+        if dest not in typed_now:       # --checkpoint-every carries over unless typed again
+            setattr(args, dest, value)
+    args.out = args.restart
+    if args.stop_after is not None and args.stop_after <= meta["step"]:
+        raise ValueError(f"--stop-after {args.stop_after}: the checkpoint in {args.restart} is at step {meta['step']} "
+                         "already")
+    return args
+
+
+def run_options(args):
+    """The options a checkpoint saves (JSON; what a restart runs with)."""
+    return {k: v for k, v in vars(args).items() if k not in ("elasticity", "checkpoint_label", "restart", "stop_after")}
+
+
+def checkpointer(comm, args):
+    """The run's Checkpointer (checkpoint.py) from --checkpoint-every, --stop-after, --restart."""
+    from .checkpoint import Checkpointer
+    return Checkpointer(comm, args.out, args.checkpoint_label, run_options(args),
+                        every=args.checkpoint_every, stop_after=args.stop_after, restart=args.restart is not None)
+
+
 def parse(parser, argv=None, check=None):
     """Parse; forward PETSc options; reject anything else unknown before any work.
 
     `check(args)` (optional) runs the checks that need several options or the scene's
     settings; a ValueError it raises is refused like a bad option (one line, exit 2).
+    With --restart DIR the options are those of the checkpoint in DIR (restart_arguments).
     The output directory is created only when everything passed."""
     args, unknown = parser.parse_known_args(argv)
     forward_petsc_options(parser, unknown)
     try:
+        if getattr(args, "restart", None) is not None:
+            args = restart_arguments(parser, args, argv)
+        if hasattr(parser, "checkpoint_label"):
+            args.checkpoint_label = parser.checkpoint_label
         if hasattr(args, "mu"):
             args.elasticity = MicropolarElasticity(mu=args.mu, lmbda=args.lmbda, mu_c=args.mu_c, l_c=args.l_c)
             if not args.cauchy:

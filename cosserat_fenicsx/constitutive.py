@@ -105,9 +105,10 @@ class Constitutive(abc.ABC):
         Called between load steps (after a commit)."""
         return {}
 
-    def import_points(self, points, arrays):
+    def import_points(self, points, arrays, rows=None):
         """Make `arrays` (from export_points, possibly on another rank or another run) the
-        committed and current resident state of `points`."""
+        committed and current resident state of `points`; `rows`: which of the exported
+        points they are (default: all, in order)."""
 
 
 class LinearElasticMaterial(Constitutive):

@@ -8,6 +8,7 @@ an interrupted or killed run keeps a readable file of what it computed (`run_gua
 SIGINT/SIGTERM while a step is written). Only requested fields are written. Rank 0 alone writes the CSV files and prints.
 """
 import csv
+import os
 
 import dolfinx.fem
 import dolfinx.io
@@ -25,15 +26,19 @@ def print0(comm, *args):
 
 
 class CsvLog:
-    """history.csv: one row per converged step, flushed at once."""
+    """history.csv: one row per converged step, flushed at once. resume_step (a restart):
+    keep the rows of the file up to that step (first column), drop the later ones a killed
+    run may have left, and append."""
 
-    def __init__(self, comm, path, columns):
+    def __init__(self, comm, path, columns, resume_step=None):
         self.comm, self.columns = comm, list(columns)
         self.file = None
         if comm.rank == 0:
+            kept = _rows_up_to(path, resume_step) if resume_step is not None else []
             self.file = open(path, "w", newline="")
             self.writer = csv.writer(self.file)
             self.writer.writerow(self.columns)
+            self.writer.writerows(kept)
             self.file.flush()
 
     def write(self, row):
@@ -47,10 +52,45 @@ class CsvLog:
             self.file = None
 
 
+def _rows_up_to(path, step):
+    """Rows (without the header) of a CSV file whose first column is <= step."""
+    if not os.path.isfile(path):
+        return []
+    with open(path, newline="") as f:
+        rows = list(csv.reader(f))[1:]
+    return [r for r in rows if r and float(r[0]) <= step]
+
+
+def truncate_xdmf(path, t):
+    """Drop the time steps after t from an XDMF file and its HDF5 data (a restart from a
+    checkpoint older than the last written step). Serial: call on one rank."""
+    import xml.etree.ElementTree as ET
+    import h5py
+    ET.register_namespace("xi", "http://www.w3.org/2001/XInclude")
+    tree = ET.parse(path)
+    stale = []
+    for series in tree.getroot().iter("Grid"):
+        if series.get("GridType") != "Collection":
+            continue
+        for grid in list(series):
+            time = grid.find("Time")
+            if time is not None and float(time.get("Value")) > t * (1 + 1e-12) + 1e-300:
+                stale += [item.text.strip() for item in grid.iter("DataItem") if item.text and ":/" in item.text]
+                series.remove(grid)
+    tree.write(path, xml_declaration=True, encoding="utf-8")
+    if stale:
+        h5 = os.path.join(os.path.dirname(path), stale[0].split(":/")[0])
+        with h5py.File(h5, "a") as f:
+            for item in stale:
+                name = item.split(":/", 1)[1]
+                if name in f:
+                    del f[name]
+
+
 class FieldWriter:
     """XDMF time series of the requested fields of a CosseratProblem."""
 
-    def __init__(self, problem, path, fields=FIELDS):
+    def __init__(self, problem, path, fields=FIELDS, resume_time=None):
         unknown = set(fields) - set(FIELDS)
         if unknown:
             raise ValueError(f"unknown output field(s) {sorted(unknown)}; known: {FIELDS}")
@@ -60,8 +100,14 @@ class FieldWriter:
         mesh = problem.mesh
         # the file is open only while a step is written (mode "a" after the mesh): an
         # interrupted or killed run leaves an HDF5 file closed after its last step
-        with dolfinx.io.XDMFFile(mesh.comm, path, "w") as file:
-            file.write_mesh(mesh)
+        if resume_time is not None and os.path.isfile(path):
+            # a restart continues the series after its checkpoint's time
+            if mesh.comm.rank == 0:
+                truncate_xdmf(path, resume_time)
+            mesh.comm.barrier()
+        else:
+            with dolfinx.io.XDMFFile(mesh.comm, path, "w") as file:
+                file.write_mesh(mesh)
         gdim = mesh.geometry.dim
         self.outputs = {}
         if "displacement" in self.fields:

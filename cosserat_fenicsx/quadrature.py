@@ -213,6 +213,33 @@ class GaussPointCallback:
         self.flux.x.array.reshape(-1, nf)[self.dofs] = self.flux_values
         self._write_tangent()
 
+    # --- checkpoint / restart (checkpoint.py) ---------------------------------------------
+    def committed_arrays(self):
+        """The committed per-point arrays (between load steps), each (n_points, k): float
+        history, fluxes, tangents, stale-tangent flags, statuses, the gradients of the last
+        update (NaN: never) and the work of the last step. With these (and the material's
+        resident state) a run continues exactly as it would have."""
+        n = self.n_points
+        return {"history": self.state_old, "flux": self._flux_committed,
+                "tangent": self._tangent_committed.reshape(n, -1),
+                "tangent_stale": self._stale_committed.reshape(n, 1).astype(np.float64),
+                "status": self._status_committed.reshape(n, 1).astype(np.float64),
+                "updated_at": self._committed_at, "step_cost": self.step_cost.reshape(n, 1)}
+
+    def restore_committed(self, arrays):
+        """Set the committed per-point arrays (committed_arrays' names and shapes, rows in
+        this rank's point order) and return to them as after a cut-back."""
+        n = self.n_points
+        self.state_old[:] = arrays["history"]
+        self._flux_committed[:] = arrays["flux"]
+        self._tangent_committed[:] = np.asarray(arrays["tangent"]).reshape(self._tangent_committed.shape)
+        self._stale_committed[:] = np.asarray(arrays["tangent_stale"]).reshape(n) != 0
+        self._status_committed[:] = np.asarray(arrays["status"]).reshape(n)
+        self._committed_at[:] = arrays["updated_at"]
+        self.step_cost[:] = np.asarray(arrays["step_cost"]).reshape(n)
+        self.cost[:] = 0.0
+        self.rollback()
+
     def cell_average(self, values):
         """Quadrature-weighted average per owned cell of a (n_points, k) array."""
         v = values.reshape(len(self.cells), self.n_qp, -1)

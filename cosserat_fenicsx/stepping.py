@@ -32,10 +32,16 @@ class LoadStepper:
     dt       first increment of pseudo-time;  dt_min  smallest allowed after cut-backs
     dt_max   largest increment (default dt);   grow    factor after an easy step
     on_step  callable(StepRecord) after every converged step (output, history)
+    after_step  callable(StepperPosition) after on_step, with where the stepping stands
+             (what a checkpoint saves, checkpoint.py)
+    start    a StepperPosition to continue from (a restart); default t = 0, step 0
+    stop_after  stop cleanly after this many converged steps in all (as a batch queue's
+             time limit would; `stopped_early` says it did)
     """
 
     def __init__(self, problem, solver, t_end=1.0, dt=0.1, dt_min=None, dt_max=None,
-                 grow=1.5, easy_iterations=4, on_step=None, verbose=True):
+                 grow=1.5, easy_iterations=4, on_step=None, verbose=True, after_step=None,
+                 start=None, stop_after=None):
         if not (t_end > 0 and dt > 0):
             raise ValueError(f"t_end and dt must be positive (t_end={t_end}, dt={dt})")
         self.problem, self.solver = problem, solver
@@ -44,6 +50,10 @@ class LoadStepper:
         self.dt_max = float(dt_max) if dt_max is not None else self.dt
         self.grow, self.easy_iterations = grow, easy_iterations
         self.on_step = on_step
+        self.after_step = after_step
+        self.start = start
+        self.stop_after = stop_after
+        self.stopped_early = False
         self.verbose = verbose
         self.records = []
 
@@ -54,9 +64,14 @@ class LoadStepper:
     def run(self):
         problem = self.problem
         t, dt, step, cuts = 0.0, self.dt, 0, 0
+        if self.start is not None:
+            t, dt, step, cuts = self.start.time, self.start.dt, self.start.step, self.start.cuts
         start = time.perf_counter()
         self.log(f"{'step':>5} {'time':>10} {'dt':>10} {'newton':>6} {'residual':>10} {'wall[s]':>8}")
         while t < self.t_end * (1 - 1e-12):
+            if self.stop_after is not None and step >= self.stop_after:
+                self.stopped_early = True
+                break
             dt = min(dt, self.t_end - t)
             problem.set_time(t + dt)
             problem.set_time_step(dt)
@@ -86,4 +101,16 @@ class LoadStepper:
                 self.on_step(record)
             if info.iterations <= self.easy_iterations:
                 dt = min(dt * self.grow, self.dt_max)
+            if self.after_step is not None:
+                self.after_step(StepperPosition(t, dt, step, cuts))
         return self.records
+
+
+@dataclass
+class StepperPosition:
+    """Where a load stepping stands after a converged step: pseudo-time, the increment the
+    next step will try, converged steps and cut-backs so far (all a restart needs)."""
+    time: float
+    dt: float
+    step: int
+    cuts: int

@@ -209,14 +209,15 @@ def pack_states(states):
     return out
 
 
-def unpack_states(arrays):
-    """The CellStates of a pack_states struct of arrays (copies, in order)."""
+def unpack_states(arrays, rows=None):
+    """The CellStates of a pack_states struct of arrays (copies, in order); rows: the
+    indices of the cells wanted (default all)."""
     n_particles = np.asarray(arrays["n_particles"], dtype=np.int64)
     capacity = np.asarray(arrays["pair_capacity"], dtype=np.int64)
     p_off = np.concatenate([[0], np.cumsum(n_particles)])
     c_off = np.concatenate([[0], np.cumsum(capacity)])
     states = []
-    for k in range(len(n_particles)):
+    for k in (range(len(n_particles)) if rows is None else rows):
         kw = {name: np.array(arrays[name][p_off[k]:p_off[k + 1]]) for name in PARTICLE_FIELDS}
         kw.update({name: np.array(arrays[name][c_off[k]:c_off[k + 1]]) for name in PAIR_FIELDS})
         kw.update(h=np.array(arrays["h"][k]), h_build=np.array(arrays["h_build"][k]),

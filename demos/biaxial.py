@@ -77,6 +77,7 @@ g.add_argument("--parameters", metavar="FILE", default=None,
                help="JSON Ehlers parameter file (identified_parameters.json of demos/identify.py); the material "
                     "options typed on the command line override its values")
 g.add_argument("--write-every", type=number(COUNT), default=5, help="XDMF every N steps and at the end (default %(default)s)")
+cli.add_checkpoint_options(parser, "biaxial")
 
 
 def material_values(args):
@@ -110,19 +111,21 @@ try:
 except RuntimeError as error:      # e.g. the consolidation of the material point (MaterialPointError)
     guard.stop(f"consolidation: {error}")
 used = test.material.parameters     # what runs (defaults, --parameters FILE, typed options)
+written = []                        # pseudo-times written to fields.xdmf
+checkpoint = cli.checkpointer(comm, args)
+if checkpoint.start(test, guard, extra=lambda: {"written": written}):    # --restart: continue from it
+    written = checkpoint.restored_extra["written"]
 print0(comm, f"biaxial: {'classical' if classical else 'micropolar'} {test.material!r}, "
              f"{comm.allreduce(len(test.points))} Gauss points, {test.n_weak_cells} weakened cells, "
              f"{comm.size} rank(s)")
 
-writer = FieldWriter(test.problem, os.path.join(args.out, "fields.xdmf"), args.fields)
+writer = FieldWriter(test.problem, checkpoint.fields_path("fields.xdmf"), args.fields,
+                     resume_time=checkpoint.resume_time)
 for name, shape, values in test.cell_fields():
     writer.add_cell_field(name, shape, values)
 columns = ["step", "time", "phase", "axial_strain", "vertical_stress", "volumetric_strain", "top_displacement",
            "plastic_fraction", "max_yield_function", "newton_iterations", "residual", "cuts", "wall_time"]
-history = CsvLog(comm, os.path.join(args.out, "history.csv"), columns)
-
-
-written = []
+history = CsvLog(comm, os.path.join(args.out, "history.csv"), columns, resume_step=checkpoint.resume_step)
 
 
 def record(row):
@@ -136,7 +139,9 @@ start = time.perf_counter()
 stopped = ""
 try:
     test.run(guard.protect(record, lambda row: {"final_axial_strain": row["axial_strain"],
-                                                "final_vertical_stress": row["vertical_stress"]}))
+                                                "final_vertical_stress": row["vertical_stress"]}),
+             checkpoint=checkpoint)
+    stopped = checkpoint.stop_note(test.stepper)
 except LoadSteppingError as error:
     stopped = str(error)   # keep what was computed: summary and plot of the part before
     print0(comm, f"biaxial: stopped early: {stopped}")
@@ -175,6 +180,7 @@ summary = {
     "newton_longest_plastic_step": longest[0],
     "steps": len(rows), "cut_backs": int(rows[-1]["cuts"]) if rows else 0,
     "completed": not stopped, "stopped": stopped, "reason": stopped,
+    **checkpoint.summary_entries(),
     "wall_time": wall, "kernel_time_rank0": test.zoned.kernel_time, "ranks": comm.size,
     "classical": classical, "l_c": used.l_c, "mu_c": used.mu_c if not classical else 0.0,
     "k_sigma": used.k_sigma, "k_mu": used.k_mu, "parameters_file": args.parameters, "eta": args.eta, "cell_size": args.cell_size, "width": args.width,
@@ -213,5 +219,5 @@ print0(comm, f"peak vertical stress {summary['peak_vertical_stress'] / 1e3:.1f} 
              f"{summary['axial_strain_at_peak']:.4f}; band H = "
              + (f"{band.thickness * 1e3:.2f} mm, inclination {band.inclination_deg:.1f} deg" if band else "none")
              + f"; {wall:.0f} s")
-if stopped:
+if stopped and not test.stepper.stopped_early:
     sys.exit(1)

@@ -81,6 +81,7 @@ parser = cli.make_parser(__doc__)
 cli.add_mesh_options(parser, with_cell_size=False)
 cli.add_output_options(parser, "results/femdem_biaxial")
 cli.add_stepping_options(parser, steps=100)
+cli.add_checkpoint_options(parser, "femdem_biaxial")
 g = parser.add_argument_group("specimen and loading (000 section 4.1)")
 g.add_argument("--mesh", default="2x4", help="NXxNY rectangles (000: 1x1, 1x2, 2x4, 4x8; default %(default)s)")
 g.add_argument("--width", type=number(POSITIVE), default=0.01, help="specimen width W [m] (default %(default)g)")
@@ -169,10 +170,18 @@ print0(comm, f"femdem: {args.mode} mode, {args.tangent} tangent, mesh {nx}x{ny},
                 f"B = {test.cell_moduli['bending_modulus']:.4g} N m, l_c / d = "
                 f"{test.cell_moduli['l_c_over_grain_diameter']:.3g})" if test.cell_moduli else ""))
 
+# --- checkpoints (--checkpoint-every, --stop-after) and --restart -------------------------
+per_point = []        # (axial_strain, stress ratios in the rank-independent order), rank 0
+written = []          # pseudo-times written to fields.xdmf
+checkpoint = cli.checkpointer(comm, args)
+if checkpoint.start(test, guard, extra=lambda: {"per_point": per_point, "written": written}):
+    per_point, written = checkpoint.restored_extra["per_point"], checkpoint.restored_extra["written"]
+
 # --- outputs written as the run goes ---------------------------------------------------
 cb = test.callback
 idx = test.material.state_index
-writer = FieldWriter(test.problem, os.path.join(args.out, "fields.xdmf"), args.fields)
+writer = FieldWriter(test.problem, checkpoint.fields_path("fields.xdmf"), args.fields,
+                     resume_time=checkpoint.resume_time)
 for name in ("coordination_number", "anisotropy", "sliding_fraction", "dem_steps"):
     writer.add_cell_field(name, (), lambda name=name: cb.cell_average(cb.state_old[:, [idx[name]]]))
 writer.add_cell_field("stress_ratio", (), lambda: cb.cell_average(test.gauss_point_ratios()[:, None]))
@@ -183,10 +192,9 @@ writer.add_cell_field("incremental_equivalent_strain", (),
 columns = ["step", "time", "phase", "axial_strain", "stress_ratio", "volumetric_strain", "coordination_number",
            "anisotropy", "sliding_fraction", "vertical_reaction", "vertical_stress", "mean_sigma11", "mean_sigma22",
            "newton_iterations", "force_ratio", "accepted", "dem_steps", "points_without_contacts", "cuts", "wall_time"]
-history = CsvLog(comm, os.path.join(args.out, "history.csv"), columns)
-gauss_log = CsvLog(comm, os.path.join(args.out, "gauss_points.csv"), ["step", "axial_strain", "point", "x", "y", "stress_ratio"])
-per_point = []        # (axial_strain, stress ratios in the rank-independent order), rank 0
-written = []
+history = CsvLog(comm, os.path.join(args.out, "history.csv"), columns, resume_step=checkpoint.resume_step)
+gauss_log = CsvLog(comm, os.path.join(args.out, "gauss_points.csv"), ["step", "axial_strain", "point", "x", "y", "stress_ratio"],
+                   resume_step=checkpoint.resume_step)
 
 
 def record(row):
@@ -205,7 +213,8 @@ def record(row):
 start = time.perf_counter()
 stopped = ""
 try:
-    test.run(guard.protect(record, lambda row: {"final_axial_strain": row["axial_strain"]}))
+    test.run(guard.protect(record, lambda row: {"final_axial_strain": row["axial_strain"]}), checkpoint=checkpoint)
+    stopped = checkpoint.stop_note(test.stepper)
 except LoadSteppingError as error:
     stopped = str(error)   # keep what was computed: summary, plot and snapshots of the part before
     print0(comm, f"femdem: stopped early: {stopped}")
@@ -261,7 +270,7 @@ summary = {
     "steps_accepted_above_force_rtol": int(sum(r["accepted"] for r in test.history)),
     "dem_steps_total": float(sum(r["dem_steps"] for r in test.history)),
     "steps": len(test.history), "cut_backs": int(test.history[-1]["cuts"]) if test.history else 0,
-    "completed": not stopped, "stopped": stopped, "reason": stopped,
+    "completed": not stopped, "stopped": stopped, "reason": stopped, **checkpoint.summary_entries(),
     "wall_time": wall, "cell_preparation_time": test.preparation_time, "ranks": comm.size,
     "time_max_over_ranks": timing,
     "memory_per_cell_bytes": memory / n_points, "snapshots": snapshots,
@@ -300,5 +309,5 @@ if comm.rank == 0 and rows:
     plt.close(fig)
 print0(comm, f"peak stress ratio {summary['peak_stress_ratio']} at axial strain {summary['axial_strain_at_peak']}; "
              f"band H = {summary['band_thickness']}; {wall:.0f} s; outputs in {args.out}")
-if stopped:
+if stopped and not test.stepper.stopped_early:
     sys.exit(1)

@@ -325,11 +325,24 @@ class BiaxialTest:
                 "newton_orders_min": min(convergence_orders(info.residual_history)[-1:] or [np.nan]),
                 "cuts": record.cuts, "wall_time": record.wall_time}
 
+    # --- checkpoint and restart (checkpoint.py) ------------------------------------------
+    def checkpoint_state(self):
+        """(per-point arrays, run state) beyond the fields and the Gauss-point history."""
+        return {}, {"history": self.history, "infos": self.solver.infos,
+                    "volumetric_phase1": getattr(self, "_volumetric_phase1", None)}
+
+    def restore_state(self, per_point, run_state):
+        self.history = list(run_state["history"])
+        self.solver.infos = list(run_state["infos"])
+        if run_state["volumetric_phase1"] is not None:
+            self._volumetric_phase1 = run_state["volumetric_phase1"]
+
     # --- run --------------------------------------------------------------------------
-    def run(self, on_step=None):
+    def run(self, on_step=None, checkpoint=None):
         """Drive phase 1 and phase 2; `on_step(row)` after every converged step.
-        Raises LoadSteppingError (message naming the cause) when a step cannot be cut
-        small enough."""
+        checkpoint: a checkpoint.Checkpointer (writes as it is due, stops at its
+        stop_after, continues from the checkpoint it restored). Raises LoadSteppingError
+        (message naming the cause) when a step cannot be cut small enough."""
 
         def record(step):
             row = self.row(step)
@@ -337,16 +350,24 @@ class BiaxialTest:
             if on_step is not None:
                 on_step(row)
 
-        stepper = LoadStepper(self.problem, self.solver, t_end=self.t_end, dt=1.0,
-                              dt_min=self.s.dt_min_fraction, dt_max=1.0, on_step=record,
-                              easy_iterations=8,
-                              verbose=self.verbose)
+        self.stepper = stepper = LoadStepper(self.problem, self.solver, t_end=self.t_end, dt=1.0,
+                                             dt_min=self.s.dt_min_fraction, dt_max=1.0, on_step=record,
+                                             easy_iterations=8, verbose=self.verbose,
+                                             **stepper_checkpoint(checkpoint))
         self.records = stepper.run()
         return self.history
 
     def log(self, text):
         if self.verbose:
             print0(self.comm, text)
+
+
+def stepper_checkpoint(checkpoint):
+    """LoadStepper keywords of a checkpoint.Checkpointer (none without one)."""
+    if checkpoint is None:
+        return {}
+    return {"after_step": checkpoint.after_step if checkpoint.enabled else None,
+            "start": checkpoint.resumed, "stop_after": checkpoint.stop_after}
 
 
 def _max():

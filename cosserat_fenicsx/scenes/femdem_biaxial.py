@@ -47,7 +47,7 @@ from ..shear_band import fit_band_collective
 from ..snes import NewtonSolver
 from ..stepping import LoadStepper
 from ..validation import check
-from .biaxial import RecordingSolver, gauss_point_coordinates
+from .biaxial import RecordingSolver, gauss_point_coordinates, stepper_checkpoint
 
 DEFAULT_SOLVER_OPTIONS = {"snes_linesearch_type": "basic"}   # full Newton steps, as 001 and YADE
 
@@ -336,10 +336,22 @@ class FemDemBiaxial:
                "cuts": record.cuts, "wall_time": record.wall_time}
         return row
 
+    # --- checkpoint and restart (checkpoint.py) ------------------------------------------
+    def checkpoint_state(self):
+        """(per-point arrays, run state) beyond the fields, the Gauss-point arrays and the cells."""
+        return {"gradients_previous": self.gradients_previous}, {"history": self.history, "infos": self.solver.infos}
+
+    def restore_state(self, per_point, run_state):
+        self.gradients_previous[:] = per_point["gradients_previous"]
+        self.history = list(run_state["history"])
+        self.solver.infos = list(run_state["infos"])
+
     # --- run --------------------------------------------------------------------------
-    def run(self, on_step=None):
-        """Phase 1 and phase 2; `on_step(row)` after every converged step. Raises
-        LoadSteppingError (naming the cause) when a step cannot be cut small enough."""
+    def run(self, on_step=None, checkpoint=None):
+        """Phase 1 and phase 2; `on_step(row)` after every converged step. checkpoint: a
+        checkpoint.Checkpointer (writes as due, stops at its stop_after, continues from
+        the checkpoint it restored). Raises LoadSteppingError (naming the cause) when a
+        step cannot be cut small enough."""
 
         def record(step):
             row = self.row(step)
@@ -348,10 +360,10 @@ class FemDemBiaxial:
                 on_step(row)
             self.gradients_previous[:] = self.callback.gradients
 
-        stepper = LoadStepper(self.problem, self.solver, t_end=self.t_end, dt=1.0,
-                              dt_min=self.s.dt_min_fraction, dt_max=1.0, on_step=record,
-                              easy_iterations=8, verbose=self.verbose)
-        stepper.run()
+        self.stepper = LoadStepper(self.problem, self.solver, t_end=self.t_end, dt=1.0,
+                                   dt_min=self.s.dt_min_fraction, dt_max=1.0, on_step=record,
+                                   easy_iterations=8, verbose=self.verbose, **stepper_checkpoint(checkpoint))
+        self.stepper.run()
         return self.history
 
     def timing(self):

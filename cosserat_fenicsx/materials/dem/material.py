@@ -213,13 +213,16 @@ class DemMaterial(Constitutive):
         points = np.asarray(points, dtype=np.int64)
         return dict(pack_states(self.cells[p].committed_state for p in points), zone=self.zone[points].copy())
 
-    def import_points(self, points, arrays):
+    def import_points(self, points, arrays, rows=None):
         """Cells of `points` continue from exported states (zone included): a copy of the
-        zone's reference cell (law, options) restored to the state."""
+        zone's reference cell (law, options) restored to the state. rows: which of the
+        exported cells (default all)."""
         from demcell.state import unpack_states
         points = np.asarray(points, dtype=np.int64)
         zone = np.asarray(arrays["zone"], dtype=np.int64)
-        states = unpack_states(arrays)
+        if rows is not None:
+            zone = zone[np.asarray(rows, dtype=np.int64)]
+        states = unpack_states(arrays, rows)
         if len(states) != len(points) or len(zone) != len(points):
             raise ValueError(f"DemMaterial.import_points: {len(states)} cell states for {len(points)} points")
         if zone.size and (zone.min() < 0 or zone.max() >= len(self.reference_cells)):

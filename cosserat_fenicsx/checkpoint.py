@@ -1,0 +1,351 @@
+"""Checkpoint and restart of a load-stepped run, as batch queues need (docs/restart.md).
+
+After a converged step (every `every` steps, and at `stop_after`) a run writes DIR/checkpoint/:
+
+    meta.json         format, label, step, pseudo-time, next increment, cut-backs, ranks,
+                      dolfinx version, the run's options
+    fields.npz        the FE solution per component (u1, u2, phi) at its dof coordinates
+    points.npz        the committed Gauss-point arrays (quadrature.committed_arrays) and the
+                      scene's own per-point arrays, at the Gauss-point coordinates
+    resident_R.npz    the material's resident state of rank R's points
+                      (Constitutive.export_points: every DEM cell) with their coordinates
+    run.pkl           the scene's history rows, Newton records and other run state
+
+Everything is keyed by coordinates, not by the partition, so a checkpoint written on n ranks
+restarts on m: each rank finds its dofs and Gauss points by nearest coordinates within a
+tolerance of 1e-8 of the specimen's size (a point without a match stops the restart with a
+message). The directory is written as checkpoint.tmp and renamed when complete, so a run
+killed while writing keeps its previous checkpoint. On the same number of ranks the continued
+run repeats the uninterrupted one bit for bit (same partition, same arrays, same order of
+operations); on another number of ranks it differs by what the partition changes anyway
+(the order of the assembly sums).
+
+A scene that checkpoints provides `problem`, `points` (the (x, y) of its Gauss points in the
+callback's order), `checkpoint_state()` -> (per-point arrays, run-state dict) and
+`restore_state(per_point, run_state)`.
+"""
+import json
+import os
+import pickle
+import shutil
+
+import numpy as np
+
+from . import compat
+from .stepping import StepperPosition
+
+FORMAT = 1
+DIRECTORY = "checkpoint"
+#: a saved dof or point matches a current one within this fraction of the mesh's extent
+MATCH_TOLERANCE = 1e-8
+
+
+class CheckpointError(RuntimeError):
+    """A checkpoint cannot be read or does not fit the run; the message says why."""
+
+
+def checkpoint_path(directory):
+    return os.path.join(directory, DIRECTORY)
+
+
+def read_meta(directory):
+    """meta.json of the checkpoint in `directory` (a run's output directory)."""
+    path = os.path.join(checkpoint_path(directory), "meta.json")
+    if not os.path.isfile(path):
+        raise CheckpointError(f"no checkpoint in {directory} ({path} is missing): a run writes one with "
+                              "--checkpoint-every N or --stop-after K")
+    try:
+        with open(path) as f:
+            meta = json.load(f)
+    except (OSError, ValueError) as error:
+        raise CheckpointError(f"cannot read {path}: {error}") from None
+    if meta.get("format") != FORMAT:
+        raise CheckpointError(f"{path}: checkpoint format {meta.get('format')!r}, this version reads {FORMAT}")
+    return meta
+
+
+class Checkpointer:
+    """Writes the checkpoints of one run and restores a run from one.
+
+    comm        the run's communicator
+    directory   the run's output directory (the checkpoint goes to directory/checkpoint)
+    label       the demo's name (a checkpoint of another demo is refused)
+    options     the run's options (saved; a restart runs with them)
+    every       write after every `every`-th converged step (None: only at stop_after)
+    stop_after  the run stops after this step (a checkpoint is written there)
+    """
+
+    def __init__(self, comm, directory, label, options, every=None, stop_after=None, restart=False):
+        self.comm, self.directory, self.label = comm, directory, label
+        self.options = dict(options)
+        self.every, self.stop_after = every, stop_after
+        self.restart = restart
+        self.saved_ranks = None
+        self.scene = None
+        self.extra = None
+        self.resumed = None          # StepperPosition of the checkpoint a restart continued from
+        self.written = []            # steps written by this run
+
+    @property
+    def enabled(self):
+        return self.every is not None or self.stop_after is not None
+
+    def attach(self, scene, extra=None):
+        """The scene to save; `extra()` -> a picklable dict of the demo's own run state
+        (e.g. what its plot collects), handed back by restore as `self.restored_extra`."""
+        self.scene, self.extra = scene, extra
+
+    # --- what a demo asks --------------------------------------------------------------------
+    def start(self, scene, guard=None, extra=None):
+        """Attach the scene and, for a restart, restore it (a failure stops the run through
+        `guard`, a run_guard.RunGuard, with the reason). Returns the StepperPosition the
+        run continues from, None for a fresh run."""
+        if not self.restart:
+            self.attach(scene, extra)
+            return None
+        try:
+            position = self.restore(scene, extra)
+        except CheckpointError as error:
+            if guard is None:
+                raise
+            guard.stop(f"restart: {error}")
+        if guard is not None:
+            guard.steps = position.step
+        if self.comm.rank == 0:
+            print(f"{self.label}: continuing from the checkpoint of step {position.step} (t = {position.time:.6g}) "
+                  f"written on {self.saved_ranks} rank(s)", flush=True)
+        return position
+
+    @property
+    def resume_time(self):
+        """Pseudo-time of the checkpoint a restart continued from (None: a fresh run)."""
+        return self.resumed.time if self.resumed else None
+
+    @property
+    def resume_step(self):
+        return self.resumed.step if self.resumed else None
+
+    def fields_path(self, name):
+        """Where the XDMF series goes: `name` in the output directory, continued by a
+        restart on the same number of ranks; a restart on another number starts a new
+        series `<name>_from_step<K>.xdmf` (the XDMF mesh holds the nodes in the order of the
+        partition that wrote it, so the old file cannot take the new partition's data)."""
+        if self.resumed is not None and self.saved_ranks != self.comm.size:
+            stem, ext = os.path.splitext(name)
+            name = f"{stem}_from_step{self.resumed.step}{ext}"
+        return os.path.join(self.directory, name)
+
+    def stop_note(self, stepper):
+        """'' or the reason a run stopped at --stop-after (with how to continue)."""
+        if not stepper.stopped_early:
+            return ""
+        note = (f"stopped after step {self.stop_after} as asked (--stop-after); the checkpoint is in "
+                f"{checkpoint_path(self.directory)}; continue with --restart {self.directory}")
+        if self.comm.rank == 0:
+            print(f"{self.label}: {note}", flush=True)
+        return note
+
+    def summary_entries(self):
+        """What summary.json says about checkpoints and restarts."""
+        return {"checkpoint_steps_written": list(self.written),
+                "restarted_from_step": self.resumed.step if self.resumed else None,
+                "restarted_from_ranks": self.saved_ranks if self.resumed else None,
+                "stopped_after_step": self.stop_after}
+
+    # --- writing -----------------------------------------------------------------------------
+    def after_step(self, position):
+        """LoadStepper.after_step: write when this step is due."""
+        due = (self.every is not None and position.step % self.every == 0) or \
+              (self.stop_after is not None and position.step >= self.stop_after)
+        if due:
+            self.write(position)
+
+    def write(self, position):
+        """Write the checkpoint of the current (committed) state. Collective; a failure to
+        write (disk full, permissions) raises CheckpointError on every rank."""
+        comm, scene = self.comm, self.scene
+        problem = scene.problem
+        cb = problem.callback
+        final = checkpoint_path(self.directory)
+        tmp = final + ".tmp"
+        per_point, run_state = scene.checkpoint_state()
+        if self.extra is not None:
+            run_state = dict(run_state, extra=self.extra())
+        arrays = dict(cb.committed_arrays(), **{"scene_" + k: v for k, v in per_point.items()})
+        points = np.asarray(scene.points, dtype=np.float64)
+        resident = problem.material.export_points(np.arange(cb.n_points))
+        fields = _gather_fields(comm, problem)
+        gathered = comm.gather((points, arrays), root=0)
+        error = ""
+        if comm.rank == 0:
+            try:
+                shutil.rmtree(tmp, ignore_errors=True)
+                os.makedirs(tmp)
+            except OSError as e:
+                error = f"cannot write the checkpoint in {tmp}: {e}"
+        error = comm.bcast(error, root=0)
+        if not error:
+            try:     # the resident state stays per rank (the big part: a DEM cell per point)
+                np.savez(os.path.join(tmp, f"resident_{comm.rank}.npz"), coordinates=points, **resident)
+                if comm.rank == 0:
+                    self._write_rank0(tmp, position, fields, gathered, run_state)
+            except (OSError, pickle.PicklingError) as e:
+                error = f"cannot write the checkpoint in {tmp}: {e}"
+        errors = [e for e in comm.allgather(error) if e]
+        if errors:
+            raise CheckpointError(errors[0])
+        if comm.rank == 0:
+            shutil.rmtree(final, ignore_errors=True)
+            os.replace(tmp, final)
+        comm.barrier()
+        self.written.append(position.step)
+
+    def _write_rank0(self, tmp, position, fields, gathered, run_state):
+        import dolfinx
+        np.savez(os.path.join(tmp, "fields.npz"), **fields)
+        pts = np.concatenate([g[0] for g in gathered])
+        np.savez(os.path.join(tmp, "points.npz"), coordinates=pts,
+                 **{k: np.concatenate([g[1][k] for g in gathered]) for k in gathered[0][1]})
+        with open(os.path.join(tmp, "run.pkl"), "wb") as f:
+            pickle.dump(run_state, f)
+        meta = {"format": FORMAT, "label": self.label, "step": position.step, "time": position.time,
+                "dt": position.dt, "cuts": position.cuts, "ranks": self.comm.size, "n_points": len(pts),
+                "dolfinx": dolfinx.__version__, "options": self.options}
+        with open(os.path.join(tmp, "meta.json"), "w") as f:     # last: a complete directory has it
+            json.dump(meta, f, indent=1)
+
+    # --- reading -----------------------------------------------------------------------------
+    def restore(self, scene, extra=None):
+        """Bring `scene` (built with the checkpoint's options) to the checkpoint's state;
+        returns the StepperPosition to continue from. Collective."""
+        self.attach(scene, extra)
+        meta = read_meta(self.directory)
+        if meta.get("label") != self.label:
+            raise CheckpointError(f"the checkpoint in {self.directory} is of {meta.get('label')!r}, not {self.label!r}")
+        path = checkpoint_path(self.directory)
+        problem = scene.problem
+        problem._ensure_callback()
+        cb = problem.callback
+        mine = np.asarray(scene.points, dtype=np.float64)
+        n_points = self.comm.allreduce(len(mine))
+        if n_points != meta["n_points"]:
+            raise CheckpointError(f"the checkpoint holds {meta['n_points']} Gauss points, this run has {n_points}: "
+                                  "not the same mesh or quadrature")
+        scale = _extent(self.comm, mine)
+        # read and match everything first, then make a failure collective, then apply: a rank
+        # that raised alone would leave the others in a collective call (import_points may be one)
+        error, plan = "", None
+        try:
+            plan = self._read(path, meta, problem, mine, scale)
+        except CheckpointError as e:
+            error = str(e)
+        except (OSError, KeyError, ValueError, pickle.UnpicklingError) as e:
+            error = f"cannot restore from {path}: {type(e).__name__}: {e}"
+        errors = [e for e in self.comm.allgather(error) if e]
+        if errors:
+            raise CheckpointError(errors[0])
+        fields, resident, arrays, run_state = plan
+        for dofs, values in fields:
+            problem.w.x.array[dofs] = values
+        problem.w.x.scatter_forward()
+        problem.w_committed.x.array[:] = problem.w.x.array
+        for rows, points, saved in resident:      # before restore_committed, which rolls back to it
+            problem.material.import_points(points, saved, rows)
+        cb.restore_committed(arrays)
+        self.restored_extra = run_state.pop("extra", None)
+        scene.restore_state({k[len("scene_"):]: v for k, v in arrays.items() if k.startswith("scene_")}, run_state)
+        self.saved_ranks = meta["ranks"]
+        self.resumed = StepperPosition(meta["time"], meta["dt"], meta["step"], meta["cuts"])
+        return self.resumed
+
+    def _read(self, path, meta, problem, mine, scale):
+        """Everything this rank needs from the checkpoint, matched to its dofs and points
+        (local: no MPI). Returns (fields, resident, per-point arrays, run state)."""
+        with np.load(os.path.join(path, "fields.npz")) as z:
+            saved = dict(z)
+        fields = []
+        for c in _components(problem):
+            if f"{c}_values" not in saved:
+                raise CheckpointError(f"the checkpoint has no {c} field (micropolar and Cauchy scenes do not mix)")
+            x, dofs = _owned_component_dofs(problem, c)
+            rows, _ = _match(saved[f"{c}_coordinates"], x, scale, what=f"{c} dof")
+            fields.append((dofs, saved[f"{c}_values"][rows]))
+        found = np.zeros(len(mine), dtype=np.int64)
+        resident = []
+        for rank in range(meta["ranks"]):      # every rank reads every file: any partition fits
+            with np.load(os.path.join(path, f"resident_{rank}.npz")) as z:
+                saved = dict(z)
+            rows, points = _match(saved.pop("coordinates"), mine, scale, complete=False)
+            resident.append((rows, points, saved))
+            np.add.at(found, points, 1)
+        if (found != 1).any():
+            raise CheckpointError(f"{int(np.count_nonzero(found != 1))} Gauss point(s) have no (or two) saved "
+                                  "material states")
+        with np.load(os.path.join(path, "points.npz")) as z:
+            saved = dict(z)
+        rows, _ = _match(saved.pop("coordinates"), mine, scale)
+        arrays = {k: v[rows] for k, v in saved.items()}
+        with open(os.path.join(path, "run.pkl"), "rb") as f:
+            run_state = pickle.load(f)
+        return fields, resident, arrays, run_state
+
+
+# --- FE fields by dof coordinates ----------------------------------------------------------
+def _components(problem):
+    return ("u1", "u2", "phi") if problem.micropolar else ("u1", "u2")
+
+
+def _owned_component_dofs(problem, component):
+    """(coordinates (n, 2), dofs of w) of the owned dofs of one component."""
+    space, parent = problem.component_space(component)
+    n_owned = space.dofmap.index_map.size_local
+    x = space.tabulate_dof_coordinates()[:n_owned, :2]
+    return x, np.asarray(parent)[:n_owned]
+
+
+def _gather_fields(comm, problem):
+    out = {}
+    for c in _components(problem):
+        x, dofs = _owned_component_dofs(problem, c)
+        parts = comm.gather((x, problem.w.x.array[dofs]), root=0)
+        if comm.rank == 0:
+            out[f"{c}_coordinates"] = np.concatenate([p[0] for p in parts])
+            out[f"{c}_values"] = np.concatenate([p[1] for p in parts])
+    return out
+
+
+# --- matching by coordinates ----------------------------------------------------------------
+def _extent(comm, points):
+    """Largest side of the bounding box of all ranks' points (the matching tolerance's scale)."""
+    from mpi4py import MPI
+    lo = np.full(2, np.inf) if not len(points) else points.min(axis=0)
+    hi = np.full(2, -np.inf) if not len(points) else points.max(axis=0)
+    lo, hi = lo.copy(), hi.copy()
+    comm.Allreduce(MPI.IN_PLACE, lo, op=MPI.MIN)
+    comm.Allreduce(MPI.IN_PLACE, hi, op=MPI.MAX)
+    return float(np.max(hi - lo)) or 1.0
+
+
+def _match(saved, wanted, scale, complete=True, what="Gauss point"):
+    """Rows of `saved` (k, 2) nearest to each of `wanted` (n, 2) within the tolerance.
+    complete: every wanted point must be found, returns (rows, arange(n)); else only the
+    saved points that are among `wanted` are returned as (rows of saved, indices of wanted)."""
+    from scipy.spatial import cKDTree
+    tol = MATCH_TOLERANCE * scale
+    if complete:
+        if len(wanted) and not len(saved):
+            raise CheckpointError(f"the checkpoint has no {what}s")
+        if not len(wanted):
+            return np.zeros(0, dtype=np.int64), np.zeros(0, dtype=np.int64)
+        dist, rows = cKDTree(saved).query(wanted)
+        bad = np.flatnonzero(dist > tol)
+        if bad.size:
+            x, y = wanted[bad[0]]
+            raise CheckpointError(f"no saved {what} at ({x:.6g}, {y:.6g}) (and {bad.size - 1} more): "
+                                  "not the same mesh")
+        return rows, np.arange(len(wanted))
+    if not len(saved) or not len(wanted):
+        return np.zeros(0, dtype=np.int64), np.zeros(0, dtype=np.int64)
+    dist, points = cKDTree(wanted).query(saved)
+    rows = np.flatnonzero(dist <= tol)
+    return rows, points[rows]

@@ -28,6 +28,7 @@ import json
 import os
 import pickle
 import shutil
+import time
 
 import numpy as np
 
@@ -85,6 +86,8 @@ class Checkpointer:
         self.extra = None
         self.resumed = None          # StepperPosition of the checkpoint a restart continued from
         self.written = []            # steps written by this run
+        self.write_seconds = []      # wall time of each write
+        self.size_bytes = None       # size of the last checkpoint (rank 0)
 
     @property
     def enabled(self):
@@ -148,6 +151,8 @@ class Checkpointer:
     def summary_entries(self):
         """What summary.json says about checkpoints and restarts."""
         return {"checkpoint_steps_written": list(self.written),
+                "checkpoint_write_seconds": list(self.write_seconds),
+                "checkpoint_bytes": self.comm.bcast(self.size_bytes, root=0),
                 "restarted_from_step": self.resumed.step if self.resumed else None,
                 "restarted_from_ranks": self.saved_ranks if self.resumed else None,
                 "stopped_after_step": self.stop_after}
@@ -163,6 +168,7 @@ class Checkpointer:
     def write(self, position):
         """Write the checkpoint of the current (committed) state. Collective; a failure to
         write (disk full, permissions) raises CheckpointError on every rank."""
+        start = time.perf_counter()
         comm, scene = self.comm, self.scene
         problem = scene.problem
         cb = problem.callback
@@ -199,6 +205,9 @@ class Checkpointer:
             os.replace(tmp, final)
         comm.barrier()
         self.written.append(position.step)
+        self.write_seconds.append(time.perf_counter() - start)
+        if comm.rank == 0:
+            self.size_bytes = sum(os.path.getsize(os.path.join(final, f)) for f in os.listdir(final))
 
     def _write_rank0(self, tmp, position, fields, gathered, run_state):
         import dolfinx

@@ -34,6 +34,13 @@ and by 'plastic' to see the unloaded wedges outside it (section 6.2.1, Fig. 6.7)
     python3 demos/biaxial.py --cell-size 5e-3 --steps 30 -snes_monitor
     mpirun -n 2 python3 demos/biaxial.py --k-sigma 0 --l-c 2e-4 --width 0.025 --height 0.05 \
         --cell-size 1.25e-3 --axial-strain 0.08 --steps 80 --out results/biaxial_regularised
+
+Batch queues (docs/restart.md): --checkpoint-every N writes OUT/checkpoint every N steps,
+--stop-after K stops cleanly after step K, --restart OUT continues the run from its checkpoint
+(on any number of ranks; on the same number the history is the straight run's, bit for bit):
+
+    mpirun -n 2 python3 demos/biaxial.py --stop-after 20 --out results/biaxial
+    mpirun -n 2 python3 demos/biaxial.py --restart results/biaxial
 """
 import sys, os  # noqa: E401
 sys.path.insert(0, os.path.dirname(os.path.dirname(os.path.abspath(__file__))))

@@ -53,6 +53,13 @@ contacts_0000.vtk coloured by normal_force.
     mpirun -n 2 python3 demos/femdem_biaxial.py --mesh 2x4 --out results/femdem_biaxial
     mpirun -n 2 python3 demos/femdem_biaxial.py --mode classical --mesh 4x8 --weak-size 2.5e-3 --weak-friction 0.8
 
+Batch queues (docs/restart.md): --checkpoint-every N writes OUT/checkpoint (every cell's
+contact state included) every N steps, --stop-after K stops cleanly after step K, --restart OUT
+continues from the checkpoint, on the same or another number of ranks:
+
+    mpirun -n 2 python3 demos/femdem_biaxial.py --mesh 2x4 --checkpoint-every 5 --stop-after 50 --out run
+    mpirun -n 2 python3 demos/femdem_biaxial.py --restart run
+
 What it costs (docs/femdem.md): the cells take 99.6 % of the time, about 0.06 CPU s per cell
 update at 228 discs; a 2x4 mesh (48 cells) to 3 % in 30 steps without a weak zone is a few
 CPU minutes. Past the peak, and from the start in a classical run with a weak zone, the

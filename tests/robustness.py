@@ -108,6 +108,12 @@ def judge(cmd, code, stdout, stderr, out, interrupted):
         assert code in (128 + signal.SIGTERM, -signal.SIGTERM), f"{where}: SIGTERM should end with 143\n{stderr[-2000:]}"
         assert summary["completed"] is False and summary["reason"], f"{where}: {summary.get('reason')}"
         return "interrupted", summary["reason"]
+    if code == 0 and summary.get("completed", True) is False:
+        # stopped as asked (--stop-after K): not complete, but nothing went wrong
+        assert summary.get("stopped_after_step") and "--stop-after" in summary["reason"], \
+            f"{where}: exit 0 but not completed: {summary.get('reason')}"
+        assert_finite(summary, where + " summary.json")
+        return "completed", summary["reason"]
     if code == 0:
         assert summary.get("completed", True) is True, f"{where}: exit 0 but not completed"
         assert_finite(summary, where + " summary.json")

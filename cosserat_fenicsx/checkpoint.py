@@ -82,6 +82,8 @@ class Checkpointer:
         self.every, self.stop_after = every, stop_after
         self.restart = restart
         self.saved_ranks = None
+        self.saved_fields = None     # the XDMF series the checkpointed run was writing
+        self.fields_file = None      # the one this run writes (fields_path)
         self.scene = None
         self.extra = None
         self.resumed = None          # StepperPosition of the checkpoint a restart continued from
@@ -133,9 +135,12 @@ class Checkpointer:
         restart on the same number of ranks; a restart on another number starts a new
         series `<name>_from_step<K>.xdmf` (the XDMF mesh holds the nodes in the order of the
         partition that wrote it, so the old file cannot take the new partition's data)."""
-        if self.resumed is not None and self.saved_ranks != self.comm.size:
+        if self.resumed is not None and self.saved_ranks == self.comm.size and self.saved_fields:
+            name = self.saved_fields                 # the series the checkpointed run wrote
+        elif self.resumed is not None:
             stem, ext = os.path.splitext(name)
             name = f"{stem}_from_step{self.resumed.step}{ext}"
+        self.fields_file = name
         return os.path.join(self.directory, name)
 
     def stop_note(self, stepper):
@@ -219,7 +224,7 @@ class Checkpointer:
             pickle.dump(run_state, f)
         meta = {"format": FORMAT, "label": self.label, "step": position.step, "time": position.time,
                 "dt": position.dt, "cuts": position.cuts, "ranks": self.comm.size, "n_points": len(pts),
-                "dolfinx": dolfinx.__version__, "options": self.options}
+                "dolfinx": dolfinx.__version__, "fields_file": self.fields_file, "options": self.options}
         with open(os.path.join(tmp, "meta.json"), "w") as f:     # last: a complete directory has it
             json.dump(meta, f, indent=1)
 
@@ -264,6 +269,7 @@ class Checkpointer:
         self.restored_extra = run_state.pop("extra", None)
         scene.restore_state({k[len("scene_"):]: v for k, v in arrays.items() if k.startswith("scene_")}, run_state)
         self.saved_ranks = meta["ranks"]
+        self.saved_fields = meta.get("fields_file")
         self.resumed = StepperPosition(meta["time"], meta["dt"], meta["step"], meta["cuts"])
         return self.resumed
 
@@ -316,7 +322,7 @@ def _gather_fields(comm, problem):
     out = {}
     for c in _components(problem):
         x, dofs = _owned_component_dofs(problem, c)
-        parts = comm.gather((x, problem.w.x.array[dofs]), root=0)
+        parts = comm.gather((x, problem.w_committed.x.array[dofs]), root=0)
         if comm.rank == 0:
             out[f"{c}_coordinates"] = np.concatenate([p[0] for p in parts])
             out[f"{c}_values"] = np.concatenate([p[1] for p in parts])

@@ -75,6 +75,9 @@ class Constitutive(abc.ABC):
     state_names = ()
     tangent_on_demand = False
     rate_independent = False
+    #: update / tangent do collective exchanges (balancing.BalancedMaterial): the callback
+    #: calls them on every rank every time, with an empty `points` where nothing changed
+    collective = False
 
     @property
     def state_size(self):

@@ -113,8 +113,10 @@ class GaussPointCallback:
         if m.rate_independent:
             points = np.flatnonzero((self.gradients != self._updated_at).any(axis=1))
             self.counters["points_unchanged"] += self.n_points - len(points)
-            report = m.update(self.gradients, self.time_step, self.state_old, self.flux_values,
-                              self.tangent_values, self.state_new, points=points) if len(points) else None
+            report = None
+            if len(points) or m.collective:     # a collective material is called on every rank
+                report = m.update(self.gradients, self.time_step, self.state_old, self.flux_values,
+                                  self.tangent_values, self.state_new, points=points)
         else:
             points = slice(None)
             report = m.update(self.gradients, self.time_step, self.state_old, self.flux_values,
@@ -146,7 +148,7 @@ class GaussPointCallback:
         if not m.tangent_on_demand:
             return
         points = np.flatnonzero(self._tangent_stale)
-        if len(points):
+        if len(points) or m.collective:     # a collective material is called on every rank
             start = time.perf_counter()
             report = m.tangent(points, self.tangent_values)
             self.timers["tangent"] += time.perf_counter() - start

@@ -53,6 +53,9 @@ contacts_0000.vtk coloured by normal_force.
     mpirun -n 2 python3 demos/femdem_biaxial.py --mesh 2x4 --out results/femdem_biaxial
     mpirun -n 2 python3 demos/femdem_biaxial.py --mode classical --mesh 4x8 --weak-size 2.5e-3 --weak-friction 0.8
 
+Load balancing (docs/balancing.md): with --balance the cells move between ranks after a step
+whose cell work was uneven (a band: its cells relax far longer), results unchanged.
+
 Batch queues (docs/restart.md): --checkpoint-every N writes OUT/checkpoint (every cell's
 contact state included) every N steps, --stop-after K stops cleanly after step K, --restart OUT
 continues from the checkpoint, on the same or another number of ranks:
@@ -130,6 +133,11 @@ g.add_argument("--stagnation-its", type=number(NON_NEGATIVE_INTEGER), default=4,
                help="... and ends it as soon as its best FNORM/RNORM gained less than 10 %% in this many "
                     "iterations (default %(default)s; 0: only at -snes_max_it)")
 g.add_argument("--write-every", type=number(COUNT), default=1, help="XDMF every N steps and at the end (default %(default)s)")
+g.add_argument("--balance", action="store_true",
+               help="move cells between ranks so that the ranks finish their cells together (docs/balancing.md)")
+g.add_argument("--balance-threshold", type=number(low=1.0, infinite=True), default=1.10,
+               help="... when the slowest rank's cell work / the mean exceeds this (default %(default)g; "
+                    "inf: measure the imbalance only)")
 
 
 def femdem_settings(args):
@@ -146,7 +154,8 @@ def femdem_settings(args):
         cell=CellOptions(particles=args.particles, seed=args.seed, packing=args.packing, friction=args.friction,
                          pressure=args.pressure, kn=args.kn, ks=args.ks, rotation=not args.no_rotation,
                          relaxation_tol=args.relaxation_tol, criterion=args.criterion,
-                         max_steps=args.max_dem_steps))
+                         max_steps=args.max_dem_steps),
+        balance=args.balance, balance_threshold=args.balance_threshold)
 
 
 def check(args):
@@ -240,10 +249,13 @@ for label, pick in (("highest_stress_ratio", np.argmax), ("lowest_stress_ratio",
              comm.rank, int(pick(ratios)) if len(ratios) else -1)
     everyone = comm.allgather(local)
     best = max(everyone) if pick is np.argmax else min(everyone)
+    # the committed cell (a balanced run may work on it on another rank: export_points fetches it)
+    cell = test.material.export_points([best[2]] if comm.rank == best[1] else [])
     if comm.rank == best[1]:
         import demcell
+        from demcell.state import unpack_states
         directory = os.path.join(args.out, "snapshots", label)
-        demcell.write_vtk_snapshot(directory, 0, test.material.cells[best[2]].state)
+        demcell.write_vtk_snapshot(directory, 0, unpack_states(cell)[0])
     xy = comm.bcast(test.points[best[2]].tolist() if comm.rank == best[1] else None, root=best[1])
     snapshots[label] = {"stress_ratio": best[0], "x": xy[0], "y": xy[1],
                         "files": f"snapshots/{label}/particles_0000.vtk, contacts_0000.vtk"}
@@ -284,6 +296,7 @@ summary = {
     "mode": test.material.describe(), "mu_c": test.mu_c, "l_c": test.l_c, "cell_moduli": test.cell_moduli,
     "length_scale": test.length_scale, "packing": test.packing_info,
     "options": {k: v for k, v in vars(args).items() if k != "elasticity"},
+    "balance": test.material.balance_report() if hasattr(test.material, "balance_report") else None,
 }
 guard.finish(summary)
 

@@ -86,6 +86,8 @@ class FemDemSettings:
     dt_min_fraction: float = 2.0 ** -6
     solver_options: dict = field(default_factory=dict)
     cell: object = None                # materials.dem.CellOptions
+    balance: bool = False              # move cells between ranks so that they finish together (balancing.py)
+    balance_threshold: float = 1.10    # ... when the slowest rank's cell work exceeds the mean by this factor
 
     def check(self):
         """Raises ValueError naming the setting; called before any cell is created."""
@@ -145,6 +147,11 @@ class FemDemSettings:
         if self.cell_type not in ("triangle", "quadrilateral"):
             raise ValueError(f"femdem: cell_type must be triangle or quadrilateral, got {self.cell_type!r}")
         self.cell.check()
+        if not isinstance(self.balance, bool):
+            raise ValueError(f"femdem: balance must be True or False, got {self.balance!r}")
+        if not (isinstance(self.balance_threshold, (int, float)) and self.balance_threshold >= 1):
+            raise ValueError(f"femdem: balance_threshold must be a number >= 1 (slowest / mean), "
+                             f"got {self.balance_threshold!r}")
         cells_bytes = CELL_POINTS_PER_RECTANGLE * self.nx * self.ny * BYTES_PER_DISC * self.cell.particles
         if not cells_bytes <= MAX_CELL_BYTES:
             raise ValueError(f"femdem: a {self.nx}x{self.ny} mesh of {self.cell.particles}-disc cells needs about "
@@ -222,6 +229,10 @@ class FemDemBiaxial:
             self.cell_moduli = self.mode.moduli = reference_moduli(self.mode, ref, s.tangent, s.grain_diameter)
             self.mu_c, self.l_c = self.cell_moduli["mu_c"], self.cell_moduli["l_c"]
         self.material = DemMaterial(self.reference_cells, self.mode, s.tangent)
+        if s.balance and comm.size > 1:
+            from ..balancing import BalancedMaterial
+            self.material = BalancedMaterial(comm, lambda: DemMaterial(self.reference_cells, self.mode, s.tangent),
+                                             threshold=s.balance_threshold)
 
         self.mesh, tags, names = meshes.rectangle(comm, s.width, s.height, cell_type=s.cell_type,
                                                   divisions=(s.nx, s.ny))

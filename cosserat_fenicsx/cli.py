@@ -151,9 +151,12 @@ def parse(parser, argv=None, check=None):
     args, unknown = parser.parse_known_args(argv)
     forward_petsc_options(parser, unknown)
     try:
-        if getattr(args, "restart", None) is not None:
-            args = restart_arguments(parser, args, argv)
         if hasattr(parser, "checkpoint_label"):
+            args.petsc_options = list(unknown)        # saved in a checkpoint: a restart solves alike
+            if getattr(args, "restart", None) is not None:
+                args = restart_arguments(parser, args, argv)
+                # the run's PETSc options, then those typed now (they win)
+                forward_petsc_options(parser, list(args.petsc_options) + list(unknown))
             args.checkpoint_label = parser.checkpoint_label
         if hasattr(args, "mu"):
             args.elasticity = MicropolarElasticity(mu=args.mu, lmbda=args.lmbda, mu_c=args.mu_c, l_c=args.l_c)

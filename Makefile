@@ -46,10 +46,10 @@ test-debian13:
 		-- sh tests/run_suite.sh python3
 
 # figures, not tests; YADE is only needed here (DEM speed and cross-check)
-BENCH_PACKAGES = yade
+BENCH_PACKAGES = yade python3-escript
 benchmark: deps
-	@dpkg-query -W -f='$${Status}\n' $(BENCH_PACKAGES) 2>/dev/null | grep -q "ok installed" || \
-		{ $(SUDO) apt-get update -q && DEBIAN_FRONTEND=noninteractive $(SUDO) apt-get install -y -q $(BENCH_PACKAGES); }
+	@missing=$$(for p in $(BENCH_PACKAGES); do dpkg-query -W -f='$${Status}\n' $$p 2>/dev/null | grep -q "ok installed" || echo $$p; done); \
+	if [ -n "$$missing" ]; then $(SUDO) apt-get update -q && DEBIAN_FRONTEND=noninteractive $(SUDO) apt-get install -y -q --no-install-recommends $$missing; fi
 	$(PYTHON) benchmarks/convergence.py --np $(NP) --out $(OUT)/benchmarks
 	$(PYTHON) benchmarks/ehlers_kernel_throughput.py --json $(OUT)/benchmarks/ehlers_kernel_throughput.json
 	$(PYTHON) benchmarks/dem_speed.py --out $(OUT)/benchmarks/dem_speed
@@ -67,6 +67,9 @@ benchmark: deps
 	$(MPIRUN) -n $(NP) $(PYTHON) benchmarks/femdem_convergence.py --out $(OUT)/benchmarks/femdem_convergence
 	$(MPIRUN) -n $(NP) $(PYTHON) benchmarks/femdem_rotation.py --out $(OUT)/benchmarks/femdem_rotation
 	$(MPIRUN) -n $(NP) $(PYTHON) benchmarks/femdem_micropolar.py --out $(OUT)/benchmarks/femdem_micropolar
+	$(MPIRUN) -n $(NP) $(PYTHON) benchmarks/femdem_balance.py --out $(OUT)/benchmarks/femdem_balance
+	$(PYTHON) benchmarks/femdem_scaling.py --out $(OUT)/benchmarks/femdem_scaling
+	$(PYTHON) benchmarks/femdem_yade.py --np $(NP) --out $(OUT)/benchmarks/femdem_yade
 	$(PYTHON) benchmarks/identification_sensitivity.py --out $(OUT)/benchmarks/identification_sensitivity
 	$(PYTHON) benchmarks/identification_cost.py --out $(OUT)/benchmarks/identification_cost
 	$(PYTHON) benchmarks/reidentification.py --draws 100 --out $(OUT)/benchmarks/reidentification

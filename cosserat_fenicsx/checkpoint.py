@@ -32,7 +32,6 @@ import time
 
 import numpy as np
 
-from . import compat
 from .stepping import StepperPosition
 
 FORMAT = 1
@@ -49,8 +48,9 @@ def checkpoint_path(directory):
     return os.path.join(directory, DIRECTORY)
 
 
-def read_meta(directory):
-    """meta.json of the checkpoint in `directory` (a run's output directory)."""
+def read_meta(directory, label=None):
+    """meta.json of the checkpoint in `directory` (a run's output directory); with `label`,
+    one written by another demo is refused."""
     path = os.path.join(checkpoint_path(directory), "meta.json")
     if not os.path.isfile(path):
         raise CheckpointError(f"no checkpoint in {directory} ({path} is missing): a run writes one with "
@@ -62,7 +62,18 @@ def read_meta(directory):
         raise CheckpointError(f"cannot read {path}: {error}") from None
     if meta.get("format") != FORMAT:
         raise CheckpointError(f"{path}: checkpoint format {meta.get('format')!r}, this version reads {FORMAT}")
+    if label is not None and meta.get("label") != label:
+        raise CheckpointError(f"the checkpoint in {directory} is of {meta.get('label')!r}, not {label!r}")
     return meta
+
+
+def stepper_keywords(checkpoint):
+    """LoadStepper keywords of a Checkpointer (none without one): write as due, stop at its
+    stop_after, continue from the position it restored."""
+    if checkpoint is None:
+        return {}
+    return {"after_step": checkpoint.after_step if checkpoint.enabled else None,
+            "start": checkpoint.resumed, "stop_after": checkpoint.stop_after}
 
 
 class Checkpointer:
@@ -233,9 +244,7 @@ class Checkpointer:
         """Bring `scene` (built with the checkpoint's options) to the checkpoint's state;
         returns the StepperPosition to continue from. Collective."""
         self.attach(scene, extra)
-        meta = read_meta(self.directory)
-        if meta.get("label") != self.label:
-            raise CheckpointError(f"the checkpoint in {self.directory} is of {meta.get('label')!r}, not {self.label!r}")
+        meta = read_meta(self.directory, self.label)
         path = checkpoint_path(self.directory)
         problem = scene.problem
         problem._ensure_callback()
@@ -283,14 +292,14 @@ class Checkpointer:
             if f"{c}_values" not in saved:
                 raise CheckpointError(f"the checkpoint has no {c} field (micropolar and Cauchy scenes do not mix)")
             x, dofs = _owned_component_dofs(problem, c)
-            rows, _ = _match(saved[f"{c}_coordinates"], x, scale, what=f"{c} dof")
+            rows = _nearest_rows(saved[f"{c}_coordinates"], x, scale, what=f"{c} dof")
             fields.append((dofs, saved[f"{c}_values"][rows]))
         found = np.zeros(len(mine), dtype=np.int64)
         resident = []
         for rank in range(meta["ranks"]):      # every rank reads every file: any partition fits
             with np.load(os.path.join(path, f"resident_{rank}.npz")) as z:
                 saved = dict(z)
-            rows, points = _match(saved.pop("coordinates"), mine, scale, complete=False)
+            rows, points = _saved_among(saved.pop("coordinates"), mine, scale)
             resident.append((rows, points, saved))
             np.add.at(found, points, 1)
         if (found != 1).any():
@@ -298,7 +307,7 @@ class Checkpointer:
                                   "material states")
         with np.load(os.path.join(path, "points.npz")) as z:
             saved = dict(z)
-        rows, _ = _match(saved.pop("coordinates"), mine, scale)
+        rows = _nearest_rows(saved.pop("coordinates"), mine, scale)
         arrays = {k: v[rows] for k, v in saved.items()}
         with open(os.path.join(path, "run.pkl"), "rb") as f:
             run_state = pickle.load(f)
@@ -341,26 +350,28 @@ def _extent(comm, points):
     return float(np.max(hi - lo)) or 1.0
 
 
-def _match(saved, wanted, scale, complete=True, what="Gauss point"):
-    """Rows of `saved` (k, 2) nearest to each of `wanted` (n, 2) within the tolerance.
-    complete: every wanted point must be found, returns (rows, arange(n)); else only the
-    saved points that are among `wanted` are returned as (rows of saved, indices of wanted)."""
+def _nearest_rows(saved, wanted, scale, what="Gauss point"):
+    """Row of `saved` (k, 2) at each of `wanted` (n, 2), within the tolerance; every wanted
+    point must be there (CheckpointError naming the first that is not)."""
     from scipy.spatial import cKDTree
-    tol = MATCH_TOLERANCE * scale
-    if complete:
-        if len(wanted) and not len(saved):
-            raise CheckpointError(f"the checkpoint has no {what}s")
-        if not len(wanted):
-            return np.zeros(0, dtype=np.int64), np.zeros(0, dtype=np.int64)
-        dist, rows = cKDTree(saved).query(wanted)
-        bad = np.flatnonzero(dist > tol)
-        if bad.size:
-            x, y = wanted[bad[0]]
-            raise CheckpointError(f"no saved {what} at ({x:.6g}, {y:.6g}) (and {bad.size - 1} more): "
-                                  "not the same mesh")
-        return rows, np.arange(len(wanted))
+    if not len(wanted):
+        return np.zeros(0, dtype=np.int64)
+    if not len(saved):
+        raise CheckpointError(f"the checkpoint has no {what}s")
+    dist, rows = cKDTree(saved).query(wanted)
+    bad = np.flatnonzero(dist > MATCH_TOLERANCE * scale)
+    if bad.size:
+        x, y = wanted[bad[0]]
+        raise CheckpointError(f"no saved {what} at ({x:.6g}, {y:.6g}) (and {bad.size - 1} more): not the same mesh")
+    return rows
+
+
+def _saved_among(saved, wanted, scale):
+    """(rows of `saved`, indices of `wanted`) of the saved points that are among `wanted`
+    within the tolerance (one rank's file of a checkpoint against this rank's points)."""
+    from scipy.spatial import cKDTree
     if not len(saved) or not len(wanted):
         return np.zeros(0, dtype=np.int64), np.zeros(0, dtype=np.int64)
     dist, points = cKDTree(wanted).query(saved)
-    rows = np.flatnonzero(dist <= tol)
+    rows = np.flatnonzero(dist <= MATCH_TOLERANCE * scale)
     return rows, points[rows]

@@ -102,15 +102,12 @@ def restart_arguments(parser, args, argv=None):
     checkpoint or one of another demo is a ValueError naming it."""
     from .checkpoint import CheckpointError, read_meta
     try:
-        meta = read_meta(args.restart)
+        meta = read_meta(args.restart, parser.checkpoint_label)
     except CheckpointError as error:
         raise ValueError(f"--restart {args.restart}: {error}") from None
-    label = getattr(parser, "checkpoint_label", None)
-    if meta.get("label") != label:
-        raise ValueError(f"--restart {args.restart}: the checkpoint there is of {meta.get('label')!r}, not {label!r}")
     saved = meta["options"]
-    typed = parser.given_options(argv) - set(RUN_CONTROL)
-    for dest in sorted(typed):
+    typed = parser.given_options(argv)
+    for dest in sorted(typed - set(RUN_CONTROL)):
         if dest == "out" and os.path.abspath(args.out) == os.path.abspath(args.restart):
             continue
         if dest not in saved or saved[dest] != getattr(args, dest):
@@ -118,9 +115,8 @@ def restart_arguments(parser, args, argv=None):
             raise ValueError(f"{option} cannot be given with --restart (the run continues with the options it was "
                              f"started with{f': {option} {saved[dest]}' if dest in saved else ''}); only "
                              "--checkpoint-every and --stop-after may change")
-    typed_now = parser.given_options(argv)
     for dest, value in saved.items():
-        if dest not in typed_now:       # --checkpoint-every carries over unless typed again
+        if dest not in typed:           # --checkpoint-every carries over unless typed again
             setattr(args, dest, value)
     args.out = args.restart
     if args.stop_after is not None and args.stop_after <= meta["step"]:

@@ -48,6 +48,7 @@ import numpy as np
 import ufl
 
 from .. import compat, meshes
+from ..checkpoint import stepper_keywords
 from ..constitutive import Constitutive
 from ..output import print0
 from ..problem import CosseratProblem
@@ -353,21 +354,13 @@ class BiaxialTest:
         self.stepper = stepper = LoadStepper(self.problem, self.solver, t_end=self.t_end, dt=1.0,
                                              dt_min=self.s.dt_min_fraction, dt_max=1.0, on_step=record,
                                              easy_iterations=8, verbose=self.verbose,
-                                             **stepper_checkpoint(checkpoint))
+                                             **stepper_keywords(checkpoint))
         self.records = stepper.run()
         return self.history
 
     def log(self, text):
         if self.verbose:
             print0(self.comm, text)
-
-
-def stepper_checkpoint(checkpoint):
-    """LoadStepper keywords of a checkpoint.Checkpointer (none without one)."""
-    if checkpoint is None:
-        return {}
-    return {"after_step": checkpoint.after_step if checkpoint.enabled else None,
-            "start": checkpoint.resumed, "stop_after": checkpoint.stop_after}
 
 
 def _max():

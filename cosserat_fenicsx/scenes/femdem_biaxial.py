@@ -43,11 +43,12 @@ from mpi4py import MPI
 
 from .. import compat, meshes
 from ..problem import CosseratProblem
+from ..checkpoint import stepper_keywords
 from ..shear_band import fit_band_collective
 from ..snes import NewtonSolver
 from ..stepping import LoadStepper
 from ..validation import check
-from .biaxial import RecordingSolver, gauss_point_coordinates, stepper_checkpoint
+from .biaxial import RecordingSolver, gauss_point_coordinates
 
 DEFAULT_SOLVER_OPTIONS = {"snes_linesearch_type": "basic"}   # full Newton steps, as 001 and YADE
 
@@ -373,7 +374,7 @@ class FemDemBiaxial:
 
         self.stepper = LoadStepper(self.problem, self.solver, t_end=self.t_end, dt=1.0,
                                    dt_min=self.s.dt_min_fraction, dt_max=1.0, on_step=record,
-                                   easy_iterations=8, verbose=self.verbose, **stepper_checkpoint(checkpoint))
+                                   easy_iterations=8, verbose=self.verbose, **stepper_keywords(checkpoint))
         self.stepper.run()
         return self.history
 

@@ -33,22 +33,19 @@ weaker and larger corner, 2.1 % in 7 steps) about 6 minutes per order:
 import argparse
 import json
 import os
+import sys
 import time
 
 import numpy as np
 from mpi4py import MPI
 
-from cosserat_fenicsx.balancing import imbalance
+sys.path.insert(0, os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
+from cosserat_fenicsx.balancing import imbalance  # noqa: E402
 
 CELL_TIMERS = ("solve", "homogenize", "tangent", "commit")
 #: redundant: PETSc's LU of the whole (small) system on every rank, bit-reproducible, so both
 #: runs take the same Newton path and do the same cell work; mumps: the scene's default
 SOLVERS = {"redundant": {"pc_type": "redundant"}, "mumps": {}}
-
-
-def load_average():
-    with open("/proc/loadavg") as f:
-        return [float(x) for x in f.read().split()[:3]]
 
 
 def run(comm, a, balance):
@@ -60,7 +57,7 @@ def run(comm, a, balance):
                        weak_size=a.weak_size, weak_friction_factor=a.weak_friction, grain_diameter=a.grain_diameter,
                        cell=CellOptions(particles=a.particles), balance=balance, balance_threshold=a.threshold,
                        solver_options=SOLVERS[a.solver])
-    load_start = load_average()
+    load_start = list(os.getloadavg())
     test = FemDemBiaxial(comm, s, verbose=False)
     steps = []
     last = {"wall": time.perf_counter(), "cpu": time.process_time(), "cells": 0.0}
@@ -112,7 +109,7 @@ def run(comm, a, balance):
             "wall_seconds_phase2": float(np.sum([r["wall_seconds"] for r in phase2])),
             "moves_total": int(sum(r["moves"] for r in steps)),
             "n_weak_elements": test.n_weak_cells, "n_gauss_points": comm.allreduce(len(test.points)),
-            "load_average_start": load_start, "load_average_end": load_average(),
+            "load_average_start": load_start, "load_average_end": list(os.getloadavg()),
             "balance_report": test.material.balance_report() if balance else None}
 
 

@@ -37,13 +37,12 @@ costs replicated onto a grid of --model-points points (nearest measured point): 
 occupies the same fraction of the specimen. Writes femdem_scaling.json and femdem_scaling.png.
 
 Defaults (4x8 mesh = 192 cells of 228 discs, a weak corner of 5 mm at half the friction, 2 % in
-8 steps; weak scaling 2x4 / 2x8) take about 10 minutes on the 2-core machine when it is
-otherwise idle.
+8 steps; weak scaling 2x4 / 2x8) took 38 minutes on the 2-core machine otherwise idle
+(docs/scaling.md).
 """
 import argparse
 import json
 import os
-import resource
 import subprocess
 import sys
 import time
@@ -52,21 +51,11 @@ import numpy as np
 
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 sys.path.insert(0, ROOT)
-CELL_TIMERS = ("solve", "homogenize", "tangent", "commit")
-
-
-def load_average():
-    with open("/proc/loadavg") as f:
-        return [float(x) for x in f.read().split()[:3]]
-
-
-def cpu_seconds():
-    r = resource.getrusage(resource.RUSAGE_SELF)
-    return r.ru_utime + r.ru_stime
 
 
 # --- one FE case (under mpirun) ---------------------------------------------------------------
 def run_case(a):
+    from femdem_balance import CELL_TIMERS      # the timers of the cell work (benchmarks/ is sys.path[0])
     from mpi4py import MPI
     from cosserat_fenicsx.materials.dem import CellOptions
     from cosserat_fenicsx.scenes.femdem_biaxial import FemDemBiaxial, FemDemSettings, parse_mesh
@@ -75,13 +64,13 @@ def run_case(a):
     s = FemDemSettings(nx=nx, ny=ny, height=0.02 * ny / 4, axial_strain=a.axial_strain, steps=a.steps,
                        weak_size=a.weak_size, weak_friction_factor=a.weak_friction, cell=CellOptions(particles=a.particles),
                        balance=a.balance, solver_options={"pc_type": "redundant"})
-    load_before = load_average()
+    load_before = list(os.getloadavg())
     test = FemDemBiaxial(comm, s, verbose=False)
     steps = []
-    last = {"wall": time.perf_counter(), "cpu": cpu_seconds(), "cells": 0.0, "timing": test.timing(), "migration": 0.0}
+    last = {"wall": time.perf_counter(), "cpu": time.process_time(), "cells": 0.0, "timing": test.timing(), "migration": 0.0}
 
     def on_step(row):
-        wall, cpu = time.perf_counter(), cpu_seconds()
+        wall, cpu = time.perf_counter(), time.process_time()
         timers = test.material.timers
         cells = sum(timers.get(k, 0.0) for k in CELL_TIMERS)
         migration = timers.get("migration", 0.0)
@@ -100,7 +89,7 @@ def run_case(a):
             # the balancer's migrations (its exchanges' time is mostly waiting for the slowest
             # rank, which max_r W_r already counts)
             "migration": comm.allreduce(migration - last["migration"], op=MPI.MAX)})
-        last.update(wall=time.perf_counter(), cpu=cpu_seconds(), cells=cells, timing=timing, migration=migration)
+        last.update(wall=time.perf_counter(), cpu=time.process_time(), cells=cells, timing=timing, migration=migration)
 
     test.run(on_step=on_step)
     pts, _ = test.global_order(test.callback.step_cost)
@@ -108,7 +97,7 @@ def run_case(a):
     tangents = comm.allreduce(test.callback.counters["point_tangents"])
     record = {"mesh": [nx, ny], "ranks": comm.size, "balance": a.balance, "particles": a.particles,
               "n_points": comm.allreduce(len(test.points)), "points": pts.tolist() if pts is not None else None,
-              "steps": steps, "load_before": load_before, "load_after": load_average(),
+              "steps": steps, "load_before": load_before, "load_after": list(os.getloadavg()),
               "cell_solve_seconds": comm.allreduce(m["solve"] + m["homogenize"]),
               "cell_tangent_seconds": comm.allreduce(m["tangent"]), "point_tangents": tangents,
               "dem_steps_total": float(sum(r["dem_steps"] for r in test.history)),
@@ -129,14 +118,14 @@ def cell_cost(particles, increments=10):
     for k in range(1, increments + 1):
         e = 1e-3 * k
         cell.set_deformation(np.array([[1.0 + 0.5 * e, 0.0], [0.0, 1.0 - e]]))
-        c0 = cpu_seconds()
+        c0 = time.process_time()
         result = cell.solve()
-        out["solve_cpu"].append(cpu_seconds() - c0)
+        out["solve_cpu"].append(time.process_time() - c0)
         out["solve_steps"].append(result.steps)
         for kind in ("pstlo", "kruyt"):
-            c0 = cpu_seconds()
+            c0 = time.process_time()
             cell.tangent(kind)
-            out[f"{kind}_cpu"].append(cpu_seconds() - c0)
+            out[f"{kind}_cpu"].append(time.process_time() - c0)
         cell.commit()
     steps = np.sum(out["solve_steps"])
     out.update(ms_per_solve=1e3 * np.mean(out["solve_cpu"]), mean_steps_per_solve=float(np.mean(out["solve_steps"])),

@@ -81,10 +81,6 @@ WIDTH, HEIGHT, PRESSURE, PLATEN_STEP, YADE_RTOL = 0.05, 0.1, 1e5, 1e-4, 1e-2
 MESH = "8x16"
 
 
-def loadavg():
-    return [float(v) for v in open("/proc/loadavg").read().split()[:3]]
-
-
 def installed(package):
     r = subprocess.run(["dpkg-query", "-W", "-f=${Status}", package], capture_output=True, text=True)
     return "ok installed" in r.stdout
@@ -169,7 +165,7 @@ class TreeMonitor:
 def run_measured(cmd, log, env, cwd=None, timeout=None, watch=None):
     """Run cmd (its output to log); returns (returncode, wall [s], CPU of waited-for children [s],
     peak tree RSS [bytes], processes at the peak, load average before and after)."""
-    load0 = loadavg()
+    load0 = list(os.getloadavg())
     r0 = resource.getrusage(resource.RUSAGE_CHILDREN)
     t0 = time.perf_counter()
     with open(log, "w") as f:
@@ -185,7 +181,7 @@ def run_measured(cmd, log, env, cwd=None, timeout=None, watch=None):
     r1 = resource.getrusage(resource.RUSAGE_CHILDREN)
     cpu = (r1.ru_utime - r0.ru_utime) + (r1.ru_stime - r0.ru_stime)
     return dict(returncode=rc, wall=wall, cpu_waited_children=cpu, peak_rss_bytes=mem.peak,
-                processes_at_peak=mem.peak_processes, load_start=load0, load_end=loadavg(), cpu_marks=mem.marks)
+                processes_at_peak=mem.peak_processes, load_start=load0, load_end=list(os.getloadavg()), cpu_marks=mem.marks)
 
 
 # --- YADE ----------------------------------------------------------------------------------

@@ -25,7 +25,8 @@ from dataclasses import dataclass, fields
 import numpy as np
 
 from .contact_law import ContactLaw, MU, COH_N, COH_T, ETA_R, ROTATIONS
-from .errors import InputError
+from . import quasistatic as qs
+from .errors import InputError, SolveError
 from .homogenization import homogenize
 from .periodic_cell import deformation_path, reduce_cell
 from .relaxation import (ENERGY_RATIO, FIRE, LOCAL_DAMPING, NO_CONTACTS, ROT_MICROPOLAR,
@@ -328,27 +329,45 @@ class DemCell(MicroCell):
                 raise InputError(f"stress_target must be a 2x2 array, finite where stress_mask is set, "
                                  f"got {stress_target!r}")
             stress_target = target
-        F0 = self.state.F
+        limit = o.max_steps if max_steps is None else int(max_steps)
         if mask is None:
-            path = deformation_path(F0, self._target, o.max_increment)
+            converged, no_contacts, message, substeps, steps, max_ovl = self._solve_to_target(limit)
+            msgs = [] if converged else [message]
         else:
-            n = max(1, int(math.ceil(np.abs((self._target - F0)[~mask]).max(initial=0.0) / o.max_increment)))
-            path = [F0 + (k / n) * (self._target - F0) for k in range(1, n + 1)]
-        rotations = [(None, None)] * len(path)
-        if self.micropolar:
-            path, rotations = self._micropolar_path(path)
+            converged, no_contacts, msgs, substeps, steps, max_ovl = self._servo_solve(mask, stress_target, limit, crit)
+        if no_contacts and self.contact_count() == 0:
+            msg = "no contact left in the cell: zero stress (flag no_contacts)"
+        elif converged:
+            msg = "converged"
+            no_contacts = False
+        else:
+            msg = "; ".join(msgs)
+        if max_ovl > 0.1:
+            msg += (f"; warning: overlaps reach {max_ovl:.2f} of a radius (contacts too soft for this "
+                    "stress level, the linear contact law is stretched)")
+        self.last_result = SolveResult(converged=converged, no_contacts=no_contacts, steps=steps,
+                                       substeps=substeps, message=msg, max_overlap_ratio=max_ovl)
+        return self.last_result
+
+    def _servo_solve(self, mask, stress_target, limit, crit):
+        """Mixed control (stress_mask): sub-steps of the imposed components, each ramped and
+        relaxed by relaxation.run with the servo on the others."""
+        o = self.options
+        F0 = self.state.F
+        n = max(1, int(math.ceil(np.abs((self._target - F0)[~mask]).max(initial=0.0) / o.max_increment)))
+        path = [F0 + (k / n) * (self._target - F0) for k in range(1, n + 1)]
         steps = 0
         max_ovl = 0.0
         msgs = []
         no_contacts = False
         converged = True
-        limit = o.max_steps if max_steps is None else int(max_steps)
+        rotations = [(None, None)] * len(path)
+        if self.micropolar:
+            path, rotations = self._micropolar_path(path)
         for Fk, (phi_k, kappa_k) in zip(path, rotations):
             if not self.micropolar:          # (the curvature's images follow the base cell's lattice)
                 reduce_cell(self.state)      # large shears: keep a compact base cell
-            Fcur = self.state.F
-            dF = np.abs(Fk - Fcur) if mask is None else np.abs(Fk - Fcur)[~mask]
-            size = dF.max(initial=0.0)
+            size = np.abs(Fk - self.state.F)[~mask].max(initial=0.0)
             if phi_k is not None:
                 size = max(size, self.rotation_increment(phi_k, kappa_k))
             n_ramp = int(math.ceil(size / o.strain_rate))
@@ -370,19 +389,32 @@ class DemCell(MicroCell):
                             f"(E_kin/E_pot = {ratio:.2e}, unbalanced ratio {rep.unbalanced_ratio:.2e}){hint}")
                 break
             max_ovl = max(max_ovl, rep.max_overlap_ratio)
-        if no_contacts and self.contact_count() == 0:
-            msg = "no contact left in the cell: zero stress (flag no_contacts)"
-        elif converged:
-            msg = "converged"
-            no_contacts = False
-        else:
-            msg = "; ".join(msgs)
-        if max_ovl > 0.1:
-            msg += (f"; warning: overlaps reach {max_ovl:.2f} of a radius (contacts too soft for this "
-                    "stress level, the linear contact law is stretched)")
-        self.last_result = SolveResult(converged=converged, no_contacts=no_contacts, steps=steps,
-                                       substeps=len(path), message=msg, max_overlap_ratio=max_ovl)
-        return self.last_result
+        return converged, no_contacts, msgs, len(path), steps, max_ovl
+
+    def _solve_to_target(self, limit):
+        """The solve without servo: quasistatic.solve_cell (the same compiled function a
+        batch.CellBatch runs for many cells) on this cell's arrays."""
+        st = self.state
+        cellf = np.array([st.time, st.phi, st.kappa[0], st.kappa[1]])
+        celli = np.array([st.n_pairs, st.forces_current], dtype=np.int64)
+        target = np.empty(qs.N_TARGET)
+        target[qs.T_F:qs.T_F + 4] = self._target.reshape(4)
+        target[qs.T_PHI] = self._target_phi if self.micropolar else st.phi
+        target[qs.T_KAP:qs.T_KAP + 2] = self._target_kappa if self.micropolar else st.kappa
+        opts = qs.solve_options(self.options, self.options.skin_ratio * float(st.radius.min()), limit)
+        work, iwork, result = np.zeros(qs.N_WORK), np.zeros(qs.N_IWORK, dtype=np.int64), np.zeros(qs.N_RESULT)
+        while qs.solve_cell(st.radius, st.mass, st.inertia, st.s, st.v, st.theta, st.omega, st.dtheta, st.force,
+                            st.moment, st.s_build, st.h, st.h_build, st.h_ref, st.pair_i, st.pair_j, st.fn,
+                            st.fs, st.mr, st.bonded, st.touching, st.d_prev, cellf, celli, self._law_array,
+                            self.dt, opts, target, work, iwork, result) == qs.NEED_CAPACITY:
+            st.grow_pairs(2 * st.pair_i.shape[0])
+        st.time, st.phi, st.kappa = float(cellf[0]), float(cellf[1]), cellf[2:4].copy()
+        st.n_pairs, st.forces_current = int(celli[0]), int(celli[1])
+        converged, no_contacts, message, error = qs.outcome(result, self.dt)
+        if error is not None:
+            raise SolveError(error)
+        return (converged, no_contacts, message, int(result[qs.R_SUBSTEPS]), int(result[qs.R_STEPS]),
+                float(result[qs.R_MAXOVL]))
 
     def rotation_increment(self, phi, kappa):
         """Size of a change from the current (phi, kappa) to the given ones, measured like a

@@ -88,23 +88,75 @@ def polar(F):
     return angle, U
 
 
+@njit(cache=True)
+def deformation_gradient(h, h_ref):
+    """F = h h_ref^-1 (001 eq. 7), in scalars: the one formula every path of demcell uses (the
+    per-cell solve and the batched kernel get the same bits). Each component is a 2x2 minor
+    over det h_ref, so a cell at its reference (h == h_ref) gives the identity exactly."""
+    r00, r01, r10, r11 = h_ref[0, 0], h_ref[0, 1], h_ref[1, 0], h_ref[1, 1]
+    det = r00 * r11 - r01 * r10
+    F = np.empty((2, 2))
+    F[0, 0] = (h[0, 0] * r11 - h[0, 1] * r10) / det
+    F[0, 1] = (h[0, 1] * r00 - h[0, 0] * r01) / det
+    F[1, 0] = (h[1, 0] * r11 - h[1, 1] * r10) / det
+    F[1, 1] = (h[1, 1] * r00 - h[1, 0] * r01) / det
+    return F
+
+
+@njit(cache=True)
+def path_setup(F0, F1, max_increment, steps, geo):
+    """Number of sub-steps from F0 to F1 with max|dF| <= max_increment (at least ``steps``),
+    and in geo (10 slots) what path_point needs: the rotation angle a0 of F0, the turn da to
+    F1 (in (-pi, pi]) and the stretches U0, U1 of both polar decompositions."""
+    a0, U0 = polar(F0)
+    a1, U1 = polar(F1)
+    da = a1 - a0
+    da -= 2.0 * math.pi * math.floor((da + math.pi) / (2.0 * math.pi))
+    dmax = 0.0
+    umax = 1.0
+    for a in range(2):
+        for b in range(2):
+            dmax = max(dmax, abs(F1[a, b] - F0[a, b]))
+            umax = max(umax, abs(U0[a, b]))
+    size = max(dmax, abs(da) * umax)
+    geo[0] = a0
+    geo[1] = da
+    for a in range(2):
+        for b in range(2):
+            geo[2 + 2 * a + b] = U0[a, b]
+            geo[6 + 2 * a + b] = U1[a, b]
+    return max(1, int(math.ceil(size / max_increment)), steps)
+
+
+@njit(cache=True)
+def path_point(geo, tau, Fk):
+    """F at the fraction tau of the path of path_setup: R(a0 + tau da) (U0 + tau (U1 - U0))."""
+    c = math.cos(geo[0] + tau * geo[1])
+    s = math.sin(geo[0] + tau * geo[1])
+    for b in range(2):
+        u0b = geo[2 + b] + tau * (geo[6 + b] - geo[2 + b])
+        u1b = geo[4 + b] + tau * (geo[8 + b] - geo[4 + b])
+        Fk[0, b] = c * u0b - s * u1b
+        Fk[1, b] = s * u0b + c * u1b
+
+
 def deformation_path(F0, F1, max_increment, steps=None):
     """Intermediate deformation gradients from F0 to F1 (F1 included), each sub-step with
     max|dF| <= max_increment (or at least ``steps`` sub-steps). The rotation and the stretch of the polar decompositions are
     interpolated separately, so a rigid rotation stays a rigid rotation on the way (a linear
-    path in F would shrink the cell half-way through a large rotation).
+    path in F would shrink the cell half-way through a large rotation). (path_setup and
+    path_point: the arithmetic of the Numba solve, quasistatic.solve_cell.)
     """
-    a0, U0 = polar(np.asarray(F0, dtype=float))
-    a1, U1 = polar(np.asarray(F1, dtype=float))
-    da = a1 - a0
-    da -= 2.0 * math.pi * math.floor((da + math.pi) / (2.0 * math.pi))
-    size = max(np.abs(np.asarray(F1) - np.asarray(F0)).max(), abs(da) * max(np.abs(U0).max(), 1.0))
-    n = max(1, int(math.ceil(size / max_increment)), steps or 1)
+    F0 = np.ascontiguousarray(F0, dtype=float)
+    F1 = np.ascontiguousarray(F1, dtype=float)
+    geo = np.empty(10)
+    n = path_setup(F0, F1, float(max_increment), int(steps or 1), geo)
     out = []
     for k in range(1, n + 1):
-        tau = k / n
-        out.append(rotation(a0 + tau * da) @ (U0 + tau * (U1 - U0)))
-    out[-1] = np.array(F1, dtype=float)
+        Fk = np.empty((2, 2))
+        path_point(geo, k / n, Fk)
+        out.append(Fk)
+    out[-1] = F1.copy()
     return out
 
 
@@ -113,28 +165,43 @@ def cauchy_to_pk1(sigma, F):
     return np.linalg.det(F) * sigma @ np.linalg.inv(F).T
 
 
-def reduce_cell(state):
+@njit(cache=True)
+def reduce_lattice(h, h_ref, h_build, s, s_build):
     """Lattice reduction of a sheared cell (Lees-Edwards-like remapping): replace Y2 by
     Y2 - k Y1 (or Y1 by Y1 - k Y2) with integer k while that shortens the vectors. The
     periodic medium, F = h h_ref^-1, every particle and every contact are unchanged; only
     the choice of the base cell changes (h -> h M, h_ref -> h_ref M, s -> M^-1 s with M
-    unimodular). Keeps the minimum-image convention valid under large shears.
-    Returns the number of reductions applied."""
+    unimodular). Keeps the minimum-image convention valid under large shears. In place;
+    returns the number of reductions applied."""
     count = 0
     for _ in range(20):
-        y1, y2 = state.h[:, 0], state.h[:, 1]
-        k2 = round(float(y1 @ y2) / float(y1 @ y1))
-        k1 = round(float(y1 @ y2) / float(y2 @ y2))
-        if k2 != 0 and float(y2 @ y2) > float(y1 @ y1):
-            M = np.array([[1.0, -k2], [0.0, 1.0]])
-        elif k1 != 0 and float(y1 @ y1) > float(y2 @ y2):
-            M = np.array([[1.0, 0.0], [-k1, 1.0]])
+        d12 = h[0, 0] * h[0, 1] + h[1, 0] * h[1, 1]
+        d11 = h[0, 0] * h[0, 0] + h[1, 0] * h[1, 0]
+        d22 = h[0, 1] * h[0, 1] + h[1, 1] * h[1, 1]
+        k2 = round(d12 / d11)
+        k1 = round(d12 / d22)
+        if k2 != 0 and d22 > d11:          # Y2 -= k2 Y1; s1 += k2 s2
+            for m in (h, h_ref, h_build):
+                m[0, 1] -= k2 * m[0, 0]
+                m[1, 1] -= k2 * m[1, 0]
+            for x in (s, s_build):
+                for i in range(x.shape[0]):
+                    x[i, 0] = (x[i, 0] + k2 * x[i, 1]) % 1.0
+                    x[i, 1] = x[i, 1] % 1.0
+        elif k1 != 0 and d11 > d22:        # Y1 -= k1 Y2; s2 += k1 s1
+            for m in (h, h_ref, h_build):
+                m[0, 0] -= k1 * m[0, 1]
+                m[1, 0] -= k1 * m[1, 1]
+            for x in (s, s_build):
+                for i in range(x.shape[0]):
+                    x[i, 1] = (x[i, 1] + k1 * x[i, 0]) % 1.0
+                    x[i, 0] = x[i, 0] % 1.0
         else:
             break
-        Minv = np.linalg.inv(M)
-        for name in ("h", "h_ref", "h_build"):
-            setattr(state, name, getattr(state, name) @ M)
-        state.s = (state.s @ Minv.T) % 1.0
-        state.s_build = (state.s_build @ Minv.T) % 1.0
         count += 1
     return count
+
+
+def reduce_cell(state):
+    """reduce_lattice on a CellState (see there)."""
+    return reduce_lattice(state.h, state.h_ref, state.h_build, state.s, state.s_build)

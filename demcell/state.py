@@ -14,6 +14,8 @@ from dataclasses import dataclass, field, fields
 
 import numpy as np
 
+from .periodic_cell import deformation_gradient
+
 PAIR_FIELDS = ("pair_i", "pair_j", "fn", "fs", "mr", "bonded", "touching", "d_prev")
 
 
@@ -91,7 +93,7 @@ class CellState:
     @property
     def F(self):
         """Macroscopic deformation gradient F = h h_ref^-1 (001 eq. 7)."""
-        return self.h @ np.linalg.inv(self.h_ref)
+        return deformation_gradient(self.h, self.h_ref)
 
     def positions(self):
         """Current centres x = h s [m], shape (N, 2)."""

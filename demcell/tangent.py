@@ -25,7 +25,8 @@ from numba import njit
 from .contact_law import KN, KR, KS, MU
 from .errors import InputError
 from .homogenization import contact_sums
-from .periodic_cell import branch_vector, contact_frame
+from .periodic_cell import branch_vector, contact_frame, deformation_gradient
+from .relaxation import _inv2
 
 COMPONENTS = ((0, 0), (0, 1), (1, 0), (1, 1))   # order 11, 12, 21, 22 (001 eq. 11)
 
@@ -84,14 +85,21 @@ def _kruyt_sum(h, s, pair_i, pair_j, touching, n_pairs, kn, kt, Fi):
     return T
 
 
+@njit(cache=True)
+def kruyt_tensor(h, h_ref, s, pair_i, pair_j, touching, n_pairs, kn, kt):
+    """The Kruyt sum divided by the cell area, T[i, j, k, m] [N/m], with F^-1 from the scalar
+    F of periodic_cell.deformation_gradient (one formula for a DemCell and a batch)."""
+    Fi = _inv2(deformation_gradient(h, h_ref))
+    area = abs(h[0, 0] * h[1, 1] - h[0, 1] * h[1, 0])
+    return _kruyt_sum(h, s, pair_i, pair_j, touching, n_pairs, kn, kt, Fi) / area
+
+
 def kruyt_operator(state, law):
     """Upper-bound Kruyt operator (UKO, 001 eq. 13) of the current contacts [N/m]."""
-    area = abs(np.linalg.det(state.h))
-    Fi = np.linalg.inv(state.F)
     kt = law[KS] if law[MU] > 0.0 else 0.0
-    T = _kruyt_sum(state.h, state.s, state.pair_i, state.pair_j, state.touching, state.n_pairs,
-                   float(law[KN]), float(kt), Fi)
-    return from_tensor4(T / area)
+    T = kruyt_tensor(state.h, state.h_ref, state.s, state.pair_i, state.pair_j, state.touching, state.n_pairs,
+                     float(law[KN]), float(kt))
+    return T.reshape(4, 4).copy()
 
 
 def _perturbation_options(cell, eps, rel=1e-5):

@@ -113,18 +113,25 @@ def test_bad_input_is_rejected_before_work(tmp_path, packing60):
 
 def test_large_simple_shear_remaps_the_cell(packing60):
     """gamma = 3: without remapping the sheared cell would become too thin for the
-    minimum-image convention; the base cell is reduced on the way (F unchanged)."""
+    minimum-image convention; the base cell is reduced on the way (F unchanged). The shear
+    strength is the mean over gamma = 2 to 3: one state of a 60-disc cell in steady shear is
+    chaotic (measured: s12 / p0 at gamma = 3 between -0.02 and 0.32 when the load is changed by
+    1e-15), the mean is not."""
     cell = dc.DemCell(packing60.copy(), dc.ContactLaw(friction=0.4),
                       RelaxationOptions(max_increment=0.05, strain_rate=1e-4))
-    F = np.array([[1.0, 3.0], [0.0, 1.0]])
-    cell.set_deformation(F)
-    res = cell.solve(stress_mask=[[False, False], [False, True]], stress_target=np.diag([0.0, -10.0]))
-    assert res.converged, res.message
+    ratios = []
+    for gamma in (2.0, 2.25, 2.5, 2.75, 3.0):
+        F = np.array([[1.0, gamma], [0.0, 1.0]])
+        cell.set_deformation(F)
+        res = cell.solve(stress_mask=[[False, False], [False, True]], stress_target=np.diag([0.0, -10.0]))
+        assert res.converged, res.message
+        s = cell.cauchy_stress()
+        assert np.all(np.isfinite(s))
+        ratios.append(s[0, 1] / 10.0)
     assert np.allclose(cell.deformation_gradient()[0], F[0])
     h = cell.state.h
     assert abs(h[0, 1]) <= 0.5 * abs(h[0, 0]) + 1e-12           # compact base cell
-    s = cell.cauchy_stress()
-    assert np.all(np.isfinite(s)) and 0.05 < s[0, 1] / 10.0 < 0.6  # steady shear strength
+    assert 0.05 < np.mean(ratios) < 0.6, ratios                 # steady shear strength
 
 
 def test_fire_relaxation_reaches_the_same_equilibrium(packing60):

@@ -1,0 +1,263 @@
+"""The quasi-static solve of one cell as one Numba function (issue 9 item 1).
+
+``solve_cell`` is what ``DemCell.solve`` does without a servo: split the way from the
+current F (and, in a micropolar cell, phi and kappa) to the target into sub-steps of at most
+``max_increment`` (polar path, periodic_cell.path_setup), and for each sub-step reduce the
+lattice of a sheared cell, ramp the cell to the sub-step's target (001 eq. 7) and relax it
+(relaxation.advance, 000 section 3.2.1). It works on plain arrays, so that one DemCell
+(``interface.DemCell.solve``) and many cells of a struct of arrays (``batch.CellBatch``, a
+prange over cells) run the same compiled arithmetic: the two give the same bits.
+
+When a cell's pair arrays are full, ``solve_cell`` returns ``NEED_CAPACITY`` with its
+progress in ``work`` / ``iwork``; the caller enlarges the pair arrays and calls it again, and
+it resumes where it stopped (as relaxation.run does for one ramp).
+
+Per-cell scalars live in small arrays: ``cellf`` = (time [s], phi [rad], kappa31, kappa32
+[1/m]), ``celli`` = (n_pairs, forces_current).
+"""
+import math
+
+import numpy as np
+from numba import njit
+
+from .relaxation import (C_ALPHA, C_DT, C_DTMAX, C_GAIN, C_KAP, C_KAP_END, C_KAP_START, C_MAXRATE,
+                         C_METHOD, C_PHI, C_PHI_END, C_PHI_START, C_SKIN, C_STOL, C_TIME, C_TOL,
+                         CELL_TOO_SMALL, CONVERGED, I_CHECK, I_CRIT, I_FCUR, I_MAXSTEPS, I_NPAIRS,
+                         I_NRAMP, N_CTRL, N_OUT, NEED_CAPACITY, NO_CONTACTS, NONFINITE, O_BONDLOST,
+                         O_EKIN, O_EPOT, O_MAXOVL, O_REBUILDS, O_STEPS, O_UNBAL, ROTATIONS, advance)
+from .periodic_cell import deformation_gradient, path_point, path_setup, reduce_lattice
+
+# --- options of a solve (float array, one row per cell in a batch) ----------------------------
+(Q_MAXINC, Q_RATE, Q_TOL, Q_CHECK, Q_DAMP, Q_SKIN, Q_METHOD, Q_FIREDT, Q_CRIT, Q_LIMIT,
+ Q_STOL, Q_GAIN) = range(12)
+N_OPTS = 12
+# --- the target (float array): F (11, 12, 21, 22), phi, kappa31, kappa32 ------------------------
+T_F, T_PHI, T_KAP = 0, 4, 5
+N_TARGET = 7
+# --- results (float array) ---------------------------------------------------------------------
+(R_STEPS, R_SUBSTEPS, R_CONVERGED, R_NOCONTACT, R_MAXOVL, R_FAILED_SUB, R_FAILED_STATUS,
+ R_FAILED_STEPS, R_EKIN, R_EPOT, R_UNBAL, R_REBUILDS) = range(12)
+N_RESULT = 12
+# --- progress (float work array and int work array) --------------------------------------------
+W_GEO = 0                       # 10 slots: the F path (periodic_cell.path_setup)
+W_PHI0, W_KAP0 = 10, 11         # phi and kappa at the start of the solve
+W_FSTART, W_FEND = 13, 17       # 4 slots each: the ramp of the current sub-step
+W_CTRL = 21
+W_OUT = W_CTRL + N_CTRL
+W_TOTAL = W_OUT + N_OUT
+N_WORK = W_TOTAL + N_OUT
+IW_STAGE, IW_NSUB, IW_K, IW_INRUN, IW_REMAIN, IW_IPAR = 0, 1, 2, 3, 4, 5
+N_IWORK = IW_IPAR + 7
+# the solve's own codes next to relaxation's (CONVERGED .. CELL_TOO_SMALL)
+DONE = 100
+
+
+@njit(cache=True)
+def _rotation_increment(phi_a, kap_a0, kap_a1, phi_b, kap_b0, kap_b1, h_ref):
+    """max(|dphi|, max_k |dkappa . Y_k|) (DemCell.rotation_increment)."""
+    dk0 = kap_b0 - kap_a0
+    dk1 = kap_b1 - kap_a1
+    j0 = abs(dk0 * h_ref[0, 0] + dk1 * h_ref[1, 0])
+    j1 = abs(dk0 * h_ref[0, 1] + dk1 * h_ref[1, 1])
+    return max(abs(phi_b - phi_a), max(j0, j1))
+
+
+@njit(cache=True, nogil=True)
+def solve_cell(radius, mass, inertia, s, v, theta, omega, dtheta, force, moment, s_build, h,
+               h_build, h_ref, pair_i, pair_j, fn, fs, mr, bonded, touching, d_prev,
+               cellf, celli, law, dt, opts, target, work, iwork, result):
+    """Bring one cell from its current state to ``target`` (see module doc). Start with
+    iwork[IW_STAGE] = 0; returns DONE (result filled) or NEED_CAPACITY (enlarge the pair
+    arrays, call again with the same work arrays)."""
+    micropolar = law[ROTATIONS] > 1.5
+    Fk = np.empty((2, 2))
+    Fe = np.empty((2, 2))
+    geo = work[W_GEO:W_GEO + 10]
+    ctrl = work[W_CTRL:W_CTRL + N_CTRL]
+    out = work[W_OUT:W_OUT + N_OUT]
+    total = work[W_TOTAL:W_TOTAL + N_OUT]
+    ipar = iwork[IW_IPAR:IW_IPAR + 7]
+    max_inc = opts[Q_MAXINC]
+    if iwork[IW_STAGE] == 0:
+        # the path (DemCell.solve; micropolar: refined until phi and kappa also change by at
+        # most max_increment per sub-step, DemCell._micropolar_path)
+        for a in range(2):
+            for b in range(2):
+                Fe[a, b] = target[T_F + 2 * a + b]
+        F0 = deformation_gradient(h, h_ref)
+        n = path_setup(F0, Fe, max_inc, 1, geo)
+        if micropolar:
+            n_rot = int(math.ceil(_rotation_increment(cellf[1], cellf[2], cellf[3], target[T_PHI],
+                                                      target[T_KAP], target[T_KAP + 1], h_ref) / max_inc))
+            if n_rot > n:
+                n = path_setup(F0, Fe, max_inc, n_rot, geo)
+        work[W_PHI0] = cellf[1]
+        work[W_KAP0] = cellf[2]
+        work[W_KAP0 + 1] = cellf[3]
+        iwork[IW_NSUB] = n
+        iwork[IW_K] = 0
+        iwork[IW_INRUN] = 0
+        iwork[IW_STAGE] = 1
+        result[:] = 0.0
+        result[R_SUBSTEPS] = n
+        result[R_CONVERGED] = 1.0
+        result[R_FAILED_SUB] = -1.0
+    n = iwork[IW_NSUB]
+    while iwork[IW_K] < n:
+        k = iwork[IW_K]
+        if iwork[IW_INRUN] == 0:
+            # --- start sub-step k: its target, then relaxation.run's set-up
+            if k == n - 1:
+                for a in range(2):
+                    for b in range(2):
+                        Fk[a, b] = target[T_F + 2 * a + b]
+            else:
+                path_point(geo, (k + 1) / n, Fk)
+            if micropolar:
+                tau = (k + 1) / n
+                if k == n - 1:
+                    phi_k = target[T_PHI]
+                    kap_k0 = target[T_KAP]
+                    kap_k1 = target[T_KAP + 1]
+                else:
+                    phi_k = work[W_PHI0] + tau * (target[T_PHI] - work[W_PHI0])
+                    kap_k0 = work[W_KAP0] + tau * (target[T_KAP] - work[W_KAP0])
+                    kap_k1 = work[W_KAP0 + 1] + tau * (target[T_KAP + 1] - work[W_KAP0 + 1])
+            else:
+                # the curvature's images follow the base cell's lattice: only the other modes
+                # reduce a sheared cell to a compact base cell
+                reduce_lattice(h, h_ref, h_build, s, s_build)
+                phi_k = cellf[1]
+                kap_k0 = cellf[2]
+                kap_k1 = cellf[3]
+            Fcur = deformation_gradient(h, h_ref)
+            size = 0.0
+            for a in range(2):
+                for b in range(2):
+                    size = max(size, abs(Fk[a, b] - Fcur[a, b]))
+            if micropolar:
+                size = max(size, _rotation_increment(cellf[1], cellf[2], cellf[3], phi_k, kap_k0, kap_k1, h_ref))
+            n_ramp = int(math.ceil(size / opts[Q_RATE]))
+            ctrl[:] = 0.0
+            ctrl[C_DT] = dt
+            ctrl[C_ALPHA] = opts[Q_DAMP]
+            ctrl[C_TOL] = opts[Q_TOL]
+            ctrl[C_STOL] = opts[Q_STOL]
+            ctrl[C_GAIN] = opts[Q_GAIN]
+            ctrl[C_MAXRATE] = max(opts[Q_RATE], 1e-12)
+            ctrl[C_SKIN] = opts[Q_SKIN]
+            ctrl[C_TIME] = cellf[0]
+            ctrl[C_METHOD] = opts[Q_METHOD]
+            ctrl[C_DTMAX] = opts[Q_FIREDT]
+            ctrl[C_PHI_START] = cellf[1]
+            ctrl[C_PHI] = cellf[1]
+            ctrl[C_PHI_END] = phi_k
+            ctrl[C_KAP_START] = cellf[2]
+            ctrl[C_KAP_START + 1] = cellf[3]
+            ctrl[C_KAP] = cellf[2]
+            ctrl[C_KAP + 1] = cellf[3]
+            ctrl[C_KAP_END] = kap_k0
+            ctrl[C_KAP_END + 1] = kap_k1
+            ipar[:] = 0
+            ipar[I_NPAIRS] = celli[0]
+            ipar[I_FCUR] = celli[1]
+            ipar[I_NRAMP] = n_ramp
+            ipar[I_CHECK] = int(opts[Q_CHECK])
+            ipar[I_CRIT] = int(opts[Q_CRIT])
+            for a in range(2):
+                for b in range(2):
+                    work[W_FSTART + 2 * a + b] = Fcur[a, b]
+                    work[W_FEND + 2 * a + b] = Fk[a, b]
+            out[:] = 0.0
+            total[:] = 0.0
+            iwork[IW_REMAIN] = n_ramp + int(opts[Q_LIMIT])
+            if celli[0] == 0 and celli[1] == 0:
+                # fresh state: make the rebuild test fire (h_build far from h)
+                for a in range(2):
+                    for b in range(2):
+                        h_build[a, b] = h[a, b] * 1e3
+            iwork[IW_INRUN] = 1
+        # --- relaxation.run's loop
+        for a in range(2):
+            for b in range(2):
+                Fk[a, b] = work[W_FSTART + 2 * a + b]
+                Fe[a, b] = work[W_FEND + 2 * a + b]
+        ipar[I_MAXSTEPS] = iwork[IW_REMAIN]
+        status = advance(radius, mass, inertia, s, v, theta, omega, dtheta, force, moment, s_build,
+                         h, h_build, h_ref, pair_i, pair_j, fn, fs, mr, bonded, touching, d_prev,
+                         law, ipar, ctrl, Fk, Fe, out)
+        total[O_STEPS] += out[O_STEPS]
+        total[O_REBUILDS] += out[O_REBUILDS]
+        total[O_BONDLOST] += out[O_BONDLOST]
+        out[O_REBUILDS] = 0.0
+        out[O_BONDLOST] = 0.0
+        iwork[IW_REMAIN] -= int(out[O_STEPS])
+        celli[0] = ipar[I_NPAIRS]
+        celli[1] = ipar[I_FCUR]
+        if status == NEED_CAPACITY:
+            return NEED_CAPACITY
+        iwork[IW_INRUN] = 0
+        iwork[IW_K] = k + 1
+        cellf[0] = ctrl[C_TIME]
+        cellf[1] = ctrl[C_PHI]
+        cellf[2] = ctrl[C_KAP]
+        cellf[3] = ctrl[C_KAP + 1]
+        result[R_STEPS] += total[O_STEPS]
+        result[R_REBUILDS] += total[O_REBUILDS]
+        if status == NONFINITE or status == CELL_TOO_SMALL:
+            result[R_CONVERGED] = 0.0
+            result[R_FAILED_SUB] = k
+            result[R_FAILED_STATUS] = status
+            break
+        if status == NO_CONTACTS:
+            result[R_NOCONTACT] = 1.0
+        elif status != CONVERGED:
+            result[R_CONVERGED] = 0.0
+            result[R_FAILED_SUB] = k
+            result[R_FAILED_STATUS] = status
+            result[R_FAILED_STEPS] = total[O_STEPS]
+            result[R_EKIN] = out[O_EKIN]
+            result[R_EPOT] = out[O_EPOT]
+            result[R_UNBAL] = out[O_UNBAL]
+            break
+        result[R_MAXOVL] = max(result[R_MAXOVL], out[O_MAXOVL])
+    iwork[IW_STAGE] = 2
+    return DONE
+
+
+def solve_options(options, skin, max_steps):
+    """The option row of solve_cell from a RelaxationOptions, the skin [m] and the step
+    budget per sub-step (after the ramp)."""
+    from .relaxation import ENERGY_RATIO, FIRE, LOCAL_DAMPING, UNBALANCED_FORCE
+    q = np.zeros(N_OPTS)
+    q[Q_MAXINC], q[Q_RATE], q[Q_TOL], q[Q_CHECK] = (options.max_increment, options.strain_rate, options.tol,
+                                                    options.check_every)
+    q[Q_DAMP], q[Q_SKIN] = options.damping, skin
+    q[Q_METHOD] = FIRE if options.method == "fire" else LOCAL_DAMPING
+    q[Q_FIREDT] = options.fire_dt_max
+    q[Q_CRIT] = ENERGY_RATIO if options.criterion == "energy" else UNBALANCED_FORCE
+    q[Q_LIMIT] = max_steps
+    q[Q_STOL], q[Q_GAIN] = options.stress_tol, options.servo_gain
+    return q
+
+
+def outcome(result, dt):
+    """(converged, no_contacts, message, error) of a solve_cell result row, in DemCell.solve's
+    words; error: the SolveError text when the cell broke down (non-finite values, cell too
+    small), else None. no_contacts here means a sub-step ended without contacts (the caller
+    checks whether the cell still has none)."""
+    from .relaxation import STATUS_TEXT
+    status = int(result[R_FAILED_STATUS])
+    if result[R_FAILED_SUB] >= 0 and status == NONFINITE:
+        return False, False, "", STATUS_TEXT[NONFINITE] + f" (dt = {dt:.3e} s)"
+    if result[R_FAILED_SUB] >= 0 and status == CELL_TOO_SMALL:
+        return False, False, "", STATUS_TEXT[CELL_TOO_SMALL]
+    if result[R_CONVERGED] > 0.5:
+        return True, result[R_NOCONTACT] > 0.5, "converged", None
+    ratio = result[R_EKIN] / max(result[R_EPOT], 1e-300)
+    hint = (": the kinetic energy exceeds the elastic energy, the cell is not settling "
+            "(loading too fast for the damping, or an unstable state)") if ratio > 1.0 else ""
+    message = (f"sub-step {int(result[R_FAILED_SUB]) + 1} of {int(result[R_SUBSTEPS])}: {STATUS_TEXT[status]} after "
+               f"{int(result[R_FAILED_STEPS])} steps (E_kin/E_pot = {ratio:.2e}, unbalanced ratio "
+               f"{result[R_UNBAL]:.2e}){hint}")
+    return False, result[R_NOCONTACT] > 0.5, message, None

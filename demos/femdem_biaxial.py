@@ -138,6 +138,10 @@ g.add_argument("--balance", action="store_true",
 g.add_argument("--balance-threshold", type=number(low=1.0, infinite=True), default=1.10,
                help="... when the slowest rank's cell work / the mean exceeds this (default %(default)g; "
                     "inf: measure the imbalance only)")
+g.add_argument("--batched", action="store_true",
+               help="the rank's cells in one struct of arrays, solved by one Numba call (same results; docs/femdem.md)")
+g.add_argument("--cell-threads", type=number(COUNT), default=1,
+               help="Numba threads per rank over the cells, with --batched (default 1; ranks x threads <= cores)")
 
 
 def femdem_settings(args):
@@ -155,7 +159,8 @@ def femdem_settings(args):
                          pressure=args.pressure, kn=args.kn, ks=args.ks, rotation=not args.no_rotation,
                          relaxation_tol=args.relaxation_tol, criterion=args.criterion,
                          max_steps=args.max_dem_steps),
-        balance=args.balance, balance_threshold=args.balance_threshold)
+        balance=args.balance, balance_threshold=args.balance_threshold, batched=args.batched,
+        cell_threads=args.cell_threads)
 
 
 def check(args):

@@ -89,6 +89,8 @@ class FemDemSettings:
     cell: object = None                # materials.dem.CellOptions
     balance: bool = False              # move cells between ranks so that they finish together (balancing.py)
     balance_threshold: float = 1.10    # ... when the slowest rank's cell work exceeds the mean by this factor
+    batched: bool = False              # the rank's cells in one struct of arrays, one Numba solve (materials/dem/batched.py)
+    cell_threads: int = 1              # Numba threads per rank over the cells (batched; ranks x threads <= cores)
 
     def check(self):
         """Raises ValueError naming the setting; called before any cell is created."""
@@ -150,6 +152,16 @@ class FemDemSettings:
         self.cell.check()
         if not isinstance(self.balance, bool):
             raise ValueError(f"femdem: balance must be True or False, got {self.balance!r}")
+        if not isinstance(self.batched, bool):
+            raise ValueError(f"femdem: batched must be True or False, got {self.batched!r}")
+        if not (isinstance(self.cell_threads, (int, np.integer)) and self.cell_threads >= 1):
+            raise ValueError(f"femdem: cell_threads must be an integer >= 1, got {self.cell_threads!r}")
+        if self.cell_threads > 1 and not self.batched:
+            raise ValueError("femdem: cell_threads > 1 needs batched cells (--batched)")
+        import numba
+        if self.cell_threads > numba.config.NUMBA_NUM_THREADS:
+            raise ValueError(f"femdem: cell_threads = {self.cell_threads} exceeds NUMBA_NUM_THREADS = "
+                             f"{numba.config.NUMBA_NUM_THREADS} (set the environment variable, or use fewer)")
         if not (isinstance(self.balance_threshold, (int, float)) and self.balance_threshold >= 1):
             raise ValueError(f"femdem: balance_threshold must be a number >= 1 (slowest / mean), "
                              f"got {self.balance_threshold!r}")
@@ -229,10 +241,15 @@ class FemDemBiaxial:
             self.mode = make_mode(s.mode, length_scale=self.length_scale)
             self.cell_moduli = self.mode.moduli = reference_moduli(self.mode, ref, s.tangent, s.grain_diameter)
             self.mu_c, self.l_c = self.cell_moduli["mu_c"], self.cell_moduli["l_c"]
-        self.material = DemMaterial(self.reference_cells, self.mode, s.tangent)
+        material_class = DemMaterial
+        if s.batched:
+            import numba
+            from ..materials.dem.batched import BatchedDemMaterial as material_class
+            numba.set_num_threads(s.cell_threads)
+        self.material = material_class(self.reference_cells, self.mode, s.tangent)
         if s.balance and comm.size > 1:
             from ..balancing import BalancedMaterial
-            self.material = BalancedMaterial(comm, lambda: DemMaterial(self.reference_cells, self.mode, s.tangent),
+            self.material = BalancedMaterial(comm, lambda: material_class(self.reference_cells, self.mode, s.tangent),
                                              threshold=s.balance_threshold)
 
         self.mesh, tags, names = meshes.rectangle(comm, s.width, s.height, cell_type=s.cell_type,

@@ -217,6 +217,13 @@ class DemMaterial(Constitutive):
         """Cells of `points` continue from exported states (zone included): a copy of the
         zone's reference cell (law, options) restored to the state. rows: which of the
         exported cells (default all)."""
+        for p, z, st in self._imported(points, arrays, rows):
+            cell = self.reference_cells[z].copy()
+            cell.restore(st)
+            self.cells[p] = cell
+
+    def _imported(self, points, arrays, rows):
+        """(point, zone, CellState) of exported cells, checked; the zones are set."""
         from demcell.state import unpack_states
         points = np.asarray(points, dtype=np.int64)
         zone = np.asarray(arrays["zone"], dtype=np.int64)
@@ -224,15 +231,13 @@ class DemMaterial(Constitutive):
             zone = zone[np.asarray(rows, dtype=np.int64)]
         states = unpack_states(arrays, rows)
         if len(states) != len(points) or len(zone) != len(points):
-            raise ValueError(f"DemMaterial.import_points: {len(states)} cell states for {len(points)} points")
+            raise ValueError(f"{type(self).__name__}.import_points: {len(states)} cell states for {len(points)} points")
         if zone.size and (zone.min() < 0 or zone.max() >= len(self.reference_cells)):
-            raise ValueError("DemMaterial.import_points: zone index out of range")
-        for p, z, st in zip(points, zone, states):
-            cell = self.reference_cells[z].copy()
-            cell.restore(st)
-            self.cells[p] = cell
+            raise ValueError(f"{type(self).__name__}.import_points: zone index out of range")
+        for p, z in zip(points, zone):
             self.zone[p] = z
             self._touched.discard(int(p))
+        return zip(points, zone, states)
 
     # --- diagnostics ---------------------------------------------------------------------
     def memory_bytes(self):

@@ -47,6 +47,17 @@ def deformation_gradient(gradients, symmetric=True):
     return np.array([[1.0 + e11, e12], [e21, 1.0 + e22]])
 
 
+def deformation_gradients(gradients, symmetric=True):
+    """deformation_gradient of many rows at once, (n, 2, 2) (the same arithmetic)."""
+    g = np.asarray(gradients, dtype=float)
+    e12, e21 = g[:, 2], g[:, 3]
+    if symmetric:
+        e12 = e21 = 0.5 * (e12 + e21)
+    F = np.empty((len(g), 2, 2))
+    F[:, 0, 0], F[:, 0, 1], F[:, 1, 0], F[:, 1, 1] = 1.0 + g[:, 0], e12, e21, 1.0 + g[:, 1]
+    return F
+
+
 def place_cell_tangent(C, out):
     """Write a 4x4 demcell tangent into the 6x6 callback block (zeros elsewhere)."""
     out[:] = 0.0
@@ -62,6 +73,10 @@ class _SymmetricDrive:
     def drive(self, cell, gradients):
         cell.set_deformation(self.deformation(gradients))
 
+    def targets(self, gradients):
+        """(F (n, 2, 2), phi, kappa) of many points (None: a cell without rotation or curvature)."""
+        return deformation_gradients(gradients), None, None
+
     def increment(self, cell, gradients):
         """Largest change of a component of F from the cell's committed state."""
         return float(np.abs(self.deformation(gradients) - cell.deformation_gradient()).max())
@@ -73,13 +88,21 @@ class ClassicalMode(_SymmetricDrive):
     micropolar_scene = False
 
     def fluxes(self, homogenized, gradients, out):
-        s = homogenized.cauchy
-        out[:] = (s[0, 0], s[1, 1], s[0, 1], s[1, 0], 0.0, 0.0)
+        self.fluxes_many(homogenized.cauchy[None], homogenized.couple_stress[None], gradients[None], out[None])
+
+    def fluxes_many(self, cauchy, couple_stress, gradients, out):
+        """fluxes of many points: cauchy (n, 2, 2), couple_stress (n, 2), gradients and out (n, 6)."""
+        out[:, 0], out[:, 1], out[:, 2], out[:, 3] = cauchy[:, 0, 0], cauchy[:, 1, 1], cauchy[:, 0, 1], cauchy[:, 1, 0]
+        out[:, 4:] = 0.0
 
     def tangent(self, cell, gradients, kind, out):
+        self.place(cell.tangent(kind), out)
+
+    def place(self, C, out):
+        """The 6x6 block of a cell's 4x4 d sigma / d F."""
         # the Cauchy scene passes eps12 = eps21 (sym Grad u), so the Jacobian's contraction
         # with [.., de12, de12, ..] adds both columns: exactly d sigma(I + sym Grad u)
-        place_cell_tangent(cell.tangent(kind), out)
+        place_cell_tangent(C, out)
 
     def describe(self):
         return {"mode": self.name}
@@ -110,14 +133,22 @@ class HybridMode(_SymmetricDrive):
         self._skew = skew
 
     def fluxes(self, homogenized, gradients, out):
-        s = homogenized.cauchy
-        tau = 0.5 * (s[0, 1] + s[1, 0])
-        skw = self.mu_c * (gradients[2] - gradients[3])     # 2 mu_c skw(eps)_12
+        self.fluxes_many(homogenized.cauchy[None], homogenized.couple_stress[None], gradients[None], out[None])
+
+    def fluxes_many(self, cauchy, couple_stress, gradients, out):
+        s = cauchy
+        tau = 0.5 * (s[:, 0, 1] + s[:, 1, 0])
+        skw = self.mu_c * (gradients[:, 2] - gradients[:, 3])     # 2 mu_c skw(eps)_12
         b = self.bending_modulus
-        out[:] = (s[0, 0], s[1, 1], tau + skw, tau - skw, b * gradients[4], b * gradients[5])
+        out[:, 0], out[:, 1], out[:, 2], out[:, 3] = s[:, 0, 0], s[:, 1, 1], tau + skw, tau - skw
+        out[:, 4], out[:, 5] = b * gradients[:, 4], b * gradients[:, 5]
 
     def tangent(self, cell, gradients, kind, out):
-        C = SYMMETRISER @ cell.tangent(kind) @ SYMMETRISER + self._skew
+        self.place(cell.tangent(kind), out)
+
+    def place(self, C, out):
+        """The 6x6 block of a cell's 4x4 d sigma / d F."""
+        C = SYMMETRISER @ C @ SYMMETRISER + self._skew
         place_cell_tangent(C, out)
         out[4, 4] = out[5, 5] = self.bending_modulus
 
@@ -174,13 +205,25 @@ class MicropolarMode:
     def drive(self, cell, gradients):
         cell.set_deformation(self.deformation(gradients), rotation=0.0, curvature=self.curvature(gradients))
 
+    def targets(self, gradients):
+        """(F (n, 2, 2), phi (n,), kappa (n, 2) of the cells) of many points."""
+        g = np.asarray(gradients, dtype=float)
+        return deformation_gradients(g, symmetric=False), np.zeros(len(g)), self.length_scale * g[:, 4:6]
+
     def fluxes(self, homogenized, gradients, out):
-        s, m = homogenized.cauchy, homogenized.couple_stress
+        self.fluxes_many(homogenized.cauchy[None], homogenized.couple_stress[None], gradients[None], out[None])
+
+    def fluxes_many(self, cauchy, couple_stress, gradients, out):
         L = self.length_scale
-        out[:] = (s[0, 0], s[1, 1], s[0, 1], s[1, 0], L * m[0], L * m[1])
+        out[:, 0], out[:, 1], out[:, 2], out[:, 3] = cauchy[:, 0, 0], cauchy[:, 1, 1], cauchy[:, 0, 1], cauchy[:, 1, 0]
+        out[:, 4], out[:, 5] = L * couple_stress[:, 0], L * couple_stress[:, 1]
 
     def tangent(self, cell, gradients, kind, out):
-        out[:] = self._scale * cell.tangent(kind, measure="micropolar")
+        self.place(cell.tangent(kind, measure="micropolar"), out)
+
+    def place(self, C, out):
+        """The 6x6 block of the cell's micropolar operator (callback order, cell units)."""
+        out[:] = self._scale * C
 
     def describe(self):
         d = {"mode": self.name, "length_scale": self.length_scale}

@@ -106,6 +106,10 @@ def _bins(rows, cost, n_threads):
     n_threads = max(1, min(int(n_threads), len(rows)))
     if n_threads == 1:
         return rows, np.array([0, len(rows)], dtype=np.int64)
+    # a cell never solved (nan) is assumed to cost the median of the others: with a cost of
+    # 1 step, one thread would get all of them against one solved cell on the other
+    known = cost[np.isfinite(cost)]
+    cost = np.where(np.isfinite(cost), cost, np.median(known) if len(known) else 1.0)
     c = cost[rows]
     load = np.zeros(n_threads)
     members = [[] for _ in range(n_threads)]
@@ -149,7 +153,7 @@ class CellBatch:
                                                c.options.max_steps) for c in cells])
         self.max_steps = np.array([c.options.max_steps for c in cells], dtype=np.int64)
         self.target = np.zeros((n, qs.N_TARGET))
-        self.cost = np.ones(n)
+        self.cost = np.full(n, np.nan)    # DEM steps of each cell's last solve (nan: none yet)
         np_ = np.array([c.state.n_particles for c in cells], dtype=np.int64)
         cap = np.array([max(c.state.pair_i.shape[0], c.committed_state.pair_i.shape[0]) for c in cells],
                        dtype=np.int64)

@@ -69,6 +69,7 @@ benchmark: deps
 	$(MPIRUN) -n $(NP) $(PYTHON) benchmarks/femdem_micropolar.py --out $(OUT)/benchmarks/femdem_micropolar
 	$(MPIRUN) -n $(NP) $(PYTHON) benchmarks/femdem_balance.py --out $(OUT)/benchmarks/femdem_balance
 	$(PYTHON) benchmarks/femdem_scaling.py --out $(OUT)/benchmarks/femdem_scaling
+	$(PYTHON) benchmarks/femdem_batched.py --out $(OUT)/benchmarks/femdem_batched
 	$(PYTHON) benchmarks/femdem_yade.py --np $(NP) --out $(OUT)/benchmarks/femdem_yade
 	$(PYTHON) benchmarks/identification_sensitivity.py --out $(OUT)/benchmarks/identification_sensitivity
 	$(PYTHON) benchmarks/identification_cost.py --out $(OUT)/benchmarks/identification_cost

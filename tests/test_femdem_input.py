@@ -90,6 +90,9 @@ CASES = [   # (id, args, pattern the error line must match)
     ("weak-friction-zero", ["--weak-friction", 0], r"weak[-_]friction"),
     ("force-rtol-zero", ["--force-rtol", 0], r"force[-_]rtol"),
     ("stagnation-its-negative", ["--stagnation-its", -1], r"stagnation[-_]its"),
+    ("cell-threads-without-batched", ["--cell-threads", 2], r"cell_threads.*--batched"),
+    ("cell-threads-too-many", ["--batched", "--cell-threads", 100000], r"cell_threads.*NUMBA_NUM_THREADS"),
+    ("cell-threads-zero", ["--batched", "--cell-threads", 0], r"cell-threads"),
 ]
 
 
@@ -179,6 +182,8 @@ API_CASES = [   # (id, settings, pattern of the ValueError)
     ("relaxation-tol-zero", dict(cell=CellOptions(relaxation_tol=0.0)), r"relaxation_tol"),
     ("max-steps-zero", dict(cell=CellOptions(max_steps=0)), r"max_steps"),
     ("missing-packing", dict(cell=CellOptions(packing="/nonexistent/packing.npz")), r"packing file not found"),
+    ("cell-threads-float", dict(batched=True, cell_threads=1.5), r"cell_threads"),
+    ("batched-string", dict(batched="yes"), r"batched"),
 ]
 
 

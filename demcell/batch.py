@@ -296,13 +296,8 @@ class CellBatch:
         """(converged, no_contacts, message, error) of cell k's solve (DemCell.solve's words;
         error: the text of a broken-down solve)."""
         converged, no_contacts, message, error = qs.outcome(result_row, self.dt[k])
-        if no_contacts and self.contact_count(k) == 0:
-            return converged, True, "no contact left in the cell: zero stress (flag no_contacts)", error
-        if converged:
-            no_contacts = False
-        if result_row[qs.R_MAXOVL] > 0.1:
-            message += (f"; warning: overlaps reach {result_row[qs.R_MAXOVL]:.2f} of a radius (contacts too soft "
-                        "for this stress level, the linear contact law is stretched)")
+        no_contacts, message = qs.final_words(converged, no_contacts, self.contact_count(k) if no_contacts else -1,
+                                              [message], result_row[qs.R_MAXOVL])
         return converged, no_contacts, message, error
 
     def contact_count(self, k):

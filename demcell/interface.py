@@ -335,16 +335,7 @@ class DemCell(MicroCell):
             msgs = [] if converged else [message]
         else:
             converged, no_contacts, msgs, substeps, steps, max_ovl = self._servo_solve(mask, stress_target, limit, crit)
-        if no_contacts and self.contact_count() == 0:
-            msg = "no contact left in the cell: zero stress (flag no_contacts)"
-        elif converged:
-            msg = "converged"
-            no_contacts = False
-        else:
-            msg = "; ".join(msgs)
-        if max_ovl > 0.1:
-            msg += (f"; warning: overlaps reach {max_ovl:.2f} of a radius (contacts too soft for this "
-                    "stress level, the linear contact law is stretched)")
+        no_contacts, msg = qs.final_words(converged, no_contacts, self.contact_count(), msgs, max_ovl)
         self.last_result = SolveResult(converged=converged, no_contacts=no_contacts, steps=steps,
                                        substeps=substeps, message=msg, max_overlap_ratio=max_ovl)
         return self.last_result

@@ -261,3 +261,19 @@ def outcome(result, dt):
                f"{int(result[R_FAILED_STEPS])} steps (E_kin/E_pot = {ratio:.2e}, unbalanced ratio "
                f"{result[R_UNBAL]:.2e}){hint}")
     return False, result[R_NOCONTACT] > 0.5, message, None
+
+
+def final_words(converged, no_contacts, contacts, messages, max_overlap):
+    """(no_contacts, message) of a finished solve, as DemCell.solve and CellBatch.outcome word
+    it: no contacts only if the cell has none left (`contacts`), the failures' messages
+    joined, and a warning when overlaps passed 10 % of a radius."""
+    if no_contacts and contacts == 0:
+        message = "no contact left in the cell: zero stress (flag no_contacts)"
+    elif converged:
+        message, no_contacts = "converged", False
+    else:
+        message = "; ".join(messages)
+    if max_overlap > 0.1:
+        message += (f"; warning: overlaps reach {max_overlap:.2f} of a radius (contacts too soft for this "
+                    "stress level, the linear contact law is stretched)")
+    return no_contacts, message

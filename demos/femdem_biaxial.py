@@ -138,6 +138,9 @@ g.add_argument("--balance", action="store_true",
 g.add_argument("--balance-threshold", type=number(low=1.0, infinite=True), default=1.10,
                help="... when the slowest rank's cell work / the mean exceeds this (default %(default)g; "
                     "inf: measure the imbalance only)")
+g.add_argument("--balance-cost", choices=("wall", "work"), default="wall",
+               help="... cell work measured in wall seconds (default) or in DEM steps (work: the same moves in "
+                    "every run, whatever the machine's load)")
 g.add_argument("--batched", action="store_true",
                help="the rank's cells in one struct of arrays, solved by one Numba call (same results; docs/femdem.md)")
 g.add_argument("--cell-threads", type=number(COUNT), default=1,
@@ -159,7 +162,7 @@ def femdem_settings(args):
                          pressure=args.pressure, kn=args.kn, ks=args.ks, rotation=not args.no_rotation,
                          relaxation_tol=args.relaxation_tol, criterion=args.criterion,
                          max_steps=args.max_dem_steps),
-        balance=args.balance, balance_threshold=args.balance_threshold, batched=args.batched,
+        balance=args.balance, balance_threshold=args.balance_threshold, balance_cost=args.balance_cost, batched=args.batched,
         cell_threads=args.cell_threads)
 
 

@@ -3,6 +3,7 @@ the per-cell material: every written number of the run is the same bit for bit (
 its wall times, Gauss-point table, every XDMF dataset), with one or two Numba threads, in the
 three modes, with the batched Kruyt tangent, through failing cells, and on 2 ranks balanced."""
 import csv
+import json
 
 import h5py
 import numpy as np
@@ -65,6 +66,7 @@ def test_batched_and_balanced_on_two_ranks(demo, tmp_path):
     args = (*CELL, "--mesh", "2x2", "--axial-strain", 0.006, "--steps", 3, "--weak-size", 0.005,
             "--weak-friction", 0.5, "-pc_type", "redundant")
     demo("femdem_biaxial", *args, "--out", tmp_path / "cells", ranks=2)
-    demo("femdem_biaxial", *args, "--batched", "--balance", "--balance-threshold", 1.0, "--out",
-         tmp_path / "balanced", ranks=2)
+    demo("femdem_biaxial", *args, "--batched", "--balance", "--balance-threshold", 1.0, "--balance-cost", "work",
+         "--out", tmp_path / "balanced", ranks=2)
     same_outputs(tmp_path / "cells", tmp_path / "balanced")
+    assert json.loads((tmp_path / "balanced" / "summary.json").read_text())["balance"]["moves_total"] > 0

@@ -89,6 +89,7 @@ class FemDemSettings:
     cell: object = None                # materials.dem.CellOptions
     balance: bool = False              # move cells between ranks so that they finish together (balancing.py)
     balance_threshold: float = 1.10    # ... when the slowest rank's cell work exceeds the mean by this factor
+    balance_cost: str = "wall"         # ... measured as wall seconds per point, or as DEM steps ("work": reproducible)
     batched: bool = False              # the rank's cells in one struct of arrays, one Numba solve (materials/dem/batched.py)
     cell_threads: int = 1              # Numba threads per rank over the cells (batched; ranks x threads <= cores)
 
@@ -165,6 +166,9 @@ class FemDemSettings:
         if not (isinstance(self.balance_threshold, (int, float)) and self.balance_threshold >= 1):
             raise ValueError(f"femdem: balance_threshold must be a number >= 1 (slowest / mean), "
                              f"got {self.balance_threshold!r}")
+        from ..balancing import COSTS
+        if self.balance_cost not in COSTS:
+            raise ValueError(f"femdem: balance_cost must be one of {', '.join(COSTS)}, got {self.balance_cost!r}")
         cells_bytes = CELL_POINTS_PER_RECTANGLE * self.nx * self.ny * BYTES_PER_DISC * self.cell.particles
         if not cells_bytes <= MAX_CELL_BYTES:
             raise ValueError(f"femdem: a {self.nx}x{self.ny} mesh of {self.cell.particles}-disc cells needs about "
@@ -250,7 +254,7 @@ class FemDemBiaxial:
         if s.balance and comm.size > 1:
             from ..balancing import BalancedMaterial
             self.material = BalancedMaterial(comm, lambda: material_class(self.reference_cells, self.mode, s.tangent),
-                                             threshold=s.balance_threshold)
+                                             threshold=s.balance_threshold, cost=s.balance_cost)
 
         self.mesh, tags, names = meshes.rectangle(comm, s.width, s.height, cell_type=s.cell_type,
                                                   divisions=(s.nx, s.ny))

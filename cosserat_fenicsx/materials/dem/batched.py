@@ -7,7 +7,8 @@ threads of the rank: NUMBA_NUM_THREADS or `--cell-threads`), one batched homogen
 fluxes and history (vectorised). Kruyt tangents of the classical and hybrid modes are batched
 too, and DEMQO (all perturbed copies of all cells in one solve call, CellBatch.demqo); pstlo
 (a scipy sparse solve), cto (perturbations from the committed state) and the micropolar
-Kruyt operator are computed per point on a view of the cell in the store.
+Kruyt operator are computed per point on a view of the cell in the store, pstlo on the rank's
+threads (its sparse LU releases the GIL).
 """
 import time
 
@@ -131,7 +132,7 @@ class BatchedDemMaterial(DemMaterial):
                 self.mode.place(C, tangent_out[p])
             cost[counts > 0] = steps
         else:
-            for k in np.flatnonzero(counts > 0):
+            def one(k):
                 p = int(points[k])
                 cell = batch.view(p)
                 target = batch.target[p]
@@ -139,10 +140,31 @@ class BatchedDemMaterial(DemMaterial):
                 cell._target_phi, cell._target_kappa = float(target[4]), target[5:7].copy()
                 self.mode.tangent(cell, None, self._kind, tangent_out[p])
                 cost[k] = cell.last_tangent_steps
+            live_rows = np.flatnonzero(counts > 0)
+            pool = self._tangent_pool()
+            if pool is None:
+                for k in live_rows:
+                    one(k)
+            else:
+                list(pool.map(one, live_rows))
         for p in points[counts == 0]:
             tangent_out[p] = self._floor_tangent(int(self.zone[p]))
         self.timers["tangent"] += time.perf_counter() - start
         return PointReport(status=np.zeros(len(points), dtype=np.int32), cost=cost, cost_unit=self.cost_unit)
+
+    def _tangent_pool(self):
+        """Threads for the per-point pstlo tangents, as many as the rank's Numba threads
+        (--cell-threads): scipy's sparse LU factorisation, most of a pstlo tangent, releases
+        the GIL. None with one thread, or for a kind that would hold the GIL (cto and the
+        micropolar Kruyt operator are Python and Numba code without nogil)."""
+        import numba
+        threads = numba.get_num_threads()
+        if threads < 2 or self._kind != "pstlo":
+            return None
+        if getattr(self, "_pool", None) is None or self._pool_threads != threads:
+            from concurrent.futures import ThreadPoolExecutor
+            self._pool, self._pool_threads = ThreadPoolExecutor(threads), threads
+        return self._pool
 
     def commit(self):
         start = time.perf_counter()

@@ -17,7 +17,7 @@ from petsc4py import PETSc
 
 from .elasticity import MicropolarElasticity
 from .output import FIELDS
-from .validation import COUNT, NON_NEGATIVE, POSITIVE, STEPS, Parser, Range, number
+from .validation import COUNT, NON_NEGATIVE, POSITIVE, STEPS, Parser, Range, key_value, number
 
 PETSC_PREFIXES = ("-snes_", "-ksp_", "-pc_", "-mat_", "-log_view")
 

@@ -129,6 +129,20 @@ def number(allowed=ANY, **range_kwargs):
     return Number(Range(**range_kwargs) if range_kwargs else allowed)
 
 
+def key_value(text):
+    """argparse `type` of a KEY=VALUE option: (key, value) with the value an int, a float or
+    the string as typed (which option names a key is checked by whoever takes it)."""
+    key, sep, raw = text.partition("=")
+    if not sep or not key.isidentifier() or not raw:
+        raise argparse.ArgumentTypeError(f"expected KEY=VALUE, got {text!r}")
+    for kind in (int, float):
+        try:
+            return key, kind(raw)
+        except ValueError:
+            pass
+    return key, raw
+
+
 DESCRIBE_OPTIONS = "COSSERAT_DESCRIBE_OPTIONS"
 
 

@@ -95,6 +95,12 @@ class RelaxationOptions:
             raise InputError("local damping must be < 1")
         if self.strain_rate <= 0 or self.max_increment <= 0 or self.tol <= 0:
             raise InputError("strain_rate, max_increment and tol must be > 0")
+        if not 0.0 < self.dt_safety <= 1.0:
+            raise InputError(f"dt_safety must be in (0, 1] (1: the stability estimate itself), got {self.dt_safety}")
+        if not (self.check_every >= 1 and self.check_every == int(self.check_every)):
+            raise InputError(f"check_every must be an integer >= 1 (DEM steps), got {self.check_every}")
+        if not self.fire_dt_max >= 1.0:
+            raise InputError(f"fire_dt_max must be >= 1 (a multiple of dt), got {self.fire_dt_max}")
         if self.dt is not None and not (self.dt > 0 and math.isfinite(self.dt)):
             raise InputError(f"dt must be > 0, got {self.dt}")
 

@@ -115,6 +115,9 @@ g.add_argument("--criterion", choices=("energy", "force"), default="force",
                help="cell convergence test: unbalanced-force ratio (001, default) or E_kin/E_pot (000 eq. 31; "
                     "near the peak it leaves a residual floor above --force-rtol, docs/femdem.md)")
 g.add_argument("--max-dem-steps", type=number(low=1, high=1e9, integer=True), default=200_000, help="DEM steps allowed per cell solve (default %(default)s)")
+g.add_argument("--cell-option", type=cli.key_value, action="append", default=[], metavar="KEY=VALUE",
+               help="a further demcell.RelaxationOptions of the cells, e.g. method=fire, dt_safety=0.5, "
+                    "strain_rate=1e-5 (repeat for more; docs/femdem.md, 'Cheaper cells')")
 g = parser.add_argument_group("coupling")
 g.add_argument("--mode", choices=("classical", "hybrid", "micropolar"), default="hybrid",
                help="classical: Cauchy continuum; hybrid (default): micropolar, elastic skew and couple stress; "
@@ -161,7 +164,7 @@ def femdem_settings(args):
         cell=CellOptions(particles=args.particles, seed=args.seed, packing=args.packing, friction=args.friction,
                          pressure=args.pressure, kn=args.kn, ks=args.ks, rotation=not args.no_rotation,
                          relaxation_tol=args.relaxation_tol, criterion=args.criterion,
-                         max_steps=args.max_dem_steps),
+                         max_steps=args.max_dem_steps, extra=dict(args.cell_option)),
         balance=args.balance, balance_threshold=args.balance_threshold, balance_cost=args.balance_cost, batched=args.batched,
         cell_threads=args.cell_threads)
 

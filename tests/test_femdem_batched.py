@@ -70,3 +70,17 @@ def test_batched_and_balanced_on_two_ranks(demo, tmp_path):
          "--out", tmp_path / "balanced", ranks=2)
     same_outputs(tmp_path / "cells", tmp_path / "balanced")
     assert json.loads((tmp_path / "balanced" / "summary.json").read_text())["balance"]["moves_total"] > 0
+
+
+def test_cell_options_reach_both_paths(demo, tmp_path):
+    """--cell-option (demcell.RelaxationOptions of the cells) reaches the per-cell and the
+    batched solve alike: FIRE with a larger time step gives the same bits in both, and other
+    numbers than the default relaxation (so the option was not dropped on the way)."""
+    args = (*CELL, "--mesh", "2x2", "--axial-strain", 0.004, "--steps", 2)
+    fire = ("--cell-option", "method=fire", "--cell-option", "dt_safety=0.5")
+    demo("femdem_biaxial", *args, *fire, "--out", tmp_path / "cells")
+    demo("femdem_biaxial", *args, *fire, "--batched", "--out", tmp_path / "batched")
+    same_outputs(tmp_path / "cells", tmp_path / "batched")
+    demo("femdem_biaxial", *args, "--batched", "--out", tmp_path / "default")
+    with pytest.raises(AssertionError):
+        same_outputs(tmp_path / "cells", tmp_path / "default")

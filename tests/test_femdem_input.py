@@ -93,6 +93,12 @@ CASES = [   # (id, args, pattern the error line must match)
     ("cell-threads-without-batched", ["--cell-threads", 2], r"cell_threads.*--batched"),
     ("cell-threads-too-many", ["--batched", "--cell-threads", 100000], r"cell_threads.*NUMBA_NUM_THREADS"),
     ("cell-threads-zero", ["--batched", "--cell-threads", 0], r"cell-threads"),
+    ("cell-option-no-equals", ["--cell-option", "fire"], r"--cell-option.*KEY=VALUE"),
+    ("cell-option-unknown", ["--cell-option", "speed=2"], r"unknown relaxation option.*speed"),
+    ("cell-option-own-setting", ["--cell-option", "tol=1e-4"], r"'tol'.*--relaxation-tol"),
+    ("cell-option-method", ["--cell-option", "method=verlet"], r"relaxation method 'verlet'"),
+    ("cell-option-dt-safety", ["--cell-option", "dt_safety=1.5"], r"dt_safety must be in \(0, 1\]"),
+    ("cell-option-check-every", ["--cell-option", "check_every=0"], r"check_every must be an integer >= 1"),
 ]
 
 

@@ -28,6 +28,9 @@ TANGENTS = {"cto": "perturbation", "demqo": "demqo", "kruyt": "kruyt", "pstlo": 
 #: DEM steps allowed per cell solve at most (the relaxation kernel counts in int64; a
 #: billion steps is days of one cell)
 MAX_STEPS = 10 ** 9
+#: demcell.RelaxationOptions set by a CellOptions field, not through `extra`
+OWN_SETTINGS = {"tol": "relaxation_tol (--relaxation-tol)", "criterion": "criterion (--criterion)",
+                "max_steps": "max_steps (--max-dem-steps)"}
 
 
 @dataclass
@@ -73,6 +76,9 @@ class CellOptions:
                              f"test runs every {check_every} DEM steps), got {self.max_steps!r}")
         if self.packing is not None:
             self.load_packing()      # missing or corrupt: InputError (a ValueError) now
+        for name, own in OWN_SETTINGS.items():
+            if name in self.extra:
+                raise ValueError(f"relaxation option {name!r} has its own setting: {own}")
         self.relaxation()            # unknown or bad extra options
         self.law()
 

@@ -10,9 +10,11 @@ batched and balanced between the ranks, a checkpoint after every load step. A qu
 limit is --stop-after K load steps; --restart continues from the last checkpoint (bit for bit,
 docs/restart.md), so the run can be carried through the peak in pieces. After each piece it
 writes femdem_large.json: Gauss points, wall and CPU seconds, wall seconds and DEM steps per
-load step (from history.csv), the cell memory (summary.json: per cell x points) and the peak
+load step (from history.csv; a step's own seconds, the pieces' clocks joined), the cell memory (summary.json: per cell x points) and the peak
 resident memory of a rank, the imbalance before and after each balancing (slowest rank / mean
 of the measured cell work), the stress ratio reached and whether the peak was passed.
+--cell-option KEY=VALUE is passed on to the demo (the cells' relaxation, e.g. method=fire:
+benchmarks/femdem_cell_relaxation.py measures what it saves and changes).
 """
 import argparse
 import csv
@@ -36,6 +38,8 @@ def main():
     p.add_argument("--axial-strain", type=float, default=0.02)
     p.add_argument("--steps", type=int, default=10)
     p.add_argument("--tangent", default="pstlo")
+    p.add_argument("--cell-option", action="append", default=[], metavar="KEY=VALUE",
+                   help="forwarded to the demo (cells' relaxation; benchmarks/femdem_cell_relaxation.py)")
     p.add_argument("--stop-after", type=int, default=None, help="stop after this load step (a queue's limit)")
     p.add_argument("--restart", action="store_true", help="continue the run in --out from its last checkpoint")
     a = p.parse_args()
@@ -47,12 +51,22 @@ def main():
                      "--steps", str(a.steps), "--tangent", a.tangent, "--weak-size", "0.005", "--weak-friction",
                      "0.5", "--batched", "--cell-threads", str(a.cell_threads), "--balance",
                      "--checkpoint-every", "1", "--fields", "displacement", "--out", run_dir]
+        for option in a.cell_option:
+            demo_args += ["--cell-option", option]
     if a.stop_after is not None:
         demo_args += ["--stop-after", str(a.stop_after)]
     cmd = ["mpirun", "-n", str(a.np), sys.executable, os.path.join(ROOT, "demos", "femdem_biaxial.py"), *demo_args]
     env = dict(os.environ, OMPI_ALLOW_RUN_AS_ROOT="1", OMPI_ALLOW_RUN_AS_ROOT_CONFIRM="1",
                OMPI_MCA_rmaps_base_oversubscribe="1", OMP_NUM_THREADS="1")
     os.makedirs(a.out, exist_ok=True)
+    # the first history row of each piece: there the step clock (history.csv's wall_time,
+    # which runs from the start of a piece or a phase) starts again
+    piece_starts = [0]
+    if a.restart:
+        with open(os.path.join(a.out, "femdem_large.json")) as f:
+            piece_starts = json.load(f)["piece_starts"]
+        with open(os.path.join(run_dir, "checkpoint", "meta.json")) as f:
+            piece_starts.append(int(json.load(f)["step"]))     # one history row per step
     load = list(os.getloadavg())
     wall = time.perf_counter()
     ru0 = resource.getrusage(resource.RUSAGE_CHILDREN)
@@ -64,12 +78,19 @@ def main():
     with open(os.path.join(run_dir, "summary.json")) as f:
         summary = json.load(f)
     rows = list(csv.DictReader(open(os.path.join(run_dir, "history.csv"))))
-    steps = [{"step": int(r["step"]), "axial_strain": float(r["axial_strain"]), "stress_ratio": float(r["stress_ratio"]),
-              "wall_seconds": float(r["wall_time"]), "dem_steps": float(r["dem_steps"]),
-              "newton_iterations": int(float(r["newton_iterations"]))} for r in rows]
+    steps, previous = [], (None, 0.0)
+    for r in rows:
+        # history.csv's wall_time runs from the start of the phase's stepping (and of a restarted
+        # piece): a step's own seconds are the difference, unless the clock started again
+        phase, clock = r["phase"], float(r["wall_time"])
+        own = clock - previous[1] if phase == previous[0] and len(steps) not in piece_starts else clock
+        previous = (phase, clock)
+        steps.append({"step": int(r["step"]), "phase": int(phase), "axial_strain": float(r["axial_strain"]),
+                      "stress_ratio": float(r["stress_ratio"]), "wall_seconds": own,
+                      "dem_steps": float(r["dem_steps"]), "newton_iterations": int(float(r["newton_iterations"]))})
     ratios = [s["stress_ratio"] for s in steps]
     balance = summary.get("balance") or {}
-    record = {"command": cmd, "gauss_points": summary["n_gauss_points"], "ranks": a.np,
+    record = {"command": cmd, "piece_starts": piece_starts, "gauss_points": summary["n_gauss_points"], "ranks": a.np,
               "cell_threads": a.cell_threads, "particles_per_cell": summary["particles_per_cell"],
               "piece_wall_seconds": wall, "piece_cpu_seconds": (ru1.ru_utime - ru0.ru_utime) + (ru1.ru_stime - ru0.ru_stime),
               "load_before": load, "load_after": list(os.getloadavg()),

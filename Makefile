@@ -70,6 +70,7 @@ benchmark: deps
 	$(MPIRUN) -n $(NP) $(PYTHON) benchmarks/femdem_balance.py --out $(OUT)/benchmarks/femdem_balance
 	$(PYTHON) benchmarks/femdem_scaling.py --out $(OUT)/benchmarks/femdem_scaling
 	$(PYTHON) benchmarks/femdem_batched.py --out $(OUT)/benchmarks/femdem_batched
+	$(MPIRUN) -n $(NP) $(PYTHON) benchmarks/femdem_cell_relaxation.py --out $(OUT)/benchmarks/femdem_cell_relaxation
 	$(PYTHON) benchmarks/femdem_yade.py --np $(NP) --out $(OUT)/benchmarks/femdem_yade
 	$(PYTHON) benchmarks/identification_sensitivity.py --out $(OUT)/benchmarks/identification_sensitivity
 	$(PYTHON) benchmarks/identification_cost.py --out $(OUT)/benchmarks/identification_cost

@@ -7,6 +7,13 @@ E_kin/E_pot <= 1e-3. Reports DEM steps, CPU seconds and the stress ratio path of
 methods (their difference shows how much the relaxation path changes the frictional answer).
 
     /usr/bin/python3 benchmarks/dem_relaxation.py --out results/dem_relaxation
+
+A second table (dem_relaxation_error.json) is the error of one solve as FEM x DEM asks it:
+the FEM x DEM reference cell (CellOptions, unbalanced-force ratio 1e-3) committed at biaxial
+pre-strains of 0-4 %, then asked an increment of 1e-4 or 1e-3 (the target F, no servo), with
+the default relaxation, dt_safety 0.5, FIRE, and a tolerance of 1e-4: DEM steps and
+|sigma - sigma_ref| / |sigma_ref| against the same solve relaxed to 1e-5 (what
+`--cell-option` trades in docs/femdem.md).
 """
 import argparse
 import json
@@ -39,6 +46,50 @@ def biaxial(state, law, method, increments, p0=10.0):
     return dict(steps=steps, cpu_s=time.process_time() - t0, converged=ok, stress_ratio=ratios)
 
 
+#: the settings of the error table (demcell.RelaxationOptions overrides)
+ERROR_SETTINGS = {"default": {}, "tol 1e-4": {"tol": 1e-4}, "dt_safety 0.5": {"dt_safety": 0.5},
+                  "fire": {"method": "fire"}}
+
+
+def solve_error(particles, increments=(1e-4, 1e-3), pre_strains=(0.0, 0.01, 0.02, 0.04)):
+    """Rows (increment, pre-strain, setting, DEM steps, relative stress error to a 1e-5 solve)."""
+    import dataclasses
+    from demcell.relaxation import stable_time_step
+    from cosserat_fenicsx.materials.dem import CellOptions
+    options = CellOptions(particles=particles)
+    state, _ = options.packing_state()
+    ref = dc.reference_cell(state, options.law(), options.relaxation(), options.pressure)
+    committed = []
+    for e in pre_strains:
+        cell = ref.copy()
+        cell.set_deformation(np.array([[1 + 0.5 * e, 0.0], [0.0, 1 - e]]))
+        cell.solve()
+        cell.commit()
+        committed.append(cell)
+
+    def solve(cell0, increment, **changes):
+        cell = cell0.copy()
+        cell.options = dataclasses.replace(cell.options, **changes)
+        cell.dt = stable_time_step(cell.state.radius, cell.state.mass, cell.state.inertia, cell.law,
+                                   cell.options.dt_safety)
+        F = cell.committed_state.F.copy()
+        F[0, 0] += 0.5 * increment
+        F[1, 1] -= increment
+        cell.set_deformation(F)
+        result = cell.solve()
+        return cell.cauchy_stress().copy(), result.steps
+
+    rows = []
+    for increment in increments:
+        for e, cell0 in zip(pre_strains, committed):
+            exact, _ = solve(cell0, increment, tol=1e-5)
+            for label, changes in ERROR_SETTINGS.items():
+                sigma, steps = solve(cell0, increment, **changes)
+                rows.append(dict(increment=increment, pre_strain=e, setting=label, dem_steps=steps,
+                                 stress_error=float(np.linalg.norm(sigma - exact) / np.linalg.norm(exact))))
+    return rows
+
+
 def main(argv=None):
     p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     p.add_argument("--sizes", type=int, nargs="+", default=[228, 400])
@@ -64,6 +115,16 @@ def main(argv=None):
               f"{row['fire']['steps']} steps {row['fire']['cpu_s']:.2f} cpu-s (steps ratio "
               f"{row['steps_ratio_local_over_fire']:.2f}); max |stress ratio difference| "
               f"{row['max_stress_ratio_difference']:.3f}", flush=True)
+    rows = solve_error(a.sizes[0])
+    with open(os.path.join(a.out, "dem_relaxation_error.json"), "w") as f:
+        json.dump(rows, f, indent=1)
+    print(f"one solve of a {a.sizes[0]}-disc FEM x DEM cell against a 1e-5 relaxation:")
+    for increment in sorted({r["increment"] for r in rows}):
+        for label in ERROR_SETTINGS:
+            sel = [r for r in rows if r["increment"] == increment and r["setting"] == label]
+            print(f"  increment {increment:.0e}  {label:14s} DEM steps {min(r['dem_steps'] for r in sel):5d}-"
+                  f"{max(r['dem_steps'] for r in sel):5d}  stress error {min(r['stress_error'] for r in sel):.1e}-"
+                  f"{max(r['stress_error'] for r in sel):.1e}")
 
 
 if __name__ == "__main__":

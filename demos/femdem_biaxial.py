@@ -79,6 +79,7 @@ import numpy as np
 from mpi4py import MPI
 
 from cosserat_fenicsx import cli
+from cosserat_fenicsx.balancing import COSTS as BALANCE_COSTS
 from cosserat_fenicsx.output import CsvLog, FieldWriter, print0
 from cosserat_fenicsx.scenes.femdem_biaxial import FemDemBiaxial, FemDemSettings, max_over_ranks, parse_mesh
 from cosserat_fenicsx.shear_band import assess_band, no_band
@@ -141,7 +142,7 @@ g.add_argument("--balance", action="store_true",
 g.add_argument("--balance-threshold", type=number(low=1.0, infinite=True), default=1.10,
                help="... when the slowest rank's cell work / the mean exceeds this (default %(default)g; "
                     "inf: measure the imbalance only)")
-g.add_argument("--balance-cost", choices=("wall", "work"), default="wall",
+g.add_argument("--balance-cost", choices=BALANCE_COSTS, default="wall",
                help="... cell work measured in wall seconds (default) or in DEM steps (work: the same moves in "
                     "every run, whatever the machine's load)")
 g.add_argument("--batched", action="store_true",

@@ -29,7 +29,9 @@ bottom, u2 prescribed at the top, one pin at the bottom centre), the top platen 
    8-node quads with the same 2x2 rule), the same size, pressure and platen increments,
    the packing of 3 (re-equilibrated once at p0 under the constant-kn law), tangent kruyt
    (the uniform-strain contact-stiffness operator, as YADE's getStressAndTangent) and, with
-   --tangents kruyt pstlo, pstlo as well.
+   --tangents kruyt pstlo, pstlo as well. With --cell-option KEY=VALUE (repeatable; the cells'
+   demcell.RelaxationOptions, e.g. method=fire) every tangent runs a second time with those
+   cells, in the same run: the default cells and the cheaper ones against the same YADE part.
    The scatter of the cell: the single-cell response of YADE RVEs from prepareRVE.py with
    makeCloud seeds 1..--scatter-seeds (cell_scatter), the yardstick of the curves' agreement.
    Newton tolerance: YADE stops when |du| / |u| < 1e-2 (L2 norms of the displacement
@@ -49,6 +51,7 @@ every 0.2 s): YADE's master and its pool workers, ours mpirun and its ranks.
 
     /usr/bin/python3 benchmarks/femdem_yade.py --out results/benchmarks/femdem_yade
     /usr/bin/python3 benchmarks/femdem_yade.py --increments 10 --tangents kruyt pstlo
+    /usr/bin/python3 benchmarks/femdem_yade.py --tangents pstlo --cell-option method=fire
 
 About 15 minutes for the default 5 increments on a 2-core machine at load 1.5-5 (YADE 9 min,
 50-160 s per increment; ours 3-4 min per tangent; the scatter estimate 20 s). Measured figures
@@ -267,7 +270,16 @@ def demcell_packing(rve, path):
                 kn_yade_range=[float(np.min(rve["contact_kn"])) / t, float(np.max(rve["contact_kn"])) / t])
 
 
-def ours_run(packing, law, increments, np_, tangent, force_rtol, relaxation_tol, out, mpirun, timeout):
+def label(run):
+    """A run's name in the tables: its tangent, and its cell options if any (records written
+    before the option existed have no label)."""
+    return run.get("label", run["tangent"])
+
+
+def ours_run(packing, law, increments, np_, tangent, force_rtol, relaxation_tol, out, mpirun, timeout,
+             cell_options=()):
+    """One run of the demo on YADE's problem; cell_options: "KEY=VALUE" strings passed on as
+    --cell-option (demcell.RelaxationOptions of the cells)."""
     os.makedirs(out, exist_ok=True)
     cmd = ["nice", mpirun, "-n", str(np_), sys.executable, os.path.join(ROOT, "demos", "femdem_biaxial.py"),
            "--mesh", MESH, "--cell-type", "quadrilateral", "--degree-u", "1", "--mode", "classical",
@@ -278,6 +290,8 @@ def ours_run(packing, law, increments, np_, tangent, force_rtol, relaxation_tol,
            "--relaxation-tol", repr(relaxation_tol), "--criterion", "force",
            "--accept-rtol", repr(max(3e-2, force_rtol)), "--fields", "displacement",
            "--write-every", str(increments + 10), "--out", out]
+    for option in cell_options:
+        cmd += ["--cell-option", option]
     env = dict(os.environ, OMP_NUM_THREADS="1", OMPI_ALLOW_RUN_AS_ROOT="1", OMPI_ALLOW_RUN_AS_ROOT_CONFIRM="1",
                OMPI_MCA_rmaps_base_oversubscribe="1")
     hist = os.path.join(out, "history.csv")
@@ -302,7 +316,8 @@ def ours_run(packing, law, increments, np_, tangent, force_rtol, relaxation_tol,
                         passes=int(r["newton_iterations"]), dem_steps=float(r["dem_steps"]),
                         force_ratio=float(r["force_ratio"]), accepted=int(r["accepted"])))
     curve = [(float(r["axial_strain"]), float(r["vertical_reaction"])) for r in rows]
-    m.update(command=" ".join(cmd), increments=inc, curve_strain_force=curve, tangent=tangent, force_rtol=force_rtol,
+    m.update(command=" ".join(cmd), increments=inc, curve_strain_force=curve, tangent=tangent,
+             label=" ".join([tangent, *cell_options]), cell_options=list(cell_options), force_rtol=force_rtol,
              setup_wall=m["wall"] - sum(i["wall"] for i in inc), summary={
                  k: summary.get(k) for k in ("memory_per_cell_bytes", "time_max_over_ranks", "n_gauss_points",
                                              "particles_per_cell", "cell_preparation_time", "wall_time",
@@ -360,7 +375,7 @@ def mean(rows, key):
 def table(res):
     y = res["yade"]
     lines = ["| increment | YADE wall s | YADE CPU s | YADE passes | YADE DEM steps | "
-             + " | ".join(f"ours {o['tangent']} wall s | CPU s | passes | DEM steps | FNORM/RNORM | wall ratio YADE/ours"
+             + " | ".join(f"ours {label(o)} wall s | CPU s | passes | DEM steps | FNORM/RNORM | wall ratio YADE/ours"
                           for o in res["ours"]) + " |",
              "|" + "---|" * (5 + 6 * len(res["ours"]))]
     for k, yi in enumerate(y["increments"]):
@@ -383,19 +398,19 @@ def table(res):
                  "load avg start | load avg end |")
     lines.append("|---|---|---|---|---|---|---|---|")
     runs = [("YADE", y, y["cpu_total"], y["setup"].get("wall", float("nan")))] + \
-        [(f"ours {o['tangent']}", o, o["cpu_waited_children"], o["setup_wall"]) for o in res["ours"]]
+        [(f"ours {label(o)}", o, o["cpu_waited_children"], o["setup_wall"]) for o in res["ours"]]
     for name, r, cpu, setup in runs:
         lines.append(f"| {name} | {r['wall']:.1f} | {cpu:.1f} | {setup:.1f} | {r['peak_rss_bytes'] / 2**20:.0f} | "
                      f"{r['processes_at_peak']} | {r['load_start'][0]:.2f} | {r['load_end'][0]:.2f} |")
     lines.append("")
     lines.append("| one cell pass | wall ms x processes | CPU ms | DEM steps |")
     lines.append("|---|---|---|---|")
-    for name, r in [("YADE", y)] + [(f"ours {o['tangent']}", o) for o in res["ours"]]:
+    for name, r in [("YADE", y)] + [(f"ours {label(o)}", o) for o in res["ours"]]:
         c = r["per_cell_pass"]
         lines.append(f"| {name} | {c['wall_ms_x_np']:.1f} | {c['cpu_ms']:.1f} | {c['dem_steps']:.0f} |")
     sc = res.get("cell_scatter")
     lines.append("")
-    lines.append("| axial strain % | YADE force N/m | " + " | ".join(f"ours {o['tangent']}" for o in res["ours"])
+    lines.append("| axial strain % | YADE force N/m | " + " | ".join(f"ours {label(o)}" for o in res["ours"])
                  + (" | single cells of seeds 1..N: mean | std | min | max" if sc else "") + " |")
     lines.append("|---|---|" + "---|" * len(res["ours"]) + ("---|---|---|---|" if sc else ""))
     for k, (e, f) in enumerate(y["curve_strain_force"]):
@@ -405,6 +420,9 @@ def table(res):
                       f"{sc['max'][k]:.0f}"]
         lines.append("| " + " | ".join(cells) + " |")
     return "\n".join(lines)
+
+
+STYLES = ("rs--", "b^:", "g.-", "mv-.", "cD--", "yo:")     # one per run of ours (tangents x cells)
 
 
 def plot(res, path):
@@ -418,9 +436,9 @@ def plot(res, path):
         ax[0].fill_between(-100 * e, -np.array(sc["min"]) / 1e3, -np.array(sc["max"]) / 1e3, color="0.85",
                            label=f"single cells, YADE RVEs of seeds 1-{len(sc['seeds'])} (ours' law): range")
     ax[0].plot(-100 * e, -f / 1e3, "ko-", label="YADE FEMxDEM biaxialSmooth.py")
-    for o, style in zip(res["ours"], ("rs--", "b^:", "g.-")):
+    for o, style in zip(res["ours"], STYLES):
         e, f = np.array(o["curve_strain_force"]).T
-        ax[0].plot(-100 * e, -f / 1e3, style, label=f"ours, {o['tangent']} tangent")
+        ax[0].plot(-100 * e, -f / 1e3, style, label=f"ours, {label(o)}")
     ax[0].set_xlabel("axial strain -eps_22 [%]")
     ax[0].set_ylabel("top platen force per unit thickness [kN/m]")
     ax[0].legend(fontsize=8); ax[0].grid(alpha=0.3)
@@ -431,18 +449,18 @@ def plot(res, path):
         ax[2].fill_between(-100 * e, -(np.array(sc["min"]) - ref), -(np.array(sc["max"]) - ref), color="0.85",
                            label="single cells of the seeds: range")
     ax[2].plot(-100 * e, -(f - ref), "ko-", label="YADE")
-    for o, style in zip(res["ours"], ("rs--", "b^:", "g.-")):
+    for o, style in zip(res["ours"], STYLES):
         eo, fo = np.array(o["curve_strain_force"]).T
-        ax[2].plot(-100 * eo, -(fo - ref[:len(fo)]), style, label=f"ours, {o['tangent']}")
+        ax[2].plot(-100 * eo, -(fo - ref[:len(fo)]), style, label=f"ours, {label(o)}")
     ax[2].set_xlabel("axial strain -eps_22 [%]")
     ax[2].set_ylabel("force - " + ("mean single-cell force" if sc else "YADE's") + " [N/m]")
     ax[2].legend(fontsize=8); ax[2].grid(alpha=0.3)
     k = np.arange(1, len(res["yade"]["increments"]) + 1)
     w = 0.8 / (1 + len(res["ours"]))
     ax[1].bar(k - 0.4 + w / 2, [i["wall"] for i in res["yade"]["increments"]], w, color="k", label="YADE")
-    for j, (o, c) in enumerate(zip(res["ours"], ("r", "b", "g"))):
-        ax[1].bar(k - 0.4 + w * (j + 1.5), [i["wall"] for i in o["increments"]], w, color=c,
-                  label=f"ours {o['tangent']}")
+    for j, (o, style) in enumerate(zip(res["ours"], STYLES)):
+        ax[1].bar(k - 0.4 + w * (j + 1.5), [i["wall"] for i in o["increments"]], w, color=style[0],
+                  label=f"ours {label(o)}")
     ax[1].set_yscale("log"); ax[1].set_xlabel("increment"); ax[1].set_ylabel("wall time of the Newton solve [s]")
     ax[1].legend(fontsize=8); ax[1].grid(alpha=0.3, which="both")
     fig.suptitle(f"FEM x DEM biaxial, {MESH} quads x 4 Gauss points = 512 cells of 400 discs, both on "
@@ -463,6 +481,9 @@ def main(argv=None):
     p.add_argument("--relaxation-tol", type=float, default=1e-3,
                    help="our cells' unbalanced-force ratio (default 1e-3, the project's; YADE's cells do not "
                         "relax: about 100 steps per call)")
+    p.add_argument("--cell-option", action="append", default=[], metavar="KEY=VALUE",
+                   help="run every tangent a second time with these cells (demcell.RelaxationOptions, e.g. "
+                        "method=fire; repeat for more; passed on to demos/femdem_biaxial.py)")
     p.add_argument("--scatter-seeds", type=int, default=6,
                    help="YADE RVEs (prepareRVE.py seeds 1..N) whose single-cell response gives the scatter of "
                         "the cell (default 6; 0: skip)")
@@ -481,6 +502,13 @@ def main(argv=None):
         raise SystemExit("--increments and --np must be >= 1")
     if a.force_rtol is not None and not 0 < a.force_rtol < 1:
         raise SystemExit("--force-rtol must be in (0, 1)")
+    if a.cell_option:       # refused here, before YADE's 10 minutes, not by the demo after them
+        from cosserat_fenicsx.materials.dem import CellOptions
+        from cosserat_fenicsx.validation import key_value
+        try:
+            CellOptions(extra=dict(key_value(o) for o in a.cell_option)).check()
+        except (ValueError, TypeError, argparse.ArgumentTypeError) as error:
+            raise SystemExit(f"--cell-option: {error}")
     ensure_packages()
     for exe in (a.yade, a.mpirun):
         if not shutil.which(exe):
@@ -509,11 +537,14 @@ def main(argv=None):
                law_ours=law, yade=y, ours=[])
     with open(os.path.join(a.out, "femdem_yade.json"), "w") as fh:      # YADE's part kept if ours fails
         json.dump(res, fh, indent=1)
-    for tangent in a.tangents:
-        print(f"ours: {tangent} tangent, force_rtol {rtol:.3g} ...", flush=True)
+    variants = [(t, ()) for t in a.tangents] + ([(t, tuple(a.cell_option)) for t in a.tangents] if a.cell_option else [])
+    for tangent, cell_options in variants:
+        name = " ".join([tangent, *cell_options])
+        print(f"ours: {name}, force_rtol {rtol:.3g} ...", flush=True)
         o = ours_run(packing, law, a.increments, a.np, tangent, rtol, a.relaxation_tol,
-                     os.path.join(a.out, f"ours_{tangent}"), a.mpirun, a.timeout)
-        print(f"ours {tangent}: {o['wall']:.0f} s, mean {mean(o['increments'], 'wall'):.2f} s per increment",
+                     os.path.join(a.out, "ours_" + "_".join([tangent, *cell_options]).replace("=", "-")), a.mpirun,
+                     a.timeout, cell_options)
+        print(f"ours {name}: {o['wall']:.0f} s, mean {mean(o['increments'], 'wall'):.2f} s per increment",
               flush=True)
         fy = np.array(y["curve_strain_force"])[:, 1]
         fo = np.array(o["curve_strain_force"])[:, 1]
@@ -550,7 +581,7 @@ def report(res, out):
     plot(res, os.path.join(out, "femdem_yade.png"))
     print(text)
     for o in res["ours"]:
-        print(f"ours {o['tangent']}: wall per increment YADE / ours = {o['wall_ratio_mean']:.1f}; platen force "
+        print(f"ours {label(o)}: wall per increment YADE / ours = {o['wall_ratio_mean']:.1f}; platen force "
               f"relative difference per increment {np.round(o['force_relative_difference'], 4).tolist()}")
 
 

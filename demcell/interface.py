@@ -33,7 +33,7 @@ from .relaxation import (ENERGY_RATIO, FIRE, LOCAL_DAMPING, NO_CONTACTS, ROT_MIC
                          UNBALANCED_FORCE, run, stable_time_step)
 from .state import CellState
 from .tangent import (demqo_tangent, dsigma_to_dpk1, kruyt_operator, micropolar_tangent,
-                      perturbation_tangent, pstlo_operator)
+                      perturbation_tangent, pstlo_operator, SLIP_RATIO)
 
 #: how the grains of a cell rotate: 'free' (rotations follow the contact moments, the macro spin
 #: is added: symmetric stress at equilibrium), 'locked' (no grain rotation, 000 section 4.3.2),
@@ -460,7 +460,8 @@ class DemCell(MicroCell):
         """Tangent operator, 4x4 in the order of 001 eq. 11.
         kind: 'kruyt' (001 eq. 13, closed form), 'demqo' (001 eq. 20, 4 frozen-contact
         relaxations), 'pstlo' (001 appendix B, one sparse solve of the same linearized
-        problem), 'perturbation' (CTO, 001 eq. 6, 4 full solves from the last commit).
+        problem), 'pstlo_sliding' (the same with the contacts near their Coulomb limit sliding:
+        tangent.SLIP_RATIO), 'perturbation' (CTO, 001 eq. 6, 4 full solves from the last commit).
         measure: 'dsigma_dF' (d sigma_ij/dF_kl = d sigma/d Grad u) or 'dP_dF'; for a micropolar
         cell also 'micropolar': the 6x6 d(sigma, m)/d(F, kappa) at fixed phi in the FE callback's
         order (rows sigma11, sigma22, sigma12, sigma21, m31, m32; columns eps11, eps22, eps12,
@@ -470,6 +471,9 @@ class DemCell(MicroCell):
         if measure not in ("dsigma_dF", "dP_dF", "micropolar"):
             raise InputError(f"unknown tangent measure {measure!r}: 'dsigma_dF', 'dP_dF' or 'micropolar'")
         if measure == "micropolar":
+            if kind == "pstlo_sliding":
+                raise InputError("tangent 'pstlo_sliding' is for Cauchy cells (measure 'dsigma_dF' or 'dP_dF'); "
+                                 "a micropolar cell has 'pstlo', 'demqo', 'kruyt' and 'perturbation'")
             if not self.micropolar:
                 raise InputError("measure='micropolar' needs a cell created with rotation_mode='micropolar'")
             C, results = micropolar_tangent(self, kind, eps)
@@ -484,8 +488,11 @@ class DemCell(MicroCell):
             C, results = perturbation_tangent(self, 1e-5 if eps is None else eps)
         elif kind == "pstlo":
             C = pstlo_operator(self.state, self._law_array)
+        elif kind == "pstlo_sliding":
+            C = pstlo_operator(self.state, self._law_array, slip_ratio=SLIP_RATIO)
         else:
-            raise InputError(f"unknown tangent kind {kind!r}: 'kruyt', 'demqo', 'pstlo' or 'perturbation'")
+            raise InputError(f"unknown tangent kind {kind!r}: 'kruyt', 'demqo', 'pstlo', 'pstlo_sliding' or "
+                             "'perturbation'")
         self.last_tangent_steps = sum(r.steps for r in results)   # DEM steps of its relaxations
         if measure == "dP_dF":
             C = dsigma_to_dpk1(C, self.state.F, self.cauchy_stress())

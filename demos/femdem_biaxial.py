@@ -27,7 +27,8 @@ scaled so that its mean grain diameter is --grain-diameter, which converts its c
 couple stress; its Cosserat moduli G, mu_c, B = dm/dkappa and l_c = sqrt(B / 2 mu_c) at the
 reference state are printed and go to summary.json as cell_moduli). The macro
 Newton uses the cell operator --tangent (cto: 001 eq. 6, demqo: eq. 20, kruyt: eq. 13,
-pstlo: appendix B) and stops at FNORM/RNORM <= --force-rtol (001 section 6). A weak zone
+pstlo: appendix B; pstlo_sliding: the same with the contacts on their Coulomb limit sliding)
+and stops at FNORM/RNORM <= --force-rtol (001 section 6). A weak zone
 (--weak-size, --weak-friction: a square at the lower left corner whose cells have less
 friction) triggers a band.
 
@@ -80,6 +81,7 @@ from mpi4py import MPI
 
 from cosserat_fenicsx import cli
 from cosserat_fenicsx.balancing import COSTS as BALANCE_COSTS
+from cosserat_fenicsx.materials.dem.cells import TANGENTS     # names only: no demcell import
 from cosserat_fenicsx.output import CsvLog, FieldWriter, print0
 from cosserat_fenicsx.scenes.femdem_biaxial import FemDemBiaxial, FemDemSettings, max_over_ranks, parse_mesh
 from cosserat_fenicsx.shear_band import assess_band, no_band
@@ -127,8 +129,9 @@ g.add_argument("--mu-c", type=number(POSITIVE), default=None, help="Cosserat mod
 g.add_argument("--l-c", type=number(NON_NEGATIVE), default=None, help="internal length [m] (hybrid; default: --grain-diameter)")
 g.add_argument("--grain-diameter", type=number(POSITIVE), default=2.5e-4,
                help="mean grain diameter in the specimen's units [m] (default %(default)g: W / 40)")
-g.add_argument("--tangent", choices=("cto", "demqo", "kruyt", "pstlo"), default="pstlo",
-               help="cell operator of the macro Newton (default %(default)s; docs/femdem.md)")
+g.add_argument("--tangent", choices=TANGENTS, default="pstlo",
+               help="cell operator of the macro Newton (default %(default)s; pstlo_sliding: PSTLO with the "
+                    "contacts on their Coulomb limit sliding, not for --mode micropolar; docs/femdem.md)")
 g.add_argument("--force-rtol", type=number(POSITIVE), default=1e-2, help="Newton stops at FNORM/RNORM <= this (default %(default)g)")
 g.add_argument("--accept-rtol", type=number(NON_NEGATIVE), default=3e-2,
                help="a step whose Newton stagnates ends at its best iterate if FNORM/RNORM <= this, reported as "

@@ -7,7 +7,8 @@
   restitution exp(-xi pi / sqrt(1 - xi^2)), w0 = sqrt(kn / m_eff);
 * energy conservation with all damping off;
 * Kruyt operator (001 eq. 13) vs perturbation tangent (001 eq. 6) in the elastic regime;
-  PSTLO (001 appendix B) vs DEMQO (001 eq. 20);
+  PSTLO (001 appendix B) vs DEMQO (001 eq. 20); PSTLO with sliding contacts vs the
+  perturbation tangent where contacts slide;
 * invariance of the stress under a rigid rotation of F; symmetry of the Cauchy stress.
 """
 import math
@@ -143,6 +144,53 @@ def test_kruyt_is_an_upper_bound_of_the_elastic_tangent(packing60):
         wk, wp, wq = e @ C_k @ e, e @ C_p @ e, e @ C_q @ e
         assert wk >= wp > 0.0 and wk >= wq > 0.0
         assert abs(wp - wq) < 0.05 * wp      # elastic regime: CTO ~ DEMQO
+
+
+def sliding_cell():
+    """The FEM x DEM reference cell (228 discs, 10 N/m, mu 0.4, unbalanced-force ratio 1e-3)
+    committed at 1 % biaxial strain and solved 0.2 % further: a load step's iterate, with
+    contacts sliding."""
+    law = dc.ContactLaw(kn=KN, ks=KS, friction=0.4)
+    options = RelaxationOptions(tol=1e-3, damping=0.7, criterion="force")
+    state, _ = dc.generate_packing(228, pressure=10.0, law=law, seed=0)
+    cell = dc.reference_cell(state, law, options, 10.0)
+    cell.set_deformation(np.diag([1.005, 0.99]))
+    assert cell.solve().converged
+    cell.commit()
+    cell.set_deformation(np.diag([1.006, 0.988]))
+    assert cell.solve().converged
+    return cell
+
+
+def test_pstlo_sliding_follows_the_consistent_tangent():
+    """Against the perturbation tangent (CTO, 001 eq. 6: rolled back and re-solved, the
+    derivative the macro Newton needs) on a cell whose contacts slide: PSTLO (every contact
+    sticking) is 30-40 % off, PSTLO with the contacts near their Coulomb limit sliding within
+    15 % (benchmarks/dem_tangent_sliding.py: 8 % in the median of 20 states)."""
+    cell = sliding_cell()
+    C_cto = cell.tangent("perturbation", eps=1e-5)
+    error = {kind: np.linalg.norm(cell.tangent(kind) - C_cto) / np.linalg.norm(C_cto)
+             for kind in ("pstlo", "pstlo_sliding")}
+    assert error["pstlo"] > 0.25, error
+    assert error["pstlo_sliding"] < 0.15, error
+    # the loading direction (dF11, dF22) = (1/2, -1), the one a Newton correction of the step takes
+    D = np.array([0.5, 0.0, 0.0, -1.0])
+    along = {kind: np.linalg.norm((cell.tangent(kind) - C_cto) @ D) / np.linalg.norm(C_cto @ D)
+             for kind in ("pstlo", "pstlo_sliding")}
+    assert along["pstlo_sliding"] < 0.5 * along["pstlo"], along
+
+
+def test_pstlo_sliding_is_pstlo_without_friction_limit(packing60):
+    """No contact can reach an infinite Coulomb limit: the operators are the same bits; a
+    micropolar cell refuses it by name."""
+    law = dc.ContactLaw(kn=KN, ks=KS, friction=math.inf)
+    cell = dc.DemCell(packing60.copy(), law, RelaxationOptions(tol=1e-6, check_every=20))
+    cell.set_deformation(np.array([[0.998, 0.001], [0.0, 1.001]]))
+    assert cell.solve().converged
+    assert np.array_equal(cell.tangent("pstlo_sliding"), cell.tangent("pstlo"))
+    micropolar = dc.DemCell(packing60.copy(), law, rotation_mode="micropolar")
+    with pytest.raises(dc.InputError, match="pstlo_sliding.*Cauchy"):
+        micropolar.tangent("pstlo_sliding", measure="micropolar")
 
 
 @pytest.mark.parametrize("rolling", [0.0, 0.5])

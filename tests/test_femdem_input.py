@@ -72,6 +72,7 @@ def foreign_npz(tmp_path):
 
 CASES = [   # (id, args, pattern the error line must match)
     ("tangent-foo", ["--tangent", "foo"], r"--tangent"),
+    ("micropolar-pstlo-sliding", ["--mode", "micropolar", "--tangent", "pstlo_sliding"], r"pstlo_sliding.*Cauchy"),
     ("mode-foo", ["--mode", "foo"], r"--mode"),
     ("classical-mu-c", ["--mode", "classical", "--mu-c", 100], r"--mu-c"),
     ("classical-l-c", ["--mode", "classical", "--l-c", 1e-3], r"--l-c"),
@@ -168,6 +169,7 @@ def test_tiny_dem_step_budget(demo, tmp_path):
 
 API_CASES = [   # (id, settings, pattern of the ValueError)
     ("tangent", dict(tangent="foo"), r"tangent"),
+    ("micropolar-pstlo-sliding", dict(mode="micropolar", tangent="pstlo_sliding"), r"pstlo_sliding.*Cauchy"),
     ("mode", dict(mode="foo"), r"mode"),
     ("classical-mu-c", dict(mode="classical", mu_c=100.0), r"mu_c"),
     ("classical-l-c", dict(mode="classical", l_c=1e-3), r"l_c"),

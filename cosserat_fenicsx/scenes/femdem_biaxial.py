@@ -73,7 +73,7 @@ class FemDemSettings:
     degree_u: int = 2
     degree_phi: int = 1
     mode: str = "hybrid"               # classical | hybrid | micropolar
-    tangent: str = "pstlo"             # cto | demqo | kruyt | pstlo
+    tangent: str = "pstlo"             # cto | demqo | kruyt | pstlo | pstlo_sliding (not micropolar)
     mu_c: float = None                 # None: the cell's initial shear modulus
     l_c: float = None                  # None: grain_diameter
     grain_diameter: float = 2.5e-4     # mean grain diameter in the specimen's units [m]
@@ -95,7 +95,7 @@ class FemDemSettings:
 
     def check(self):
         """Raises ValueError naming the setting; called before any cell is created."""
-        from ..materials.dem import MODES, TANGENTS, CellOptions
+        from ..materials.dem import CAUCHY_ONLY_TANGENTS, MODES, TANGENTS, CellOptions
         if self.cell is None:
             self.cell = CellOptions()
         for name in ("width", "height"):
@@ -119,6 +119,8 @@ class FemDemSettings:
             raise ValueError(f"femdem: unknown mode {self.mode!r}: one of {', '.join(MODES)}")
         if self.tangent not in TANGENTS:
             raise ValueError(f"femdem: unknown tangent {self.tangent!r}: one of {', '.join(TANGENTS)}")
+        if self.mode == "micropolar" and self.tangent in CAUCHY_ONLY_TANGENTS:
+            raise ValueError(f"femdem: tangent {self.tangent!r} is for Cauchy cells (modes classical and hybrid)")
         if self.mode == "classical" and (self.mu_c is not None or self.l_c is not None):
             raise ValueError("femdem: mu_c and l_c are micropolar options; a classical (Cauchy) scene has "
                              "no rotation field (use mode hybrid)")

@@ -159,7 +159,7 @@ class BatchedDemMaterial(DemMaterial):
         micropolar Kruyt operator are Python and Numba code without nogil)."""
         import numba
         threads = numba.get_num_threads()
-        if threads < 2 or self._kind != "pstlo":
+        if threads < 2 or self._kind not in ("pstlo", "pstlo_sliding"):
             return None
         if getattr(self, "_pool", None) is None or self._pool_threads != threads:
             from concurrent.futures import ThreadPoolExecutor

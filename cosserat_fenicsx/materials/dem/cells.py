@@ -22,7 +22,10 @@ import os
 
 import numpy as np
 
-TANGENTS = {"cto": "perturbation", "demqo": "demqo", "kruyt": "kruyt", "pstlo": "pstlo"}
+TANGENTS = {"cto": "perturbation", "demqo": "demqo", "kruyt": "kruyt", "pstlo": "pstlo",
+            "pstlo_sliding": "pstlo_sliding"}
+#: the tangents of Cauchy cells only (the classical and hybrid modes)
+CAUCHY_ONLY_TANGENTS = ("pstlo_sliding",)
 
 
 #: DEM steps allowed per cell solve at most (the relaxation kernel counts in int64; a

@@ -1,7 +1,8 @@
 #!/usr/bin/env python3
 """Macro Newton operators of FEM x DEM compared on the biaxial test, as 001 Table 1 and
 Figs 6-7: the perturbation CTO (001 eq. 6), DEMQO (eq. 20), Kruyt's upper bound (eq. 13)
-and PSTLO (appendix B), each driving the same run to 2 % axial strain.
+and PSTLO (appendix B), each driving the same run to 2 % axial strain; and pstlo_sliding
+(PSTLO with the contacts on their Coulomb limit sliding, demcell/tangent.py), not in 001.
 
 Per operator: Newton iterations per step before and after the peak, the convergence
 velocity of 001 (the inverse of the number of integrations of the loading path, counting
@@ -11,6 +12,12 @@ convergence of FNORM/RNORM against the iteration for one step before and one aft
 peak (001 Fig. 6). Writes --out/tangents.txt, tangents.png and one JSON record per run.
 
     mpirun -n 2 python3 benchmarks/femdem_tangents.py --out results/femdem_tangents
+    mpirun -n 2 python3 benchmarks/femdem_tangents.py --mesh 4x8 --steps 8 --mode hybrid --weak-friction 0.5 \
+        --batched --tangents pstlo pstlo_sliding --out results/benchmarks/femdem_tangents
+
+(the second is the scene of benchmarks/femdem_cell_relaxation.py: its default run is shared
+through the store of benchmarks/femdem_cases.py when both write beside each other; add
+--cell-option method=fire for the FIRE cells).
 """
 import argparse
 import os
@@ -19,8 +26,9 @@ import numpy as np
 from mpi4py import MPI
 
 from femdem_cases import parse_mesh, run_case, settings, table, write_report
+from cosserat_fenicsx.validation import key_value
 
-INTEGRATIONS = {"cto": 5, "demqo": 1, "kruyt": 1, "pstlo": 1}
+INTEGRATIONS = {"cto": 5, "demqo": 1, "kruyt": 1, "pstlo": 1, "pstlo_sliding": 1}
 
 
 def main():
@@ -30,7 +38,11 @@ def main():
     p.add_argument("--particles", type=int, default=228)
     p.add_argument("--axial-strain", type=float, default=0.02)
     p.add_argument("--steps", type=int, default=20)
-    p.add_argument("--tangents", nargs="+", default=["pstlo", "demqo", "kruyt", "cto"])
+    p.add_argument("--tangents", nargs="+", default=["pstlo", "demqo", "kruyt", "cto"], choices=list(INTEGRATIONS))
+    p.add_argument("--mode", default="classical", choices=("classical", "hybrid"))
+    p.add_argument("--batched", action="store_true", help="the cells batched (docs/femdem.md)")
+    p.add_argument("--cell-option", type=key_value, action="append", default=[], metavar="KEY=VALUE",
+                   help="the cells' demcell.RelaxationOptions (e.g. method=fire)")
     p.add_argument("--weak-size", type=float, default=5e-3, help="weak lower left corner [m] (000 has none)")
     p.add_argument("--weak-friction", type=float, default=0.8)
     a = p.parse_args()
@@ -39,10 +51,11 @@ def main():
     records = []
     for tangent in a.tangents:
         # a weaker corner breaks the symmetry, so that the post-peak response is not homogeneous
-        s = settings(mesh=(nx, ny), particles=a.particles, mode="classical", tangent=tangent,
-                     axial_strain=a.axial_strain, steps=a.steps, weak_size=a.weak_size,
-                     weak_friction_factor=a.weak_friction)
-        records.append(run_case(comm, a.out, f"{tangent}_{a.mesh}_{a.particles}", s,
+        s = settings(mesh=(nx, ny), particles=a.particles, cell={"extra": dict(a.cell_option)}, mode=a.mode,
+                     tangent=tangent, axial_strain=a.axial_strain, steps=a.steps, weak_size=a.weak_size,
+                     weak_friction_factor=a.weak_friction, batched=a.batched)
+        label = "_".join([tangent, a.mode, a.mesh, str(a.particles)] + [f"{k}-{v}" for k, v in a.cell_option])
+        records.append(run_case(comm, a.out, label, s,
                                 log=lambda t: comm.rank == 0 and print(t, flush=True)))
     if comm.rank != 0:
         return
@@ -70,8 +83,9 @@ def main():
                            ("DEM steps", "dem_total", ".3g"), ("wall [s]", "wall_time", ".0f"),
                            ("CPU [s]", "cpu_time", ".0f"), ("wall %", "wall_rel", ".0f"), ("cuts", "cuts", "d"),
                            ("load", "load_average_before", ".1f")])
-    head = (f"FEM x DEM biaxial, classical, mesh {a.mesh} ({records[0]['n_gauss_points']} Gauss points), "
-            f"{a.particles} discs, to {a.axial_strain:g} in {a.steps} steps, FNORM/RNORM <= 1e-2, {comm.size} ranks\n"
+    head = (f"FEM x DEM biaxial, {a.mode}, mesh {a.mesh} ({records[0]['n_gauss_points']} Gauss points), "
+            f"{a.particles} discs{''.join(f', {k}={v}' for k, v in a.cell_option)}, to {a.axial_strain:g} in {a.steps} steps, "
+            f"FNORM/RNORM <= 1e-2, {comm.size} ranks\n"
             "V_i, V_p: 001's convergence velocity before / after the peak (1 / integrations of the loading path, "
             "5 per CTO iteration), relative to pstlo\n")
     write_report(a.out, "tangents.txt", head + text)

@@ -243,8 +243,8 @@ def _pstlo_triplets(h, s, radius, pair_i, pair_j, fn, fs, mr, touching, n_pairs,
     Sx (4 x 3N, d sigma / d unknowns, times area) and SF (4 x 4, times area; the area change
     term is added by the caller).
 
-    ``sliding``: a contact on its Coulomb limit (|fs| >= mu fn (1 - 1e-9), fn > 0) goes on
-    sliding: dfs = mu sign(fs) dfn replaces the tangential spring (the consistent tangent of
+    ``slip_ratio`` > 0: a contact at or near its Coulomb limit (|fs| >= slip_ratio mu fn, fn > 0;
+    mu is the law's friction) goes on sliding: dfs = mu sign(fs) dfn replaces the tangential spring (the consistent tangent of
     the Coulomb law under continued loading, as the return map of plasticity; the network
     keeps its normal springs and pre-stress)."""
     n = radius.shape[0]

@@ -95,7 +95,7 @@ class FemDemSettings:
 
     def check(self):
         """Raises ValueError naming the setting; called before any cell is created."""
-        from ..materials.dem import CAUCHY_ONLY_TANGENTS, MODES, TANGENTS, CellOptions
+        from ..materials.dem import MODES, CellOptions, check_tangent
         if self.cell is None:
             self.cell = CellOptions()
         for name in ("width", "height"):
@@ -117,10 +117,9 @@ class FemDemSettings:
             raise ValueError(f"femdem: axial_strain must be in (0, 0.5), got {self.axial_strain!r}")
         if self.mode not in MODES:
             raise ValueError(f"femdem: unknown mode {self.mode!r}: one of {', '.join(MODES)}")
-        if self.tangent not in TANGENTS:
-            raise ValueError(f"femdem: unknown tangent {self.tangent!r}: one of {', '.join(TANGENTS)}")
-        if self.mode == "micropolar" and self.tangent in CAUCHY_ONLY_TANGENTS:
-            raise ValueError(f"femdem: tangent {self.tangent!r} is for Cauchy cells (modes classical and hybrid)")
+        refusal = check_tangent(self.tangent, self.mode)
+        if refusal:
+            raise ValueError(f"femdem: {refusal}")
         if self.mode == "classical" and (self.mu_c is not None or self.l_c is not None):
             raise ValueError("femdem: mu_c and l_c are micropolar options; a classical (Cauchy) scene has "
                              "no rotation field (use mode hybrid)")

@@ -15,6 +15,7 @@ import time
 import numpy as np
 
 from ...constitutive import PointReport
+from .cells import GIL_FREE_TANGENTS
 from .material import STATUS_BAD_F, STATUS_BROKEN, STATUS_NO_CONTACTS, STATUS_NOT_RELAXED, DemMaterial
 
 
@@ -159,7 +160,7 @@ class BatchedDemMaterial(DemMaterial):
         micropolar Kruyt operator are Python and Numba code without nogil)."""
         import numba
         threads = numba.get_num_threads()
-        if threads < 2 or self._kind not in ("pstlo", "pstlo_sliding"):
+        if threads < 2 or self.tangent_name not in GIL_FREE_TANGENTS:
             return None
         if getattr(self, "_pool", None) is None or self._pool_threads != threads:
             from concurrent.futures import ThreadPoolExecutor

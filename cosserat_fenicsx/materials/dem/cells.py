@@ -26,6 +26,21 @@ TANGENTS = {"cto": "perturbation", "demqo": "demqo", "kruyt": "kruyt", "pstlo": 
             "pstlo_sliding": "pstlo_sliding"}
 #: the tangents of Cauchy cells only (the classical and hybrid modes)
 CAUCHY_ONLY_TANGENTS = ("pstlo_sliding",)
+#: the tangents whose per-point work (scipy's sparse LU) releases the GIL, so a rank's
+#: threads can share it (materials/dem/batched.py)
+GIL_FREE_TANGENTS = ("pstlo", "pstlo_sliding")
+
+
+def check_tangent(tangent, mode):
+    """The message refusing `tangent` in the scene mode `mode` ('classical', 'hybrid',
+    'micropolar'), or None if the pair is allowed: one rule for the scene's settings and
+    for DemMaterial."""
+    if tangent not in TANGENTS:
+        return f"unknown tangent {tangent!r}: one of {', '.join(TANGENTS)}"
+    if mode == "micropolar" and tangent in CAUCHY_ONLY_TANGENTS:
+        return (f"tangent {tangent!r} is for Cauchy cells (modes classical and hybrid); mode "
+                "'micropolar' has " + ", ".join(t for t in TANGENTS if t not in CAUCHY_ONLY_TANGENTS))
+    return None
 
 
 #: DEM steps allowed per cell solve at most (the relaxation kernel counts in int64; a

@@ -29,7 +29,7 @@ import time
 import numpy as np
 
 from ...constitutive import Constitutive, PointReport
-from .cells import CAUCHY_ONLY_TANGENTS, TANGENTS
+from .cells import TANGENTS, check_tangent
 
 STATUS_NO_CONTACTS = 1
 STATUS_NOT_RELAXED, STATUS_BAD_F, STATUS_BROKEN = -1, -2, -3
@@ -51,11 +51,9 @@ class DemMaterial(Constitutive):
     cost_unit = "DEM time steps"
 
     def __init__(self, reference_cells, mode, tangent="pstlo", max_strain_increment=0.05):
-        if tangent not in TANGENTS:
-            raise ValueError(f"unknown tangent {tangent!r}: one of {', '.join(TANGENTS)}")
-        if mode.name == "micropolar" and tangent in CAUCHY_ONLY_TANGENTS:
-            raise ValueError(f"tangent {tangent!r} is for Cauchy cells (modes classical and hybrid); "
-                             "mode 'micropolar' has " + ", ".join(t for t in TANGENTS if t not in CAUCHY_ONLY_TANGENTS))
+        refusal = check_tangent(tangent, mode.name)
+        if refusal:
+            raise ValueError(refusal)
         if not reference_cells:
             raise ValueError("DemMaterial needs at least one reference cell")
         if mode.name == "micropolar" and not all(getattr(c, "micropolar", False) for c in reference_cells):

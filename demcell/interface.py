@@ -33,7 +33,7 @@ from .relaxation import (ENERGY_RATIO, FIRE, LOCAL_DAMPING, NO_CONTACTS, ROT_MIC
                          UNBALANCED_FORCE, run, stable_time_step)
 from .state import CellState
 from .tangent import (demqo_tangent, dsigma_to_dpk1, kruyt_operator, micropolar_tangent,
-                      perturbation_tangent, pstlo_operator, SLIP_RATIO)
+                      perturbation_tangent, pstlo_operator, floor_stiffness, SLIP_RATIO)
 
 #: how the grains of a cell rotate: 'free' (rotations follow the contact moments, the macro spin
 #: is added: symmetric stress at equilibrium), 'locked' (no grain rotation, 000 section 4.3.2),
@@ -461,7 +461,7 @@ class DemCell(MicroCell):
         kind: 'kruyt' (001 eq. 13, closed form), 'demqo' (001 eq. 20, 4 frozen-contact
         relaxations), 'pstlo' (001 appendix B, one sparse solve of the same linearized
         problem), 'pstlo_sliding' (the same with the contacts near their Coulomb limit sliding:
-        tangent.SLIP_RATIO), 'perturbation' (CTO, 001 eq. 6, 4 full solves from the last commit).
+        tangent.SLIP_RATIO; floored: tangent.floor_stiffness), 'perturbation' (CTO, 001 eq. 6, 4 full solves from the last commit).
         measure: 'dsigma_dF' (d sigma_ij/dF_kl = d sigma/d Grad u) or 'dP_dF'; for a micropolar
         cell also 'micropolar': the 6x6 d(sigma, m)/d(F, kappa) at fixed phi in the FE callback's
         order (rows sigma11, sigma22, sigma12, sigma21, m31, m32; columns eps11, eps22, eps12,
@@ -489,7 +489,7 @@ class DemCell(MicroCell):
         elif kind == "pstlo":
             C = pstlo_operator(self.state, self._law_array)
         elif kind == "pstlo_sliding":
-            C = pstlo_operator(self.state, self._law_array, slip_ratio=SLIP_RATIO)
+            C = floor_stiffness(pstlo_operator(self.state, self._law_array, slip_ratio=SLIP_RATIO))
         else:
             raise InputError(f"unknown tangent kind {kind!r}: 'kruyt', 'demqo', 'pstlo', 'pstlo_sliding' or "
                              "'perturbation'")

@@ -18,7 +18,8 @@ total-Lagrangian FE code needs.
 * ``pstlo_sliding``: PSTLO with the contacts at or near their Coulomb limit (|fs| >=
   SLIP_RATIO mu fn) sliding on under the load (dfs = mu sign(fs) dfn, no tangential spring):
   the consistent tangent of the friction law under continued loading, as a return map's in
-  plasticity. Not in 001; its elastic operators miss the sliding, which is what makes the
+  plasticity; its stiffness on symmetric strains floored at STIFFNESS_FLOOR of its largest
+  eigenvalue (floor_stiffness), so that a cell at its peak is not a mechanism. Not in 001; its elastic operators miss the sliding, which is what makes the
   macro Newton converge linearly where cells slide (docs/femdem.md, "Newton operators").
 """
 import dataclasses
@@ -45,6 +46,15 @@ COMPONENTS = ((0, 0), (0, 1), (1, 0), (1, 1))   # order 11, 12, 21, 22 (001 eq. 
 #: in the median with a worse outlier (64 % along the load); at 0.85 and 0.8 some cells turn
 #: into mechanisms (74-85 %).
 SLIP_RATIO = 0.95
+#: pstlo_sliding: the smallest eigenvalue of its symmetric part on symmetric strains is kept at
+#: or above STIFFNESS_FLOOR times the largest (floor_stiffness). A cell at its peak has a
+#: (near-)singular or softening consistent tangent: on the reference cell of 228 discs at 1 %
+#: and 3.2 % (friction 0.4 and 0.2) CTO's smallest eigenvalue is -330 and -530 N/m against a
+#: largest of 8,900-9,300, and pstlo_sliding's 3 and 35. A macro Newton on such points
+#: diverges (strain increments of 5 % to 2,000 at single Gauss points past the peak of the
+#: 4x8 biaxial, docs/femdem.md). PSTLO's ratio is 0.28-0.33 on the same states; 0.05 leaves
+#: every pre-peak state measured there untouched (0.05-0.21).
+STIFFNESS_FLOOR = 0.05
 
 
 def to_tensor4(C):
@@ -352,6 +362,26 @@ def _pstlo_triplets(h, s, radius, pair_i, pair_j, fn, fs, mr, touching, n_pairs,
                 gb = Finv[ll, 0] * bx + Finv[ll, 1] * by
                 SF[ab, kl] += -(L[aa, kk] * gb * bvec[bb] + (fvec[aa] * gb if bb == kk else 0.0))
     return rows[:m], cols[:m], vals[:m], G, Sx, SF
+
+
+def floor_stiffness(C, fraction=STIFFNESS_FLOOR):
+    """C (4x4, order 11, 12, 21, 22) with the eigenvalues of its symmetric part on symmetric
+    strains raised to at least `fraction` times the largest: in Mandel form (e11, e22,
+    sqrt2 e12) the symmetric part's eigenpairs (lam, v) below the floor f get (f - lam) v v^T
+    added, mapped back to the 4x4 so that it acts on the symmetric part of dF and gives a
+    symmetric stress. C is returned unchanged (the same array) when no eigenvalue is below
+    the floor. Units those of C [N/m in 2D]."""
+    r = 1.0 / math.sqrt(2.0)
+    # Mandel basis of the symmetric 2x2 tensors in the 11, 12, 21, 22 order
+    B = np.array([[1.0, 0.0, 0.0, 0.0], [0.0, 0.0, 0.0, 1.0], [0.0, r, r, 0.0]])
+    M = B @ C @ B.T
+    lam, vec = np.linalg.eigh(0.5 * (M + M.T))
+    floor = fraction * lam[-1]
+    low = lam < floor
+    if not low.any():
+        return C
+    correction = (vec[:, low] * (floor - lam[low])) @ vec[:, low].T
+    return C + B.T @ correction @ B
 
 
 def _solve_structurally_symmetric(K, B, spla):

@@ -193,6 +193,29 @@ def test_pstlo_sliding_is_pstlo_without_friction_limit(packing60):
         micropolar.tangent("pstlo_sliding", measure="micropolar")
 
 
+def test_floor_stiffness_on_an_isotropic_closed_form():
+    """pstlo_sliding's floor (tangent.floor_stiffness) on the 2D isotropic tangent
+    C_ijkl = lam d_ij d_kl + G (d_ik d_jl + d_il d_jk), whose symmetric part on symmetric
+    strains has the eigenvalues 2 (lam + G) (volumetric) and 2 G (twice, deviatoric): with
+    G = 0 (a mechanism, a cell at its peak) the deviatoric pair is raised to exactly the floor,
+    the volumetric stiffness and the response to a spin (none) are kept; a stiff shear
+    modulus is left alone, the same array."""
+    from demcell.tangent import floor_stiffness, from_tensor4
+    d = np.eye(2)
+    def isotropic(lam, G):
+        T = (lam * np.einsum("ij,kl->ijkl", d, d)
+             + G * (np.einsum("ik,jl->ijkl", d, d) + np.einsum("il,jk->ijkl", d, d)))
+        return from_tensor4(T)
+    lam = 3000.0
+    C = floor_stiffness(isotropic(lam, 0.0), fraction=0.05)
+    floor = 0.05 * 2 * lam
+    np.testing.assert_allclose(C, isotropic(lam - floor / 2, floor / 2), rtol=1e-12, atol=1e-9)
+    spin = np.array([0.0, 1.0, -1.0, 0.0])
+    np.testing.assert_allclose(C @ spin, 0.0, atol=1e-9)
+    stiff = isotropic(lam, 1000.0)
+    assert floor_stiffness(stiff, fraction=0.05) is stiff
+
+
 @pytest.mark.parametrize("rolling", [0.0, 0.5])
 def test_pstlo_linearization_equals_demqo(packing60, rolling):
     """001 appendix B (analytic linearization with pre-stress terms, one sparse solve) against

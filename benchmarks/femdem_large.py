@@ -40,6 +40,9 @@ def main():
     p.add_argument("--tangent", default="pstlo")
     p.add_argument("--cell-option", action="append", default=[], metavar="KEY=VALUE",
                    help="forwarded to the demo (cells' relaxation; benchmarks/femdem_cell_relaxation.py)")
+    p.add_argument("--accept-rtol", type=float, default=None,
+                   help="the demo's --accept-rtol; with --restart it changes the rule from the checkpoint on "
+                        "(docs/restart.md)")
     p.add_argument("--stop-after", type=int, default=None, help="stop after this load step (a queue's limit)")
     p.add_argument("--restart", action="store_true", help="continue the run in --out from its last checkpoint")
     a = p.parse_args()
@@ -53,6 +56,8 @@ def main():
                      "--checkpoint-every", "1", "--fields", "displacement", "--out", run_dir]
         for option in a.cell_option:
             demo_args += ["--cell-option", option]
+    if a.accept_rtol is not None:
+        demo_args += ["--accept-rtol", str(a.accept_rtol)]
     if a.stop_after is not None:
         demo_args += ["--stop-after", str(a.stop_after)]
     cmd = ["mpirun", "-n", str(a.np), sys.executable, os.path.join(ROOT, "demos", "femdem_biaxial.py"), *demo_args]
@@ -102,6 +107,7 @@ def main():
                                                    "moves", "migration_seconds")}
                             for r in balance.get("steps", [])] if isinstance(balance, dict) else balance,
               "imbalance_mean": balance.get("imbalance_mean") if isinstance(balance, dict) else None,
+              "changed_at_restart": summary.get("changed_at_restart"),
               "completed": summary["completed"], "peak_passed": bool(ratios) and ratios[-1] < max(ratios),
               "peak_stress_ratio": max(ratios) if ratios else None}
     with open(os.path.join(a.out, "femdem_large.json"), "w") as f:

@@ -85,11 +85,14 @@ class Checkpointer:
     options     the run's options (saved; a restart runs with them)
     every       write after every `every`-th converged step (None: only at stop_after)
     stop_after  the run stops after this step (a checkpoint is written there)
+    changes     the solver options a restart changed: name -> [saved, new] (reported)
     """
 
-    def __init__(self, comm, directory, label, options, every=None, stop_after=None, restart=False):
+    def __init__(self, comm, directory, label, options, every=None, stop_after=None, restart=False,
+                 changes=None):
         self.comm, self.directory, self.label = comm, directory, label
         self.options = dict(options)
+        self.changes = dict(changes or {})
         self.every, self.stop_after = every, stop_after
         self.restart = restart
         self.saved_ranks = None
@@ -130,6 +133,9 @@ class Checkpointer:
         if self.comm.rank == 0:
             print(f"{self.label}: continuing from the checkpoint of step {position.step} (t = {position.time:.6g}) "
                   f"written on {self.saved_ranks} rank(s)", flush=True)
+            for name, (old, new) in self.changes.items():
+                print(f"{self.label}: --{name.replace('_', '-')} {old} -> {new} from this step on (the continued "
+                      "history is no longer the uninterrupted run's)", flush=True)
         return position
 
     @property
@@ -171,6 +177,7 @@ class Checkpointer:
                 "checkpoint_bytes": self.comm.bcast(self.size_bytes, root=0),
                 "restarted_from_step": self.resumed.step if self.resumed else None,
                 "restarted_from_ranks": self.saved_ranks if self.resumed else None,
+                "changed_at_restart": dict(self.changes),
                 "stopped_after_step": self.stop_after}
 
     # --- writing -----------------------------------------------------------------------------

@@ -81,10 +81,13 @@ def add_stepping_options(parser, steps=1):
 RUN_CONTROL = ("restart", "checkpoint_every", "stop_after")
 
 
-def add_checkpoint_options(parser, label):
+def add_checkpoint_options(parser, label, solver_options=()):
     """--checkpoint-every N, --stop-after K, --restart DIR (checkpoint.py, docs/restart.md);
-    `label` names the demo in its checkpoints."""
+    `label` names the demo in its checkpoints. `solver_options` (dests) steer how a step is
+    solved, not what is solved (Newton tolerances, the Newton operator): a restart may change
+    them, as a run that stalls is continued with another rule; the change is reported."""
     parser.checkpoint_label = label
+    parser.restart_solver_options = tuple(solver_options)
     g = parser.add_argument_group("checkpoint and restart (batch queues; docs/restart.md)")
     g.add_argument("--checkpoint-every", type=number(COUNT), default=None, metavar="N",
                    help="write a checkpoint to OUT/checkpoint after every N-th converged step")
@@ -93,13 +96,20 @@ def add_checkpoint_options(parser, label):
                         "would); continue with --restart OUT")
     g.add_argument("--restart", metavar="DIR", default=None,
                    help="continue the run whose outputs are in DIR from its last checkpoint, with that run's "
-                        "options (only --checkpoint-every and --stop-after may be given) and its outputs continued")
+                        "options (only --checkpoint-every, --stop-after"
+                        + "".join(", " + _flag(d) for d in solver_options)
+                        + " may be given) and its outputs continued")
+
+
+def _flag(dest):
+    return "--" + dest.replace("_", "-")
 
 
 def restart_arguments(parser, args, argv=None):
     """The options of the run a --restart continues: those saved in its checkpoint, with the
-    run-control options typed now. A typed option that differs from the saved one, a missing
-    checkpoint or one of another demo is a ValueError naming it."""
+    run-control options and the demo's solver options typed now (args.restart_changes: dest
+    -> [saved, new] of the solver options that changed). Any other typed option that differs
+    from the saved one, a missing checkpoint or one of another demo is a ValueError naming it."""
     from .checkpoint import CheckpointError, read_meta
     try:
         meta = read_meta(args.restart, parser.checkpoint_label)
@@ -107,17 +117,25 @@ def restart_arguments(parser, args, argv=None):
         raise ValueError(f"--restart {args.restart}: {error}") from None
     saved = meta["options"]
     typed = parser.given_options(argv)
+    solver = set(getattr(parser, "restart_solver_options", ()))
+    changes = {}
     for dest in sorted(typed - set(RUN_CONTROL)):
         if dest == "out" and os.path.abspath(args.out) == os.path.abspath(args.restart):
             continue
+        if dest in solver and dest in saved:
+            if saved[dest] != getattr(args, dest):
+                changes[dest] = [saved[dest], getattr(args, dest)]
+            continue
         if dest not in saved or saved[dest] != getattr(args, dest):
-            option = "--" + dest.replace("_", "-")
+            option = _flag(dest)
+            may = ", ".join(["--checkpoint-every", "--stop-after"] + [_flag(d) for d in sorted(solver)])
             raise ValueError(f"{option} cannot be given with --restart (the run continues with the options it was "
                              f"started with{f': {option} {saved[dest]}' if dest in saved else ''}); only "
-                             "--checkpoint-every and --stop-after may change")
+                             f"{may} may change")
     for dest, value in saved.items():
         if dest not in typed:           # --checkpoint-every carries over unless typed again
             setattr(args, dest, value)
+    args.restart_changes = changes
     args.out = args.restart
     if args.stop_after is not None and args.stop_after <= meta["step"]:
         raise ValueError(f"--stop-after {args.stop_after}: the checkpoint in {args.restart} is at step {meta['step']} "
@@ -127,14 +145,16 @@ def restart_arguments(parser, args, argv=None):
 
 def run_options(args):
     """The options a checkpoint saves (JSON; what a restart runs with)."""
-    return {k: v for k, v in vars(args).items() if k not in ("elasticity", "checkpoint_label", "restart", "stop_after")}
+    return {k: v for k, v in vars(args).items()
+            if k not in ("elasticity", "checkpoint_label", "restart", "stop_after", "restart_changes")}
 
 
 def checkpointer(comm, args):
     """The run's Checkpointer (checkpoint.py) from --checkpoint-every, --stop-after, --restart."""
     from .checkpoint import Checkpointer
     return Checkpointer(comm, args.out, args.checkpoint_label, run_options(args),
-                        every=args.checkpoint_every, stop_after=args.stop_after, restart=args.restart is not None)
+                        every=args.checkpoint_every, stop_after=args.stop_after, restart=args.restart is not None,
+                        changes=getattr(args, "restart_changes", None))
 
 
 def parse(parser, argv=None, check=None):

@@ -134,6 +134,27 @@ def test_balanced_run_restarts_bit_for_bit_on_two_ranks(demo, tmp_path):
     assert_same_output(tmp_path / "straight", part, files=("history.csv", "gauss_points.csv"))
 
 
+def test_femdem_restart_may_change_the_newton_rule(demo, tmp_path):
+    """A run that stalls is continued with another Newton rule (--tangent, --accept-rtol, ...
+    the demo's solver options): the restart takes them, the material runs with them, and
+    summary.json and the log say what changed; what is solved (--mesh) still cannot change."""
+    part = tmp_path / "part"
+    demo("femdem_biaxial", *FEMDEM, "--out", part, "--stop-after", 2)
+    proc = demo("femdem_biaxial", "--restart", part, "--mesh", "2x4", check=False)
+    assert proc.returncode == 2 and "--mesh cannot be given with --restart" in proc.stderr
+    assert "--tangent" in proc.stderr                    # the message lists what may change
+    proc = demo("femdem_biaxial", "--restart", part, "--tangent", "pstlo_sliding", "--accept-rtol", 0.05,
+                "--checkpoint-every", 1)
+    assert "--tangent pstlo -> pstlo_sliding" in proc.stdout
+    summary = read_summary(part)
+    assert summary["completed"] and summary["restarted_from_step"] == 2
+    assert summary["changed_at_restart"] == {"accept_rtol": [0.03, 0.05], "tangent": ["pstlo", "pstlo_sliding"]}
+    assert summary["mode"]["tangent"] == "pstlo_sliding" and summary["options"]["accept_rtol"] == 0.05
+    # and the checkpoint it leaves carries the new rule on
+    meta = json.loads((part / "checkpoint" / "meta.json").read_text())
+    assert meta["options"]["tangent"] == "pstlo_sliding"
+
+
 def test_bad_restarts_are_refused_before_any_work(demo, tmp_path):
     empty = tmp_path / "empty"
     empty.mkdir()

@@ -43,6 +43,7 @@ def main():
     p.add_argument("--accept-rtol", type=float, default=None,
                    help="the demo's --accept-rtol; with --restart it changes the rule from the checkpoint on "
                         "(docs/restart.md)")
+    p.add_argument("--force-rtol", type=float, default=None, help="the demo's --force-rtol (the same)")
     p.add_argument("--stop-after", type=int, default=None, help="stop after this load step (a queue's limit)")
     p.add_argument("--restart", action="store_true", help="continue the run in --out from its last checkpoint")
     a = p.parse_args()
@@ -56,8 +57,9 @@ def main():
                      "--checkpoint-every", "1", "--fields", "displacement", "--out", run_dir]
         for option in a.cell_option:
             demo_args += ["--cell-option", option]
-    if a.accept_rtol is not None:
-        demo_args += ["--accept-rtol", str(a.accept_rtol)]
+    for flag, value in (("--accept-rtol", a.accept_rtol), ("--force-rtol", a.force_rtol)):
+        if value is not None:
+            demo_args += [flag, str(value)]
     if a.stop_after is not None:
         demo_args += ["--stop-after", str(a.stop_after)]
     cmd = ["mpirun", "-n", str(a.np), sys.executable, os.path.join(ROOT, "demos", "femdem_biaxial.py"), *demo_args]

@@ -96,13 +96,16 @@ def add_checkpoint_options(parser, label, solver_options=()):
                         "would); continue with --restart OUT")
     g.add_argument("--restart", metavar="DIR", default=None,
                    help="continue the run whose outputs are in DIR from its last checkpoint, with that run's "
-                        "options (only --checkpoint-every, --stop-after"
-                        + "".join(", " + _flag(d) for d in solver_options)
-                        + " may be given) and its outputs continued")
+                        f"options (only {_may_change(solver_options)} may be given) and its outputs continued")
 
 
 def _flag(dest):
     return "--" + dest.replace("_", "-")
+
+
+def _may_change(solver_options):
+    """The options a restart takes, as flags: the run control and the demo's solver options."""
+    return ", ".join(["--checkpoint-every", "--stop-after"] + [_flag(d) for d in solver_options])
 
 
 def restart_arguments(parser, args, argv=None):
@@ -117,7 +120,7 @@ def restart_arguments(parser, args, argv=None):
         raise ValueError(f"--restart {args.restart}: {error}") from None
     saved = meta["options"]
     typed = parser.given_options(argv)
-    solver = set(getattr(parser, "restart_solver_options", ()))
+    solver = getattr(parser, "restart_solver_options", ())
     changes = {}
     for dest in sorted(typed - set(RUN_CONTROL)):
         if dest == "out" and os.path.abspath(args.out) == os.path.abspath(args.restart):
@@ -128,10 +131,9 @@ def restart_arguments(parser, args, argv=None):
             continue
         if dest not in saved or saved[dest] != getattr(args, dest):
             option = _flag(dest)
-            may = ", ".join(["--checkpoint-every", "--stop-after"] + [_flag(d) for d in sorted(solver)])
             raise ValueError(f"{option} cannot be given with --restart (the run continues with the options it was "
                              f"started with{f': {option} {saved[dest]}' if dest in saved else ''}); only "
-                             f"{may} may change")
+                             f"{_may_change(solver)} may change")
     for dest, value in saved.items():
         if dest not in typed:           # --checkpoint-every carries over unless typed again
             setattr(args, dest, value)

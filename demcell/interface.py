@@ -461,7 +461,8 @@ class DemCell(MicroCell):
         kind: 'kruyt' (001 eq. 13, closed form), 'demqo' (001 eq. 20, 4 frozen-contact
         relaxations), 'pstlo' (001 appendix B, one sparse solve of the same linearized
         problem), 'pstlo_sliding' (the same with the contacts near their Coulomb limit sliding:
-        tangent.SLIP_RATIO; floored: tangent.floor_stiffness), 'perturbation' (CTO, 001 eq. 6, 4 full solves from the last commit).
+        tangent.SLIP_RATIO; floored: tangent.floor_stiffness), 'perturbation' (CTO, 001 eq. 6,
+        4 full solves from the last commit).
         measure: 'dsigma_dF' (d sigma_ij/dF_kl = d sigma/d Grad u) or 'dP_dF'; for a micropolar
         cell also 'micropolar': the 6x6 d(sigma, m)/d(F, kappa) at fixed phi in the FE callback's
         order (rows sigma11, sigma22, sigma12, sigma21, m31, m32; columns eps11, eps22, eps12,

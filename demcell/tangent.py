@@ -19,8 +19,9 @@ total-Lagrangian FE code needs.
   SLIP_RATIO mu fn) sliding on under the load (dfs = mu sign(fs) dfn, no tangential spring):
   the consistent tangent of the friction law under continued loading, as a return map's in
   plasticity; its stiffness on symmetric strains floored at STIFFNESS_FLOOR of its largest
-  eigenvalue (floor_stiffness), so that a cell at its peak is not a mechanism. Not in 001; its elastic operators miss the sliding, which is what makes the
-  macro Newton converge linearly where cells slide (docs/femdem.md, "Newton operators").
+  eigenvalue (floor_stiffness), so that a cell at its peak is not a mechanism. Not in 001;
+  its elastic operators miss the sliding, which is what makes the macro Newton converge
+  linearly where cells slide (docs/femdem.md, "Newton operators").
 """
 import dataclasses
 import math
@@ -253,10 +254,10 @@ def _pstlo_triplets(h, s, radius, pair_i, pair_j, fn, fs, mr, touching, n_pairs,
     Sx (4 x 3N, d sigma / d unknowns, times area) and SF (4 x 4, times area; the area change
     term is added by the caller).
 
-    ``slip_ratio`` > 0: a contact at or near its Coulomb limit (|fs| >= slip_ratio mu fn, fn > 0;
-    mu is the law's friction) goes on sliding: dfs = mu sign(fs) dfn replaces the tangential spring (the consistent tangent of
-    the Coulomb law under continued loading, as the return map of plasticity; the network
-    keeps its normal springs and pre-stress)."""
+    ``slip_ratio`` > 0: a contact at or near its Coulomb limit (|fs| >= slip_ratio mu fn,
+    fn > 0; mu is the law's friction) goes on sliding: dfs = mu sign(fs) dfn replaces the
+    tangential spring (the consistent tangent of the Coulomb law under continued loading, as
+    the return map of plasticity; the network keeps its normal springs and pre-stress)."""
     n = radius.shape[0]
     cap = 0
     for k in range(n_pairs):

@@ -94,7 +94,9 @@ def timed_run(run_fn, st, la, dt, nsteps, skin):
     return cpu, wall, rep.rebuilds, 0.5 * (c_before + c_after)
 
 
-@njit(cache=True)
+# not cached: they call demcell's kernels, and a cached caller keeps the callee it was compiled
+# with (demcell/numba_cache.py): the profile must time this checkout's demcell
+@njit
 def _forces_k(k, radius, mass, s, dtheta, force, moment, h, pair_i, pair_j, fn, fs, mr, bonded,
               touching, d_prev, n_pairs, law, dt, out):
     for _ in range(k):
@@ -102,7 +104,7 @@ def _forces_k(k, radius, mass, s, dtheta, force, moment, h, pair_i, pair_j, fn, 
                        bonded, touching, d_prev, n_pairs, law, dt, out)
 
 
-@njit(cache=True)
+@njit
 def _images_k(k, h, s, pair_i, pair_j, n_pairs, rounding):
     acc = 0.0
     for _ in range(k):
@@ -120,7 +122,7 @@ def _images_k(k, h, s, pair_i, pair_j, n_pairs, rounding):
     return acc
 
 
-@njit(cache=True)
+@njit
 def _rebuild_k(k, n, h, s, radius, skin, n_pairs, pair_i, pair_j, fs, mr, bonded, touching, d_prev, fn):
     cap = pair_i.shape[0]
     lost = 0
@@ -139,7 +141,7 @@ def _rebuild_k(k, n, h, s, radius, skin, n_pairs, pair_i, pair_j, fs, mr, bonded
     return lost
 
 
-@njit(cache=True)
+@njit
 def _integrate_k(k, mass, inertia, force, moment, v, s, omega, dtheta, theta, h, dt, damp):
     """``relaxation.leapfrog`` (the integration of ``advance``) run k times at fixed forces:
     the cost of the integration alone."""

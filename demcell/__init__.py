@@ -17,14 +17,20 @@ Main entry points:
 Conventions: tension positive, (Grad u)_ij = du_i/dX_j, t_i = sigma_ij n_j, 2D quantities
 per unit thickness (stress in N/m). See docs/demcell.md.
 """
-from .contact_law import ContactLaw
-from .errors import DemCellError, InputError, SolveError
-from .homogenization import Homogenized, homogenize
-from .interface import ROTATION_MODES, DemCell, MicroCell, RelaxationOptions, SolveResult, create_cells
-from .io import load_packing, save_packing, write_vtk_snapshot
-from .packing import generate_packing, hexagonal_lattice, loose_state
-from .preparation import isotropic_stage, reference_cell
-from .state import CellState
+import os as _os
+
+from .numba_cache import clear_stale_cache as _clear_stale_cache
+
+_clear_stale_cache(_os.path.dirname(_os.path.abspath(__file__)))   # before any kernel loads
+
+from .contact_law import ContactLaw  # noqa: E402
+from .errors import DemCellError, InputError, SolveError  # noqa: E402
+from .homogenization import Homogenized, homogenize  # noqa: E402
+from .interface import ROTATION_MODES, DemCell, MicroCell, RelaxationOptions, SolveResult, create_cells  # noqa: E402
+from .io import load_packing, save_packing, write_vtk_snapshot  # noqa: E402
+from .packing import generate_packing, hexagonal_lattice, loose_state  # noqa: E402
+from .preparation import isotropic_stage, reference_cell  # noqa: E402
+from .state import CellState  # noqa: E402
 
 __all__ = ["ContactLaw", "DemCellError", "InputError", "SolveError", "Homogenized", "homogenize",
            "DemCell", "ROTATION_MODES", "MicroCell", "RelaxationOptions", "SolveResult", "create_cells",

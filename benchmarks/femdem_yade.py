@@ -491,6 +491,10 @@ def main(argv=None):
     p.add_argument("--mpirun", default="mpirun")
     p.add_argument("--timeout", type=float, default=7200, help="limit per run [s]")
     p.add_argument("--out", default="results/benchmarks/femdem_yade")
+    p.add_argument("--reuse-yade", action="store_true",
+                   help="take YADE's part (its record, the RVE, the tolerance) from --out/femdem_yade.json of an "
+                        "earlier run instead of running it again (15 min here); ours' runs are added to that "
+                        "record, replacing runs of the same tangent and cell options")
     p.add_argument("--report-only", action="store_true",
                    help="only rewrite the table and the plot from --out/femdem_yade.json (no run)")
     a = p.parse_args(argv)
@@ -509,6 +513,12 @@ def main(argv=None):
             CellOptions(extra=dict(key_value(o) for o in a.cell_option)).check()
         except (ValueError, TypeError, argparse.ArgumentTypeError) as error:
             raise SystemExit(f"--cell-option: {error}")
+    record = os.path.join(a.out, "femdem_yade.json")
+    if a.reuse_yade:
+        res = reused_record(record, a)
+        run_ours(res, a, res["law_ours"], os.path.abspath(os.path.join(a.out, "rve_yade.npz")),
+                 a.force_rtol if a.force_rtol is not None else res["force_rtol"])
+        return
     ensure_packages()
     for exe in (a.yade, a.mpirun):
         if not shutil.which(exe):
@@ -535,8 +545,34 @@ def main(argv=None):
                rve=dict(n=len(rve["radius"]), contacts=len(rve["contact_kn"]), thickness=rve["thickness"],
                         dt=rve["dt"], damping=rve["damping"], stress_pa=rve["stress_pa"]),
                law_ours=law, yade=y, ours=[])
-    with open(os.path.join(a.out, "femdem_yade.json"), "w") as fh:      # YADE's part kept if ours fails
+    with open(record, "w") as fh:      # YADE's part kept if ours fails
         json.dump(res, fh, indent=1)
+    run_ours(res, a, law, packing, rtol)
+
+
+def reused_record(record, a):
+    """The record of an earlier run whose YADE part ``--reuse-yade`` takes, checked against
+    the options before any work."""
+    if not os.path.exists(record):
+        raise SystemExit(f"--reuse-yade: no {record} of an earlier run")
+    with open(record) as fh:
+        res = json.load(fh)
+    if "yade" not in res or not os.path.exists(os.path.join(a.out, "rve_yade.npz")):
+        raise SystemExit(f"--reuse-yade: {record} has no YADE part (or rve_yade.npz is missing)")
+    if res["increments_requested"] != a.increments or res["np"] != a.np:
+        raise SystemExit(f"--reuse-yade: the earlier run had --increments {res['increments_requested']} "
+                         f"--np {res['np']}; give the same")
+    if not shutil.which(a.mpirun):
+        raise SystemExit(f"{a.mpirun} not found")
+    res["yade_reused"] = True
+    return res
+
+
+def run_ours(res, a, law, packing, rtol):
+    """Ours' runs (every tangent, then every tangent with --cell-option), the scatter of the
+    cell and the report, added to ``res`` and written as they go."""
+    y = res["yade"]
+    record = os.path.join(a.out, "femdem_yade.json")
     variants = [(t, ()) for t in a.tangents] + ([(t, tuple(a.cell_option)) for t in a.tangents] if a.cell_option else [])
     for tangent, cell_options in variants:
         name = " ".join([tangent, *cell_options])
@@ -552,10 +588,10 @@ def main(argv=None):
         o["force_relative_difference"] = (np.abs(fo[:n] - fy[:n]) / np.abs(fy[:n])).tolist()
         o["wall_ratio_mean"] = mean(y["increments"], "wall") / mean(o["increments"], "wall")
         o["wall_ratio_per_increment"] = [yi["wall"] / oi["wall"] for yi, oi in zip(y["increments"], o["increments"])]
-        res["ours"].append(o)
-        with open(os.path.join(a.out, "femdem_yade.json"), "w") as fh:
+        res["ours"] = [r for r in res["ours"] if label(r) != label(o)] + [o]
+        with open(record, "w") as fh:
             json.dump(res, fh, indent=1)
-    if a.scatter_seeds > 0:
+    if a.scatter_seeds > 0 and not (a.reuse_yade and res.get("cell_scatter")):
         curves = cell_scatter(a.yade, os.path.join(a.out, "scatter"), range(1, a.scatter_seeds + 1), law,
                               a.increments, WIDTH)
         f = np.array(list(curves.values()))
@@ -568,7 +604,7 @@ def main(argv=None):
         o["per_cell_pass"] = dict(wall_ms_x_np=1e3 * a.np * sum(i["wall"] for i in inc) / passes,
                                   cpu_ms=1e3 * sum(i["cpu"] for i in inc) / passes,
                                   dem_steps=sum(i["dem_steps"] for i in inc) / passes)
-    with open(os.path.join(a.out, "femdem_yade.json"), "w") as fh:
+    with open(record, "w") as fh:
         json.dump(res, fh, indent=1)
     report(res, a.out)
 

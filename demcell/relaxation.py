@@ -82,9 +82,12 @@ def compute_forces(radius, mass, s, dtheta, force, moment, h, pair_i, pair_j, fn
     wraparound code per array access) and the minimum-image rounding uses np.floor (a float;
     math.floor returns an integer, i.e. two extra conversions). The arithmetic and its order
     are those of ``branch_vector`` and ``contact_update``: results are bit-identical.
-    A cell with the plain frictional law (no bond left, no dashpot, rolling spring, frozen
-    contacts or image spin) goes through ``_plain_pair_forces``, the same arithmetic in three short loops,
-    about 1.8x faster; ``plain_path=False`` forces this general loop (the tests compare the
+    The branch vectors of all pairs are computed first (``_branch_vectors``: short
+    iterations the core overlaps; in a probe this alone made the general loop 15-20 %
+    faster, benchmarks/DEM.md). A cell with the
+    plain frictional law (no bond left, no dashpot, rolling spring, frozen contacts or image
+    spin) then goes through ``_plain_pair_forces``, the same arithmetic in short loops, about
+    1.7x faster per step; ``plain_path=False`` forces the general loop (the tests compare the
     two bit for bit)."""
     n = radius.shape[0]
     for i in range(n):
@@ -113,11 +116,14 @@ def compute_forces(radius, mass, s, dtheta, force, moment, h, pair_i, pair_j, fn
     half_inv_kn = 0.5 / kn
     half_inv_ks = 0.5 / ks if ks > 0.0 else 0.0
     half_inv_kr = 0.5 / kr if kr > 0.0 else 0.0
+    # per pair: branch vector, distance (first pass), then the plain loop's force, moments, energy
+    work = np.empty((n_pairs, 8))
+    _branch_vectors(s, h00, h01, h10, h11, pair_i, pair_j, n_pairs, work)
     # cohesion acts only through bonds: a law with cohesion but no bond left is plain
     if plain_path and not (frozen or image_spin or need_eff or _any_bond(bonded, n_pairs)):
         s11, s12, s21, s22, epot, ncont, nslide, fsum, maxovl = _plain_pair_forces(
-            radius, s, dtheta, force, moment, h00, h01, h10, h11, pair_i, pair_j, fn, fs, mr,
-            touching, d_prev, n_pairs, kn, ks, mu, half_inv_kn, half_inv_ks)
+            radius, dtheta, force, moment, pair_i, pair_j, fn, fs, mr, touching, d_prev, n_pairs,
+            kn, ks, mu, half_inv_kn, half_inv_ks, work)
         _store_sums(out, area, s11, s12, s21, s22, epot, ncont, nslide, fsum, maxovl)
         return
     s11 = 0.0
@@ -150,16 +156,9 @@ def compute_forces(radius, mass, s, dtheta, force, moment, h, pair_i, pair_j, fn
             fix = force[i, 0]
             fiy = force[i, 1]
             mi = moment[i]
-        # minimum-image branch vector (branch_vector, 001 eq. A.1)
-        a = s[j, 0] - s[i, 0]
-        b = s[j, 1] - s[i, 1]
-        round_a = np.floor(a + 0.5)
-        round_b = np.floor(b + 0.5)
-        a -= round_a
-        b -= round_b
-        dx = h00 * a + h01 * b
-        dy = h10 * a + h11 * b
-        dist = math.sqrt(dx * dx + dy * dy)
+        dx = work[k, 0]
+        dy = work[k, 1]
+        dist = work[k, 2]
         ri = radius[i]
         rj = radius[j]
         overlap = ri + rj - dist
@@ -192,6 +191,13 @@ def compute_forces(radius, mass, s, dtheta, force, moment, h, pair_i, pair_j, fn
             dth_i = dtheta[i]
             dth_j = dtheta[j]
             if image_spin:
+                # the minimum image again, as in _branch_vectors (the same operations)
+                a = s[j, 0] - s[i, 0]
+                b = s[j, 1] - s[i, 1]
+                round_a = np.floor(a + 0.5)
+                round_b = np.floor(b + 0.5)
+                a -= round_a
+                b -= round_b
                 # image shift n = -(round_a, round_b); the copy with its contact point in the
                 # cell is shifted by -m for both discs
                 m_a, m_b = contact_copy(s, i, a, b, ai * inv_dist)
@@ -280,30 +286,13 @@ def _any_bond(bonded, n_pairs):
 
 
 @njit(cache=True)
-def _plain_pair_forces(radius, s, dtheta, force, moment, h00, h01, h10, h11, pair_i, pair_j,
-                       fn, fs, mr, touching, d_prev, n_pairs, kn, ks, mu, half_inv_kn,
-                       half_inv_ks):
-    """``compute_forces`` for the plain frictional law of 000 (eq. 10: linear springs kn, ks
-    [N/m], Coulomb mu; no bond, dashpot, rolling spring, frozen contacts or image spin), the
-    law of every FEM x DEM cell. Returns the sums (s11, s12, s21, s22 before the division by
-    the area, epot, ncont, nslide, fsum, maxovl); force and moment must be zero on entry.
-
-    Speed (issue 9 item 7, benchmarks/dem_profile.py): the general loop is one long
-    dependent chain per pair (image, square root, division, law, scatter: some 250
-    instructions), too long for the out-of-order window to start the next pair while one
-    finishes (on a Zen 3 core it ran at about 40 ns per pair). Here it is split into three
-    loops of short, independent iterations: (1) the minimum-image branch vectors and
-    distances, (2) the contact law per pair, its force, moments and energy into a scratch
-    row, (3) the scatter to the particles and the sums, in the pair order of the general
-    loop. Each contact sees the same floating-point operations in the same order, and every
-    sum is taken in the same order: the results are bit-identical to the general loop
-    (tests/test_demcell_kernels.py compares them)."""
-    m = np.uint64(n_pairs)
-    work = np.empty((n_pairs, 8))    # dx, dy, |d|, f_j (2), moment on i, on j, energy
-    for k in range(m):
+def _branch_vectors(s, h00, h01, h10, h11, pair_i, pair_j, n_pairs, work):
+    """First pass of the force loops: minimum-image branch vector x_j - x_i [m] (``branch_vector``,
+    001 eq. A.1) and its length of every listed pair into work[:, 0:3]. A loop of short,
+    independent iterations, apart from the law's branches (see ``_plain_pair_forces``)."""
+    for k in range(np.uint64(n_pairs)):
         i = np.uint64(pair_i[k])
         j = np.uint64(pair_j[k])
-        # minimum-image branch vector (branch_vector, 001 eq. A.1)
         a = s[j, 0] - s[i, 0]
         b = s[j, 1] - s[i, 1]
         a -= np.floor(a + 0.5)
@@ -313,6 +302,29 @@ def _plain_pair_forces(radius, s, dtheta, force, moment, h00, h01, h10, h11, pai
         work[k, 0] = dx
         work[k, 1] = dy
         work[k, 2] = math.sqrt(dx * dx + dy * dy)
+
+
+@njit(cache=True)
+def _plain_pair_forces(radius, dtheta, force, moment, pair_i, pair_j, fn, fs, mr, touching,
+                       d_prev, n_pairs, kn, ks, mu, half_inv_kn, half_inv_ks, work):
+    """``compute_forces`` for the plain frictional law of 000 (eq. 10: linear springs kn, ks
+    [N/m], Coulomb mu; no bond, dashpot, rolling spring, frozen contacts or image spin), the
+    law of every FEM x DEM cell. Returns the sums (s11, s12, s21, s22 before the division by
+    the area, epot, ncont, nslide, fsum, maxovl); force and moment must be zero on entry;
+    work (n_pairs, 8) holds the branch vectors and distances of ``_branch_vectors`` in its
+    first three columns and takes each pair's force, moments and energy in the others.
+
+    Speed (issue 9 item 7, benchmarks/dem_profile.py): the general loop is one long
+    dependent chain per pair (image, square root, division, law, scatter: some 250
+    instructions), too long for the out-of-order window to start the next pair while one
+    finishes (on a Zen 3 core it ran at about 40 ns per pair). Here it is split into three
+    loops of short, independent iterations: (1) the minimum-image branch vectors and
+    distances (``_branch_vectors``, which the general loop shares), (2) the contact law per pair, its force, moments and energy into a scratch
+    row, (3) the scatter to the particles and the sums, in the pair order of the general
+    loop. Each contact sees the same floating-point operations in the same order, and every
+    sum is taken in the same order: the results are bit-identical to the general loop
+    (tests/test_demcell_kernels.py compares them)."""
+    m = np.uint64(n_pairs)
     ncont = 0
     nslide = 0
     maxovl = 0.0

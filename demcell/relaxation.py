@@ -84,11 +84,10 @@ def compute_forces(radius, mass, s, dtheta, force, moment, h, pair_i, pair_j, fn
     are those of ``branch_vector`` and ``contact_update``: results are bit-identical.
     The branch vectors of all pairs are computed first (``_branch_vectors``: short
     iterations the core overlaps; in a probe this alone made the general loop 15-20 %
-    faster, benchmarks/DEM.md). A cell with the
-    plain frictional law (no bond left, no dashpot, rolling spring, frozen contacts or image
-    spin) then goes through ``_plain_pair_forces``, the same arithmetic in short loops, about
-    1.7x faster per step; ``plain_path=False`` forces the general loop (the tests compare the
-    two bit for bit)."""
+    faster, benchmarks/DEM.md). A cell with the plain frictional law (no bond left, no
+    dashpot, rolling spring, frozen contacts or image spin) then goes through
+    ``_plain_pair_forces``, the same arithmetic in short loops, about 1.7x faster per step;
+    ``plain_path=False`` forces the general loop (the tests compare the two bit for bit)."""
     n = radius.shape[0]
     for i in range(n):
         force[i, 0] = 0.0
@@ -116,16 +115,15 @@ def compute_forces(radius, mass, s, dtheta, force, moment, h, pair_i, pair_j, fn
     half_inv_kn = 0.5 / kn
     half_inv_ks = 0.5 / ks if ks > 0.0 else 0.0
     half_inv_kr = 0.5 / kr if kr > 0.0 else 0.0
-    # per pair: branch vector, distance (first pass), then the plain loop's force, moments, energy
-    work = np.empty((n_pairs, 8))
-    _branch_vectors(s, h00, h01, h10, h11, pair_i, pair_j, n_pairs, work)
     # cohesion acts only through bonds: a law with cohesion but no bond left is plain
     if plain_path and not (frozen or image_spin or need_eff or _any_bond(bonded, n_pairs)):
         s11, s12, s21, s22, epot, ncont, nslide, fsum, maxovl = _plain_pair_forces(
-            radius, dtheta, force, moment, pair_i, pair_j, fn, fs, mr, touching, d_prev, n_pairs,
-            kn, ks, mu, half_inv_kn, half_inv_ks, work)
+            radius, s, dtheta, force, moment, h00, h01, h10, h11, pair_i, pair_j, fn, fs, mr,
+            touching, d_prev, n_pairs, kn, ks, mu, half_inv_kn, half_inv_ks)
         _store_sums(out, area, s11, s12, s21, s22, epot, ncont, nslide, fsum, maxovl)
         return
+    work = np.empty((n_pairs, 3))     # branch vector and distance of every pair (first pass)
+    _branch_vectors(s, h00, h01, h10, h11, pair_i, pair_j, n_pairs, work)
     s11 = 0.0
     s12 = 0.0
     s21 = 0.0
@@ -169,19 +167,11 @@ def compute_forces(radius, mass, s, dtheta, force, moment, h, pair_i, pair_j, fn
         else:
             bond = bonded[k]
             if overlap <= 0.0 and bond == 0:
-                touching[k] = 0
-                fn[k] = 0.0
-                fs[k] = 0.0
-                mr[k] = 0.0
+                _release(k, touching, fn, fs, mr)
                 continue
-        inv_dist = 1.0 / dist
-        nx = dx * inv_dist
-        ny = dy * inv_dist
+        inv_dist, nx, ny, ai, aj = _contact_frame(dx, dy, dist, ri, rj, overlap)
         tx = -ny
         ty = nx
-        # lever arms to the contact point in the middle of the overlap (001 eqs. A.5-A.6)
-        ai = ri - 0.5 * overlap
-        aj = rj - 0.5 * overlap
         if touching[k] == 1:
             ux = dx - d_prev[k, 0]
             uy = dy - d_prev[k, 1]
@@ -225,10 +215,7 @@ def compute_forces(radius, mass, s, dtheta, force, moment, h, pair_i, pair_j, fn
         if not frozen:
             bonded[k] = bond
             if fne == 0.0 and fst == 0.0 and overlap <= 0.0:
-                touching[k] = 0
-                fn[k] = 0.0
-                fs[k] = 0.0
-                mr[k] = 0.0
+                _release(k, touching, fn, fs, mr)
                 continue
         touching[k] = 1
         d_prev[k, 0] = dx
@@ -277,6 +264,24 @@ def _store_sums(out, area, s11, s12, s21, s22, epot, ncont, nslide, fsum, maxovl
 
 
 @njit(cache=True)
+def _contact_frame(dx, dy, dist, ri, rj, overlap):
+    """1 / |d|, the unit normal n = d / |d| from i to j (the tangent is t = (-n_y, n_x)) and the
+    lever arms of i and j to the contact point in the middle of the overlap (001 eqs.
+    A.5-A.6), for both force loops."""
+    inv_dist = 1.0 / dist
+    return inv_dist, dx * inv_dist, dy * inv_dist, ri - 0.5 * overlap, rj - 0.5 * overlap
+
+
+@njit(cache=True)
+def _release(k, touching, fn, fs, mr):
+    """Pair k carries no force: its contact and its history are cleared."""
+    touching[k] = 0
+    fn[k] = 0.0
+    fs[k] = 0.0
+    mr[k] = 0.0
+
+
+@njit(cache=True)
 def _any_bond(bonded, n_pairs):
     """True if a cohesive bond holds any listed pair (no early exit: the loop vectorises)."""
     acc = 0
@@ -288,8 +293,8 @@ def _any_bond(bonded, n_pairs):
 @njit(cache=True)
 def _branch_vectors(s, h00, h01, h10, h11, pair_i, pair_j, n_pairs, work):
     """First pass of the force loops: minimum-image branch vector x_j - x_i [m] (``branch_vector``,
-    001 eq. A.1) and its length of every listed pair into work[:, 0:3]. A loop of short,
-    independent iterations, apart from the law's branches (see ``_plain_pair_forces``)."""
+    001 eq. A.1) and its length of every listed pair into work[:, 0:3]: short, independent
+    iterations without branches, which the core overlaps (see ``_plain_pair_forces``)."""
     for k in range(np.uint64(n_pairs)):
         i = np.uint64(pair_i[k])
         j = np.uint64(pair_j[k])
@@ -305,25 +310,28 @@ def _branch_vectors(s, h00, h01, h10, h11, pair_i, pair_j, n_pairs, work):
 
 
 @njit(cache=True)
-def _plain_pair_forces(radius, dtheta, force, moment, pair_i, pair_j, fn, fs, mr, touching,
-                       d_prev, n_pairs, kn, ks, mu, half_inv_kn, half_inv_ks, work):
+def _plain_pair_forces(radius, s, dtheta, force, moment, h00, h01, h10, h11, pair_i, pair_j,
+                       fn, fs, mr, touching, d_prev, n_pairs, kn, ks, mu, half_inv_kn,
+                       half_inv_ks):
     """``compute_forces`` for the plain frictional law of 000 (eq. 10: linear springs kn, ks
     [N/m], Coulomb mu; no bond, dashpot, rolling spring, frozen contacts or image spin), the
     law of every FEM x DEM cell. Returns the sums (s11, s12, s21, s22 before the division by
-    the area, epot, ncont, nslide, fsum, maxovl); force and moment must be zero on entry;
-    work (n_pairs, 8) holds the branch vectors and distances of ``_branch_vectors`` in its
-    first three columns and takes each pair's force, moments and energy in the others.
+    the area, epot, ncont, nslide, fsum, maxovl); force and moment must be zero on entry.
 
     Speed (issue 9 item 7, benchmarks/dem_profile.py): the general loop is one long
     dependent chain per pair (image, square root, division, law, scatter: some 250
     instructions), too long for the out-of-order window to start the next pair while one
     finishes (on a Zen 3 core it ran at about 40 ns per pair). Here it is split into three
     loops of short, independent iterations: (1) the minimum-image branch vectors and
-    distances (``_branch_vectors``, which the general loop shares), (2) the contact law per pair, its force, moments and energy into a scratch
-    row, (3) the scatter to the particles and the sums, in the pair order of the general
-    loop. Each contact sees the same floating-point operations in the same order, and every
+    distances (``_branch_vectors``, which the general loop shares), (2) the contact law per
+    pair, its force, moments and energy into a scratch row, (3) the scatter to the particles
+    and the sums, in the pair order of the general loop. Each contact sees the same floating-point operations in the same order, and every
     sum is taken in the same order: the results are bit-identical to the general loop
     (tests/test_demcell_kernels.py compares them)."""
+    # the scratch is allocated here, not passed in: the compiler then knows that it aliases
+    # none of the arrays the loops store into (passed in, it cost 5-10 % of the step)
+    work = np.empty((n_pairs, 8))    # dx, dy, |d|, f_j (2), moment on i, on j, energy
+    _branch_vectors(s, h00, h01, h10, h11, pair_i, pair_j, n_pairs, work)
     m = np.uint64(n_pairs)
     ncont = 0
     nslide = 0
@@ -338,19 +346,11 @@ def _plain_pair_forces(radius, dtheta, force, moment, pair_i, pair_j, fn, fs, mr
         rj = radius[j]
         overlap = ri + rj - dist
         if overlap <= 0.0:
-            touching[k] = 0
-            fn[k] = 0.0
-            fs[k] = 0.0
-            mr[k] = 0.0
+            _release(k, touching, fn, fs, mr)
             continue
-        inv_dist = 1.0 / dist
-        nx = dx * inv_dist
-        ny = dy * inv_dist
+        inv_dist, nx, ny, ai, aj = _contact_frame(dx, dy, dist, ri, rj, overlap)
         tx = -ny
         ty = nx
-        # lever arms to the contact point in the middle of the overlap (001 eqs. A.5-A.6)
-        ai = ri - 0.5 * overlap
-        aj = rj - 0.5 * overlap
         # contact_update_params without bond, dashpot or rolling spring: the same operations
         if touching[k] == 1:
             ux = dx - d_prev[k, 0]

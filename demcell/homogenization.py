@@ -98,6 +98,17 @@ def contact_sums(h, s, radius, pair_i, pair_j, fn, fs, mr, touching, n_pairs, mu
     return sigma / area, couple / area, fabric, nc, nsl, z
 
 
+@njit(cache=True)
+def mechanical_contacts(pair_i, pair_j, touching, n_pairs, z):
+    """Contacts between two particles that each have at least 2 contacts (z: contacts per
+    particle), the C' of the mechanical coordination number (rattlers excluded)."""
+    count = 0
+    for k in range(n_pairs):
+        if touching[k] and z[pair_i[k]] >= 2 and z[pair_j[k]] >= 2:
+            count += 1
+    return count
+
+
 @dataclass
 class Homogenized:
     """Macroscopic response of one cell (tension positive, 2D per unit thickness).
@@ -153,8 +164,7 @@ def homogenize(state, law, micropolar=False):
     F = state.F
     area = abs(np.linalg.det(state.h))
     active = z >= 2
-    c_mech = sum(1 for k in range(state.n_pairs) if state.touching[k] and active[state.pair_i[k]]
-                 and active[state.pair_j[k]]) if nc else 0
+    c_mech = mechanical_contacts(state.pair_i, state.pair_j, state.touching, state.n_pairs, z) if nc else 0
     ekin = 0.5 * float(np.sum(state.mass * np.sum(state.v ** 2, axis=1))
                        + np.sum(state.inertia * state.omega ** 2))
     epot = 0.0

@@ -129,3 +129,38 @@ def test_stale_numba_cache_is_dropped(tmp_path):
     (tmp_path / "kernel.py").write_text("X = 2\n")
     assert clear_stale_cache(str(tmp_path))              # edited: cleared
     assert not (cache / "kernel.f-1.py311.nbi").exists()
+
+
+def test_mechanical_coordination_number_against_its_definition(packing60):
+    """homogenize counts C' (contacts between two particles that each have >= 2 contacts) in
+    Numba; here C' is counted from the definition (000 section 4.1) in plain Python, on a
+    packing with rattlers and on a hexagonal lattice (no rattler: n' = n = 6)."""
+    law = dc.ContactLaw(kn=1e4, ks=2e3, friction=0.4)
+    cell = dc.DemCell(packing60.copy(), law)
+    cell.set_deformation(np.eye(2))
+    cell.solve()
+    st = cell.state
+    n = st.n_pairs
+    # two rattlers with one contact left each, first and second in their pair (homogenize
+    # reads the flags as they are)
+    for side, other in ((st.pair_i, st.pair_j), (st.pair_j, st.pair_i)):
+        k0 = next(k for k in range(n) if st.touching[k] and other[k] not in (0, 1))
+        p = side[k0]
+        st.touching[[k for k in range(n) if k != k0 and p in (st.pair_i[k], st.pair_j[k])]] = 0
+    touching = [k for k in range(n) if st.touching[k]]
+    z = np.zeros(st.n_particles, int)
+    for k in touching:
+        z[st.pair_i[k]] += 1
+        z[st.pair_j[k]] += 1
+    active = z >= 2
+    c_mech = sum(1 for k in touching if active[st.pair_i[k]] and active[st.pair_j[k]])
+    h = cell.homogenized()
+    assert 0 < c_mech < len(touching), "the packing should hold rattlers or contacts to them"
+    assert h.mechanical_coordination_number == 2.0 * c_mech / active.sum()
+    assert h.coordination_number == 2.0 * len(touching) / st.n_particles
+
+    lattice = dc.DemCell(dc.hexagonal_lattice(6, 6, radius=0.01, overlap=1e-5), law)
+    lattice.set_deformation(np.eye(2))
+    lattice.solve()
+    h = lattice.homogenized()
+    assert h.coordination_number == pytest.approx(6.0) and h.mechanical_coordination_number == pytest.approx(6.0)

@@ -5,13 +5,14 @@ The scene of demos/femdem_biaxial.py with a weak corner (a square of --weak-size
 left, its cells at --weak-friction x the friction) so that a band forms from it: the cells of
 the band relax far longer than the others, and the rank that owns the corner does more cell
 work. The same run twice in one process, balance off (a DemMaterial per rank) and on
-(balancing.BalancedMaterial, --threshold), and per converged step:
+(balancing.BalancedMaterial, --threshold), and with `--order off,on,passes` a third time
+balanced between the Newton passes (BalancedMaterial(passes=True)); per converged step:
 
     cell work per rank   wall seconds in the cells' solves, homogenisation, tangents, commits
     imbalance            slowest rank / mean of the cell work of the step
     wall, CPU            seconds of the step (wall: the slowest rank; CPU: summed over the
                          ranks; OpenMPI spins while it waits, so CPU ~ ranks x wall)
-    moves                cells moved after the step (balance on)
+    moves                cells moved after the step (balance on), or within it (passes)
 
 with the load average (/proc/loadavg) before and after each run: the machine is shared, and
 a busy core makes its rank slow whatever the balance. Writes femdem_balance.json and
@@ -48,15 +49,20 @@ CELL_TIMERS = ("solve", "homogenize", "tangent", "commit")
 SOLVERS = {"redundant": {"pc_type": "redundant"}, "mumps": {}}
 
 
-def run(comm, a, balance):
+#: the runs --order may ask for: label -> (balance, between passes)
+RUNS = {"off": (False, False), "on": (True, False), "passes": (True, True)}
+
+
+def run(comm, a, label):
     """One run; per-step measurements (the same on every rank)."""
+    balance, passes = RUNS[label]
     from cosserat_fenicsx.materials.dem import CellOptions
     from cosserat_fenicsx.scenes.femdem_biaxial import FemDemBiaxial, FemDemSettings, parse_mesh
     nx, ny = parse_mesh(a.mesh)
     s = FemDemSettings(nx=nx, ny=ny, mode=a.mode, tangent=a.tangent, axial_strain=a.axial_strain, steps=a.steps,
                        weak_size=a.weak_size, weak_friction_factor=a.weak_friction, grain_diameter=a.grain_diameter,
                        cell=CellOptions(particles=a.particles), balance=balance, balance_threshold=a.threshold,
-                       solver_options=SOLVERS[a.solver])
+                       balance_passes=passes, solver_options=SOLVERS[a.solver])
     load_start = list(os.getloadavg())
     test = FemDemBiaxial(comm, s, verbose=False)
     steps = []
@@ -77,12 +83,14 @@ def run(comm, a, balance):
                       "dem_steps_per_rank": dem, "dem_steps_imbalance": imbalance(dem),
                       "wall_seconds": comm.allreduce(wall - last["wall"], op=MPI.MAX),
                       "cpu_seconds": comm.allreduce(cpu - last["cpu"]),
-                      "moves": report.get("moves", 0), "predicted_imbalance": report.get("predicted_imbalance"),
+                      "moves": report.get("moves", 0) + report.get("pass_moves", 0),
+                      "pass_imbalance": report.get("pass_imbalance"),
+                      "predicted_imbalance": report.get("predicted_imbalance"),
                       "points_away_from_home": report.get("points_away_from_home", 0)})
         last.update(wall=time.perf_counter(), cpu=time.process_time(), cells=cells)
         if comm.rank == 0:
             r = steps[-1]
-            print(f"  balance {'on ' if balance else 'off'} step {r['step']:3d}: cell work "
+            print(f"  balance {label:6s} step {r['step']:3d}: cell work "
                   f"{' '.join(f'{w:6.2f}' for w in work)} s, imbalance {r['imbalance']:.3f}, "
                   f"DEM steps {r['dem_steps_imbalance']:.3f}, wall {r['wall_seconds']:6.2f} s, moves {r['moves']}",
                   flush=True)
@@ -100,7 +108,7 @@ def run(comm, a, balance):
     def mean(key):
         return float(np.mean([r[key] for r in phase2])) if phase2 else None
 
-    return {"balance": balance, "steps": steps, "stopped": stopped, "timers_per_rank": timers,
+    return {"balance": balance, "passes": passes, "steps": steps, "stopped": stopped, "timers_per_rank": timers,
             "wall_seconds": comm.allreduce(time.perf_counter() - start, op=MPI.MAX),
             "cpu_seconds": comm.allreduce(time.process_time() - cpu_start),
             "imbalance_mean_phase2": mean("imbalance"), "dem_steps_imbalance_mean_phase2": mean("dem_steps_imbalance"),
@@ -118,7 +126,9 @@ def plot(result, path):
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
     fig, ax = plt.subplots(1, 3, figsize=(15, 4.5))
-    for label, style in (("off", "k.-"), ("on", "b.-")):
+    for label, style in (("off", "k.-"), ("on", "b.-"), ("passes", "g.-")):
+        if label not in result:
+            continue
         steps = result[label]["steps"]
         k = [r["step"] for r in steps]
         ax[0].plot(k, [r["imbalance"] for r in steps], style, label=f"balance {label}, wall seconds")
@@ -157,43 +167,50 @@ def main():
     p.add_argument("--weak-friction", type=float, default=0.7)
     p.add_argument("--grain-diameter", type=float, default=5e-4)
     p.add_argument("--threshold", type=float, default=1.10)
-    p.add_argument("--order", choices=("off,on", "on,off"), default="off,on",
-                   help="which run first (the machine's load drifts: run both orders to bracket it)")
+    p.add_argument("--order", default="off,on",
+                   help="the runs in the order made, from off, on and passes (balanced between the Newton "
+                        "passes), comma-separated, off and on included (default off,on; the machine's load "
+                        "drifts: run two orders to bracket it)")
     p.add_argument("--solver", choices=tuple(SOLVERS), default="redundant", help="linear solver (default %(default)s)")
     a = p.parse_args()
+    order = a.order.split(",")
+    if not ({"off", "on"} <= set(order) <= set(RUNS)) or len(set(order)) != len(order):
+        p.error(f"--order {a.order}: off and on, and optionally passes, each once, comma-separated")
     comm = MPI.COMM_WORLD
     if comm.size < 2:
         raise SystemExit("femdem_balance: run it on 2 or more ranks (mpirun -n 2 ...)")
     result = {"options": vars(a), "ranks": comm.size, "threshold": a.threshold}
-    for label in a.order.split(","):
-        result[label] = run(comm, a, label == "on")
-    off, on = result["off"], result["on"]
-    both = {key: [off[key], on[key]] for key in ("imbalance_mean_phase2", "dem_steps_imbalance_mean_phase2",
-                                                 "wall_seconds_phase2", "cell_work_max_over_ranks_phase2",
-                                                 "cpu_seconds")}
-    # the numerics of both runs step by step (bit-identical with the redundant LU)
-    numerics = [[(r["stress_ratio"], r["newton_iterations"], r["dem_steps"]) for r in x["steps"]] for x in (off, on)]
+    for label in order:
+        result[label] = run(comm, a, label)
+    labels = [k for k in RUNS if k in result]          # off, on[, passes]
+    runs = [result[k] for k in labels]
+    both = {key: [r[key] for r in runs] for key in ("imbalance_mean_phase2", "dem_steps_imbalance_mean_phase2",
+                                                    "wall_seconds_phase2", "cell_work_max_over_ranks_phase2",
+                                                    "cpu_seconds", "moves_total")}
+    # the numerics of the runs step by step (bit-identical with the redundant LU)
+    numerics = [[(r["stress_ratio"], r["newton_iterations"], r["dem_steps"]) for r in x["steps"]] for x in runs]
     n = min(map(len, numerics))
     ratios = np.array([[row[0] for row in rows[:n]] for rows in numerics])
+    off = result["off"]
     result["comparison"] = dict(
-        both, wall_ratio_on_over_off_phase2=on["wall_seconds_phase2"] / off["wall_seconds_phase2"],
-        max_stress_ratio_difference=float(np.abs(ratios[0] - ratios[1]).max()) if n else None,
-        moves_total=on["moves_total"], identical_histories=numerics[0] == numerics[1])
+        both, runs=labels,
+        wall_ratio_over_off_phase2=[r["wall_seconds_phase2"] / off["wall_seconds_phase2"] for r in runs],
+        max_stress_ratio_difference=float(np.abs(ratios - ratios[0]).max()) if n else None,
+        identical_histories=all(x == numerics[0] for x in numerics))
     if comm.rank == 0:
         os.makedirs(a.out, exist_ok=True)
         with open(os.path.join(a.out, "femdem_balance.json"), "w") as f:
             json.dump(result, f, indent=1)
         plot(result, os.path.join(a.out, "femdem_balance.png"))
         c = result["comparison"]
-        print(f"imbalance (phase 2 mean, slowest / mean cell work): off {c['imbalance_mean_phase2'][0]:.3f}, "
-              f"on {c['imbalance_mean_phase2'][1]:.3f} (DEM steps: {c['dem_steps_imbalance_mean_phase2'][0]:.3f}, "
-              f"{c['dem_steps_imbalance_mean_phase2'][1]:.3f}); identical results: {c['identical_histories']}; "
-              f"phase 2 wall {c['wall_seconds_phase2'][0]:.1f} s off, "
-              f"{c['wall_seconds_phase2'][1]:.1f} s on (ratio {c['wall_ratio_on_over_off_phase2']:.3f}); "
-              f"{c['moves_total']} moves; load average {off['load_average_start'][0]:.2f} -> "
-              f"{off['load_average_end'][0]:.2f} (off), {on['load_average_start'][0]:.2f} -> "
-              f"{on['load_average_end'][0]:.2f} (on); outputs in {a.out}", flush=True)
-
+        for k, label in enumerate(labels):
+            r = result[label]
+            print(f"balance {label:6s}: imbalance (phase 2 mean, slowest / mean cell work) "
+                  f"{c['imbalance_mean_phase2'][k]:.3f} (DEM steps {c['dem_steps_imbalance_mean_phase2'][k]:.3f}), "
+                  f"phase 2 wall {c['wall_seconds_phase2'][k]:.1f} s (/ off: {c['wall_ratio_over_off_phase2'][k]:.3f}), "
+                  f"{c['moves_total'][k]} moves, load average {r['load_average_start'][0]:.2f} -> "
+                  f"{r['load_average_end'][0]:.2f}", flush=True)
+        print(f"identical results: {c['identical_histories']}; outputs in {a.out}", flush=True)
 
 if __name__ == "__main__":
     main()

@@ -7,8 +7,11 @@ launches, one after the other (each under mpirun, in one run of this script, so 
 come from one state of the machine; the load average is recorded before and after each):
 
   strong   the biaxial with a weak corner (a band) on --mesh, 1 rank; 2 ranks; 2 ranks with
-           --balance (balancing.BalancedMaterial). Efficiency E = T1 / (2 T2), T the wall
-           time of the compression steps.
+           --balance (balancing.BalancedMaterial); 2 ranks with --balance --balance-passes
+           (balanced between the Newton passes). Efficiency E = T1 / (2 T2), T the wall
+           time of the compression steps; also per DEM step (E x DEM steps of the 2-rank run /
+           DEM steps of the 1-rank run), as the partition changes the round-off and with it
+           the Newton path and the cells' work.
   weak     cells per rank fixed: --weak-mesh on 1 rank and the mesh twice as tall on 2 ranks
            (both with the weak corner). E_weak = T1 / T2 per step (the two problems differ:
            the taller specimen has twice the cells, and its band crosses more of them).
@@ -63,7 +66,7 @@ def run_case(a):
     nx, ny = parse_mesh(a.case_mesh)
     s = FemDemSettings(nx=nx, ny=ny, height=0.02 * ny / 4, axial_strain=a.axial_strain, steps=a.steps,
                        weak_size=a.weak_size, weak_friction_factor=a.weak_friction, cell=CellOptions(particles=a.particles),
-                       balance=a.balance, solver_options={"pc_type": "redundant"})
+                       balance=a.balance, balance_passes=a.balance_passes, solver_options={"pc_type": "redundant"})
     load_before = list(os.getloadavg())
     test = FemDemBiaxial(comm, s, verbose=False)
     steps = []
@@ -95,7 +98,8 @@ def run_case(a):
     pts, _ = test.global_order(test.callback.step_cost)
     m = test.material.timers
     tangents = comm.allreduce(test.callback.counters["point_tangents"])
-    record = {"mesh": [nx, ny], "ranks": comm.size, "balance": a.balance, "particles": a.particles,
+    record = {"mesh": [nx, ny], "ranks": comm.size, "balance": a.balance, "balance_passes": a.balance_passes,
+              "particles": a.particles,
               "n_points": comm.allreduce(len(test.points)), "points": pts.tolist() if pts is not None else None,
               "steps": steps, "load_before": load_before, "load_after": list(os.getloadavg()),
               "cell_solve_seconds": comm.allreduce(m["solve"] + m["homogenize"]),
@@ -194,13 +198,14 @@ def model(one, two_balanced, points_grid=None, ranks=(1, 2, 4, 8, 16, 32, 64)):
 
 
 # --- the launcher --------------------------------------------------------------------------------
-def launch(a, label, ranks, mesh, balance=False):
+def launch(a, label, ranks, mesh, balance=False, passes=False):
     path = os.path.join(a.out, f"{label}.json")
     if not os.path.isfile(path):
         cmd = ["mpirun", "-n", str(ranks), sys.executable, os.path.abspath(__file__), "--case", "--case-mesh", mesh,
                "--json", path, "--particles", str(a.particles), "--steps", str(a.steps),
                "--axial-strain", str(a.axial_strain), "--weak-size", str(a.weak_size),
-               "--weak-friction", str(a.weak_friction)] + (["--balance"] if balance else [])
+               "--weak-friction", str(a.weak_friction)] + (["--balance"] if balance else []) \
+            + (["--balance-passes"] if passes else [])
         env = dict(os.environ, OMPI_ALLOW_RUN_AS_ROOT="1", OMPI_ALLOW_RUN_AS_ROOT_CONFIRM="1",
                    OMPI_MCA_rmaps_base_oversubscribe="1", OMP_NUM_THREADS="1")
         print(f"{label}: {' '.join(cmd)}", flush=True)
@@ -228,6 +233,7 @@ def main():
     p.add_argument("--case-mesh", help=argparse.SUPPRESS)
     p.add_argument("--json", help=argparse.SUPPRESS)
     p.add_argument("--balance", action="store_true", help=argparse.SUPPRESS)
+    p.add_argument("--balance-passes", action="store_true", help=argparse.SUPPRESS)
     a = p.parse_args()
     if a.case:
         return run_case(a)
@@ -241,6 +247,7 @@ def main():
     nx, ny = (int(v) for v in a.weak_mesh.split("x"))
     runs = {"strong_1": launch(a, "strong_1", 1, a.mesh), "strong_2": launch(a, "strong_2", 2, a.mesh),
             "strong_2_balanced": launch(a, "strong_2_balanced", 2, a.mesh, balance=True),
+            "strong_2_passes": launch(a, "strong_2_passes", 2, a.mesh, balance=True, passes=True),
             "weak_1": launch(a, "weak_1", 1, a.weak_mesh), "weak_2": launch(a, "weak_2", 2, f"{nx}x{2 * ny}")}
     T = {k: phase2(r, "wall") for k, r in runs.items()}
     result = {"cells": cells, "runs": {k: {kk: v for kk, v in r.items() if kk != "steps"} for k, r in runs.items()},
@@ -248,15 +255,19 @@ def main():
               "cpu_phase2": {k: phase2(r, "cpu") for k, r in runs.items()},
               # the runs may take different Newton paths (cut-backs): per unit of cell work too
               "dem_steps": {k: r["dem_steps_total"] for k, r in runs.items()},
-              "strong_efficiency_per_dem_step": (T["strong_1"] / runs["strong_1"]["dem_steps_total"])
-              / (2 * T["strong_2"] / runs["strong_2"]["dem_steps_total"]),
+              "strong_efficiency_per_dem_step": {k: (T["strong_1"] / runs["strong_1"]["dem_steps_total"])
+                                                 / (2 * T[k] / runs[k]["dem_steps_total"])
+                                                 for k in ("strong_2", "strong_2_balanced", "strong_2_passes")},
               "strong_efficiency": T["strong_1"] / (2 * T["strong_2"]),
               "strong_efficiency_balanced": T["strong_1"] / (2 * T["strong_2_balanced"]),
+              "strong_efficiency_passes": T["strong_1"] / (2 * T["strong_2_passes"]),
               "weak_efficiency": T["weak_1"] / T["weak_2"],
               "imbalance_2": [max(s["cell_work"]) / np.mean(s["cell_work"]) for s in runs["strong_2"]["steps"]
                               if s["phase"] == 2],
               "imbalance_2_balanced": [max(s["cell_work"]) / np.mean(s["cell_work"])
-                                       for s in runs["strong_2_balanced"]["steps"] if s["phase"] == 2]}
+                                       for s in runs["strong_2_balanced"]["steps"] if s["phase"] == 2],
+              "imbalance_2_passes": [max(s["cell_work"]) / np.mean(s["cell_work"])
+                                     for s in runs["strong_2_passes"]["steps"] if s["phase"] == 2]}
     one = runs["strong_1"]
     checked = model(one, runs["strong_2_balanced"], ranks=(1, 2))
     n2 = len([s for s in runs["strong_2"]["steps"] if s["phase"] == 2])
@@ -272,8 +283,9 @@ def main():
     result["wall_seconds"] = time.perf_counter() - start
     with open(os.path.join(a.out, "femdem_scaling.json"), "w") as f:
         json.dump(result, f, indent=1)
-    print(json.dumps({k: result[k] for k in ("strong_efficiency", "strong_efficiency_balanced", "weak_efficiency",
-                                               "model_check")}, indent=1))
+    print(json.dumps({k: result[k] for k in ("strong_efficiency", "strong_efficiency_balanced",
+                                               "strong_efficiency_passes", "strong_efficiency_per_dem_step",
+                                               "weak_efficiency", "model_check")}, indent=1))
     m = result["model"]
     for P, ts, tb, es, eb in zip(m["ranks"], m["strips"], m["balanced"], m["strips_efficiency"], m["balanced_efficiency"]):
         print(f"model, {m['points']} points: P = {P:3d}: {ts:9.2f} s/step (strips, E = {es:.2f}), "
@@ -286,10 +298,12 @@ def main():
     ax[0].plot(m["ranks"], m["balanced_efficiency"], "s-", label="balanced")
     ax[0].plot([2], [result["strong_efficiency"]], "k^", label="measured, 2 ranks")
     ax[0].plot([2], [result["strong_efficiency_balanced"]], "kv", label="measured, 2 ranks balanced")
+    ax[0].plot([2], [result["strong_efficiency_passes"]], "k>", label="measured, 2 ranks balanced between passes")
     ax[0].set_xscale("log", base=2); ax[0].set_xlabel("ranks"); ax[0].set_ylabel("parallel efficiency")
     ax[0].set_title(f"cost model, {m['points']} points of {a.particles} discs"); ax[0].legend(); ax[0].grid(alpha=0.3)
     ax[1].plot(result["imbalance_2"], "o-", label="2 ranks")
     ax[1].plot(result["imbalance_2_balanced"], "s-", label="2 ranks, balanced")
+    ax[1].plot(result["imbalance_2_passes"], "^-", label="2 ranks, balanced between passes")
     ax[1].set_xlabel("compression step"); ax[1].set_ylabel("cell work: slowest rank / mean"); ax[1].legend()
     ax[1].grid(alpha=0.3)
     fig.tight_layout()

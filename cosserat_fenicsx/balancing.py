@@ -26,7 +26,8 @@ material is carried back as a fatal error and raised (RuntimeError) on the home 
 the points of that call, again only after every exchange of the call.
 
 Balancing (after a commit, every `every` commits, when the measured imbalance exceeds
-`threshold`): the cost of a point is the wall time its worker spent in the inner material's
+`threshold`; with `passes=True` instead at the start of every Newton pass, by the costs of
+the pass before, see below): the cost of a point is the wall time its worker spent in the inner material's
 update and tangent for it since the previous commit (`cost='wall'`, the default: the DEM
 time steps a cell reports leave out the tangent's work, e.g. pstlo's linear solve, and the
 cost of a step grows with the contacts: the seconds per DEM step of the points spread by a
@@ -40,6 +41,16 @@ and every rank rebuilds its inner material (`make_material()`) with its new slot
 ones exported and imported too (a restored cell continues bit for bit). The results do not
 depend on where a point is worked on (tests/test_balancing.py); the imbalance is recorded
 per commit (`balance_report`).
+
+Between Newton passes (`passes=True`): the cells of the band cost more in some passes of a
+step than in others, and a balance made after the commit acts one step late. With this
+option the wrapper measures the imbalance of every pass (its update and tangent calls) and,
+at the start of the next update, moves points by that pass's costs; the commit only
+measures. A pass may move points only when every rank re-solves all its points in that
+update, or none was solved since the last commit or rollback: every update of a point
+starts its cell from the committed state (DemMaterial, 001 eq. 7), so the committed state
+is all that has to move, but a point left out of the update keeps a trial state that a move
+would lose.
 
 On one rank the wrapper is a pass-through (no exchange, no balancing).
 
@@ -135,20 +146,25 @@ class BalancedMaterial(Constitutive):
                    (>= 1; inf: measure only)
     every          consider rebalancing every this many commits
     cost           'wall' (seconds per point, default) or 'work' (the inner material's cost)
+    passes         balance at the start of every Newton pass by the last pass's costs
+                   instead of after the commits (see the module docstring)
     """
 
     collective = True
 
-    def __init__(self, comm, make_material, threshold=DEFAULT_THRESHOLD, every=1, cost="wall"):
+    def __init__(self, comm, make_material, threshold=DEFAULT_THRESHOLD, every=1, cost="wall", passes=False):
         if not (isinstance(threshold, (int, float)) and not math.isnan(threshold) and threshold >= 1):
             raise ValueError(f"balancing: threshold must be a number >= 1 (slowest / mean), got {threshold!r}")
         if not (isinstance(every, (int, np.integer)) and every >= 1):
             raise ValueError(f"balancing: every must be an integer >= 1, got {every!r}")
         if cost not in COSTS:
             raise ValueError(f"balancing: cost must be one of {', '.join(COSTS)}, got {cost!r}")
+        if not isinstance(passes, bool):
+            raise ValueError(f"balancing: passes must be True or False, got {passes!r}")
         self.comm = comm
         self.make_material = make_material
         self.threshold, self.every, self.cost_measure = float(threshold), int(every), cost
+        self.passes = passes
         self.inner = make_material()
         inner = self.inner
         self.rate_independent = inner.rate_independent
@@ -167,6 +183,9 @@ class BalancedMaterial(Constitutive):
         self._own = {"exchange": 0.0, "migration": 0.0}
         self._commits = 0
         self._moved = False
+        self._clean = True              # no point solved since the last commit or rollback
+        self._step_done = [0.0, 0.0]    # this step's wall and cost of slots replaced by a pass move
+        self._pass = {"imbalance": [], "moves": 0, "seconds": 0.0}   # this step's passes
         self.records = []
 
     # --- set-up (before the callback is built) ------------------------------------------
@@ -219,6 +238,8 @@ class BalancedMaterial(Constitutive):
         self._tangent = np.zeros((n, self.flux_size, self.flux_size))
         self.slot_wall = np.zeros(n)        # wall seconds in the inner material since the last commit
         self.slot_work = np.zeros(n)        # its reported cost since the last commit
+        self.pass_wall = np.zeros(n)        # the same since the start of the last update (passes=True)
+        self.pass_work = np.zeros(n)
 
     # --- the exchange ---------------------------------------------------------------------
     def _send(self, points, rows):
@@ -313,6 +334,8 @@ class BalancedMaterial(Constitutive):
                         messages[int(ks[0])] = text
         self.slot_wall[slots] += wall
         self.slot_work[slots] += np.where(np.isfinite(cost), cost, 0.0)
+        self.pass_wall[slots] += wall
+        self.pass_work[slots] += np.where(np.isfinite(cost), cost, 0.0)
         return status, cost, messages
 
     @staticmethod
@@ -335,13 +358,16 @@ class BalancedMaterial(Constitutive):
     # --- the callback -------------------------------------------------------------------
     def update(self, gradients, dt, state_old, flux_out, tangent_out, state_new, points=None):
         """As the inner material's update, each point on its worker (collective)."""
-        inner = self.inner
         if self.serial:
             if self.rate_independent:
-                return inner.update(gradients, dt, state_old, flux_out, tangent_out, state_new, points=points)
-            return inner.update(gradients, dt, state_old, flux_out, tangent_out, state_new)
-        start = time.perf_counter()
+                return self.inner.update(gradients, dt, state_old, flux_out, tangent_out, state_new, points=points)
+            return self.inner.update(gradients, dt, state_old, flux_out, tangent_out, state_new)
         points = np.arange(self.n_home) if points is None else np.asarray(points, dtype=np.int64)
+        if self.passes:
+            self._balance_pass(points)
+        inner = self.inner          # (rebuilt if points moved)
+        self._clean = False
+        start = time.perf_counter()
         ng, ns, nf = self.gradient_size, self.state_size, self.flux_size
         order, send_counts, received, source, recv_counts = self._send(
             points, np.column_stack([gradients[points], state_old[points]]))
@@ -404,50 +430,90 @@ class BalancedMaterial(Constitutive):
 
     def rollback(self):
         self.inner.rollback()
+        self._clean = True
+
+    def _balance_pass(self, points):
+        """At the start of an update: the imbalance of the pass before (its update and tangent
+        calls) and, above the threshold, moves by its per-point costs, if every rank re-solves
+        all its points now or none has been solved since the last commit or rollback (module
+        docstring). Collective."""
+        comm = self.comm
+        cost = self.pass_wall if self.cost_measure == "wall" else self.pass_work
+        loads = np.array(comm.allgather(float(cost.sum())))
+        safe = comm.allreduce(int(self._clean or len(points) == self.n_home), op=MPI.MIN)
+        if loads.sum() > 0:
+            self._pass["imbalance"].append(imbalance(loads))
+        if safe and loads.sum() > 0 and imbalance(loads) > self.threshold:
+            start = time.perf_counter()
+            moves, _ = self._rebalance(cost)
+            self._pass["moves"] += moves
+            seconds = time.perf_counter() - start
+            self._pass["seconds"] += seconds
+            self._own["migration"] += seconds
+        self.pass_wall[:] = 0.0
+        self.pass_work[:] = 0.0
+
+    def _rebalance(self, cost):
+        """Gather the per-point `cost` of every rank, assign, migrate. Returns (moves, the
+        imbalance the assignment predicts). Collective."""
+        comm = self.comm
+        total = int(self.n_homes.sum())
+        g_cost, g_worker = np.zeros(total), np.full(total, -1, dtype=np.int64)
+        for rank, (index, c) in enumerate(comm.allgather((self.slot_global, cost))):
+            g_cost[index], g_worker[index] = c, rank
+        new = assign(g_cost, g_worker, comm.size, self.threshold)
+        moves = int(np.count_nonzero(new != g_worker))
+        if moves:
+            # the slots are rebuilt: keep what this step's slots measured so far (the commit's record)
+            self._step_done[0] += float(self.slot_wall.sum())
+            self._step_done[1] += float(self.slot_work.sum())
+            self._migrate(new)
+        return moves, imbalance(np.bincount(new, weights=g_cost, minlength=comm.size))
 
     def commit(self):
         """Commit the inner material; then, every `every` commits, measure the imbalance and
-        move points if it exceeds the threshold (collective: every rank commits together)."""
+        move points if it exceeds the threshold (collective: every rank commits together).
+        With passes=True the commit only measures (the passes move points)."""
         self.inner.commit()
+        self._clean = True
         if self.serial:
             return
         self._commits += 1
         comm = self.comm
-        wall = np.array(comm.allgather(float(self.slot_wall.sum())))
-        work = np.array(comm.allgather(float(self.slot_work.sum())))
+        wall = np.array(comm.allgather(float(self.slot_wall.sum()) + self._step_done[0]))
+        work = np.array(comm.allgather(float(self.slot_work.sum()) + self._step_done[1]))
         cost = self.slot_wall if self.cost_measure == "wall" else self.slot_work
         loads = wall if self.cost_measure == "wall" else work
         record = {"commit": self._commits, "work_seconds": wall.tolist(), "imbalance": imbalance(wall),
                   "work_cost": work.tolist(), "work_imbalance": imbalance(work), "moves": 0,
                   "predicted_imbalance": imbalance(loads), "migration_seconds": 0.0}
+        if self.passes:
+            record.update(pass_imbalance=list(self._pass["imbalance"]), pass_moves=self._pass["moves"],
+                          pass_migration_seconds=self._pass["seconds"])
         # how well the reported cost stands for the time: seconds per unit of cost over the
         # points (5th, 50th, 95th percentile; spread = their ratio)
         worked = self.slot_work > 0
         ratios = np.concatenate(comm.allgather(self.slot_wall[worked] / self.slot_work[worked]))
         if ratios.size:
             record["seconds_per_cost_percentiles"] = np.percentile(ratios, [5, 50, 95]).tolist()
-        if self._commits % self.every == 0 and imbalance(loads) > self.threshold:
+        if not self.passes and self._commits % self.every == 0 and imbalance(loads) > self.threshold:
             start = time.perf_counter()
-            total = int(self.n_homes.sum())
-            g_cost, g_worker = np.zeros(total), np.full(total, -1, dtype=np.int64)
-            for rank, (index, c) in enumerate(comm.allgather((self.slot_global, cost))):
-                g_cost[index], g_worker[index] = c, rank
-            new = assign(g_cost, g_worker, comm.size, self.threshold)
-            moves = int(np.count_nonzero(new != g_worker))
-            if moves:
-                self._migrate(new)
+            moves, predicted = self._rebalance(cost)
             record.update(moves=moves, migration_seconds=time.perf_counter() - start,
-                          predicted_imbalance=imbalance(np.bincount(new, weights=g_cost, minlength=comm.size)))
+                          predicted_imbalance=predicted)
             self._own["migration"] += time.perf_counter() - start
         record["points_away_from_home"] = comm.allreduce(int(np.count_nonzero(self.worker != comm.rank)))
         self.records.append(record)
         self.slot_wall[:] = 0.0
         self.slot_work[:] = 0.0
+        self._step_done = [0.0, 0.0]
+        self._pass = {"imbalance": [], "moves": 0, "seconds": 0.0}
 
     def _migrate(self, new_worker):
         """Move the resident state of the points whose worker changes (new_worker: the worker
         of every global point) and rebuild this rank's inner material with its new slots.
-        Called after a commit: the exported states are the committed = current ones."""
+        Called after a commit (the exported states are the committed = current ones) or at
+        the start of a pass that re-solves every point from its committed state."""
         comm, old = self.comm, self.inner
         dest = new_worker[self.slot_global]
         outgoing = []
@@ -553,10 +619,12 @@ class BalancedMaterial(Constitutive):
         values (the same on every rank)."""
         records = self.records
         measured = [r["imbalance"] for r in records]
-        return {"threshold": self.threshold, "every": self.every, "cost": self.cost_measure,
-                "ranks": self.comm.size, "moves_total": int(sum(r["moves"] for r in records)),
+        return {"threshold": self.threshold, "every": self.every, "cost": self.cost_measure, "passes": self.passes,
+                "ranks": self.comm.size,
+                "moves_total": int(sum(r["moves"] + r.get("pass_moves", 0) for r in records)),
                 "imbalance_mean": float(np.mean(measured)) if measured else None,
                 "imbalance_max": float(np.max(measured)) if measured else None,
-                "migration_seconds": float(sum(r["migration_seconds"] for r in records)),
+                "migration_seconds": float(sum(r["migration_seconds"] + r.get("pass_migration_seconds", 0.0)
+                                               for r in records)),
                 "steps": records}
 

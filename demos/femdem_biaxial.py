@@ -149,6 +149,9 @@ g.add_argument("--balance-threshold", type=number(low=1.0, infinite=True), defau
 g.add_argument("--balance-cost", choices=BALANCE_COSTS, default="wall",
                help="... cell work measured in wall seconds (default) or in DEM steps (work: the same moves in "
                     "every run, whatever the machine's load)")
+g.add_argument("--balance-passes", action="store_true",
+               help="... at the start of every Newton pass, by the cell work of the pass before, instead of after "
+                    "every step (docs/balancing.md)")
 g.add_argument("--batched", action="store_true",
                help="the rank's cells in one struct of arrays, solved by one Numba call (same results; docs/femdem.md)")
 g.add_argument("--cell-threads", type=number(COUNT), default=1,
@@ -170,7 +173,8 @@ def femdem_settings(args):
                          pressure=args.pressure, kn=args.kn, ks=args.ks, rotation=not args.no_rotation,
                          relaxation_tol=args.relaxation_tol, criterion=args.criterion,
                          max_steps=args.max_dem_steps, extra=dict(args.cell_option)),
-        balance=args.balance, balance_threshold=args.balance_threshold, balance_cost=args.balance_cost, batched=args.batched,
+        balance=args.balance, balance_threshold=args.balance_threshold, balance_cost=args.balance_cost,
+        balance_passes=args.balance_passes, batched=args.batched,
         cell_threads=args.cell_threads)
 
 

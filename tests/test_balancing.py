@@ -245,6 +245,50 @@ def test_wrapper_moves_points_of_known_cost():
     assert np.array_equal(wrapped.export_points(np.arange(n))["value"], plain.committed + 1.0)
 
 
+@two_ranks
+def test_passes_move_points_only_where_no_trial_state_is_lost(monkeypatch):
+    """passes=True: points move at the start of an update by the last pass's costs, but only
+    when every rank re-solves all its points in it, or nothing was solved since the commit: a
+    point left out of a pass keeps a trial state on its worker, which a move would lose (its
+    committed value would then come out wrong). Here the odd points are forced to change rank
+    at every move; the results and the committed values are the unwrapped material's."""
+    monkeypatch.setattr(balancing, "assign", forced_exchange)
+    n = 12
+    rng = np.random.default_rng(7 + COMM.rank)
+    wrapped = balancing.BalancedMaterial(COMM, Counter, cost="work", passes=True)
+    wrapped.threshold = 0.0                      # move at every chance, whatever the costs
+    plain = Counter()
+    for m in (wrapped, plain):
+        m.set_zones(np.full(n, 5.0 if COMM.rank == 0 else 1.0))
+        m.set_point_coordinates(np.column_stack([np.arange(n) + 100.0 * COMM.rank, np.zeros(n)]))
+    state = wrapped.initial_state(n)
+    plain.initial_state(n)
+
+    def one_pass(points):
+        gradients = np.zeros((n, 6))
+        gradients[:, 0] = rng.normal(size=n)
+        (fw, tw, sw, rw), (fp, tp, sp, rp) = counter_step(wrapped, plain, gradients, state, points)
+        assert np.array_equal(fw[points], fp[points]) and np.array_equal(tw[points], tp[points])
+        assert np.array_equal(sw, sp) and np.array_equal(rw.cost, rp.cost)
+        return COMM.allreduce(int(np.count_nonzero(wrapped.worker != COMM.rank)))
+
+    every, even = np.arange(n), np.arange(0, n, 2)
+    assert one_pass(every) == 0                  # nothing measured yet
+    assert one_pass(even) == 0                   # the odd points hold trial states: no move
+    assert one_pass(every) == n                  # all re-solved: the odd points of both ranks move
+    assert one_pass(even) == n                   # trial states again: they stay
+    wrapped.commit()
+    plain.commit()
+    assert np.array_equal(wrapped.export_points(every)["value"], plain.committed)
+    record = wrapped.balance_report()["steps"][0]
+    assert record["moves"] == 0 and record["pass_moves"] == n and len(record["pass_imbalance"]) == 3
+    assert one_pass(even) == 0                   # after a commit a partial pass may move: all home again
+    wrapped.commit()
+    plain.commit()
+    assert np.array_equal(wrapped.export_points(every)["value"], plain.committed)
+    assert wrapped.balance_report()["moves_total"] == 2 * n
+
+
 # --- FEM x DEM on 2 ranks --------------------------------------------------------------------
 
 def settings(**kw):
@@ -319,6 +363,23 @@ def test_balanced_run_is_bit_identical(monkeypatch):
     for a, b in cells:     # the pair slots past n_pairs are scratch (they differ once a cell moved)
         assert all(np.array_equal(getattr(a, k), getattr(b, k)) for k in PARTICLE_FIELDS + CELL_FIELDS)
         assert all(np.array_equal(getattr(a, k)[:a.n_pairs], getattr(b, k)[:b.n_pairs]) for k in PAIR_FIELDS)
+
+
+@two_ranks
+def test_balancing_between_passes_is_bit_identical(monkeypatch):
+    """The FEM x DEM biaxial balanced between Newton passes (passes=True), by the greedy at
+    threshold 1 and by a forced exchange of half the points at every pass: the same results
+    as without balancing, bit for bit; the points moved within the steps, not at commits."""
+    reference = run(False)
+    greedy = run(True, balance_threshold=1.0, balance_passes=True)
+    assert_identical(reference, greedy)
+    monkeypatch.setattr(balancing, "assign", forced_exchange)
+    forced = run(True, every_commit=True, balance_passes=True)
+    assert_identical(reference, forced)
+    steps = forced[0].material.balance_report()["steps"]
+    assert all(r["moves"] == 0 for r in steps)
+    assert sum(r["pass_moves"] for r in steps) >= len(steps) * COMM.allreduce(len(forced[0].points)) // 2
+    assert all(len(r["pass_imbalance"]) >= 1 for r in steps[1:])
 
 
 @two_ranks

@@ -90,6 +90,7 @@ class FemDemSettings:
     balance: bool = False              # move cells between ranks so that they finish together (balancing.py)
     balance_threshold: float = 1.10    # ... when the slowest rank's cell work exceeds the mean by this factor
     balance_cost: str = "wall"         # ... measured as wall seconds per point, or as DEM steps ("work": reproducible)
+    balance_passes: bool = False       # ... at the start of every Newton pass by the last pass's costs, not per step
     batched: bool = False              # the rank's cells in one struct of arrays, one Numba solve (materials/dem/batched.py)
     cell_threads: int = 1              # Numba threads per rank over the cells (batched; ranks x threads <= cores)
 
@@ -152,8 +153,12 @@ class FemDemSettings:
         if self.cell_type not in ("triangle", "quadrilateral"):
             raise ValueError(f"femdem: cell_type must be triangle or quadrilateral, got {self.cell_type!r}")
         self.cell.check()
-        if not isinstance(self.balance, bool):
-            raise ValueError(f"femdem: balance must be True or False, got {self.balance!r}")
+        for name in ("balance", "balance_passes"):
+            if not isinstance(getattr(self, name), bool):
+                raise ValueError(f"femdem: {name} must be True or False, got {getattr(self, name)!r}")
+        if self.balance_passes and not self.balance:
+            raise ValueError("femdem: balance_passes (--balance-passes) is a way to balance: it needs balance "
+                             "(--balance)")
         if not isinstance(self.batched, bool):
             raise ValueError(f"femdem: batched must be True or False, got {self.batched!r}")
         if not (isinstance(self.cell_threads, (int, np.integer)) and self.cell_threads >= 1):
@@ -255,7 +260,8 @@ class FemDemBiaxial:
         if s.balance and comm.size > 1:
             from ..balancing import BalancedMaterial
             self.material = BalancedMaterial(comm, lambda: material_class(self.reference_cells, self.mode, s.tangent),
-                                             threshold=s.balance_threshold, cost=s.balance_cost)
+                                             threshold=s.balance_threshold, cost=s.balance_cost,
+                                             passes=s.balance_passes)
 
         self.mesh, tags, names = meshes.rectangle(comm, s.width, s.height, cell_type=s.cell_type,
                                                   divisions=(s.nx, s.ny))

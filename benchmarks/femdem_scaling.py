@@ -41,7 +41,7 @@ occupies the same fraction of the specimen. Writes femdem_scaling.json and femde
 
 Defaults (4x8 mesh = 192 cells of 228 discs, a weak corner of 5 mm at half the friction, 2 % in
 8 steps; weak scaling 2x4 / 2x8) took 38 minutes on the 2-core machine otherwise idle
-(docs/scaling.md).
+(docs/scaling.md), 60 minutes with the strong_2_passes case on a slower day.
 """
 import argparse
 import json

@@ -55,7 +55,8 @@ contacts_0000.vtk coloured by normal_force.
     mpirun -n 2 python3 demos/femdem_biaxial.py --mode classical --mesh 4x8 --weak-size 2.5e-3 --weak-friction 0.8
 
 Load balancing (docs/balancing.md): with --balance the cells move between ranks after a step
-whose cell work was uneven (a band: its cells relax far longer), results unchanged.
+whose cell work was uneven (a band: its cells relax far longer), results unchanged; with
+--balance --balance-passes at the start of every Newton pass, by the pass before.
 
 Batch queues (docs/restart.md): --checkpoint-every N writes OUT/checkpoint (every cell's
 contact state included) every N steps, --stop-after K stops cleanly after step K, --restart OUT

@@ -207,7 +207,8 @@ def main():
             r = result[label]
             print(f"balance {label:6s}: imbalance (phase 2 mean, slowest / mean cell work) "
                   f"{c['imbalance_mean_phase2'][k]:.3f} (DEM steps {c['dem_steps_imbalance_mean_phase2'][k]:.3f}), "
-                  f"phase 2 wall {c['wall_seconds_phase2'][k]:.1f} s (/ off: {c['wall_ratio_over_off_phase2'][k]:.3f}), "
+                  f"phase 2 wall {c['wall_seconds_phase2'][k]:.1f} s "
+                  f"(/ off: {c['wall_ratio_over_off_phase2'][k]:.3f}), "
                   f"{c['moves_total'][k]} moves, load average {r['load_average_start'][0]:.2f} -> "
                   f"{r['load_average_end'][0]:.2f}", flush=True)
         print(f"identical results: {c['identical_histories']}; outputs in {a.out}", flush=True)

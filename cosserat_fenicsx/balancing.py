@@ -27,8 +27,8 @@ the points of that call, again only after every exchange of the call.
 
 Balancing (after a commit, every `every` commits, when the measured imbalance exceeds
 `threshold`; with `passes=True` instead at the start of every Newton pass, by the costs of
-the pass before, see below): the cost of a point is the wall time its worker spent in the inner material's
-update and tangent for it since the previous commit (`cost='wall'`, the default: the DEM
+the pass before, see below): the cost of a point is the wall time its worker spent in the
+inner material's update and tangent for it since the previous commit (`cost='wall'`, the default: the DEM
 time steps a cell reports leave out the tangent's work, e.g. pstlo's linear solve, and the
 cost of a step grows with the contacts: the seconds per DEM step of the points spread by a
 factor 2.5, docs/balancing.md; `cost='work'` uses the reported cost instead). The
@@ -144,7 +144,7 @@ class BalancedMaterial(Constitutive):
     make_material  callable() -> a fresh inner material of the kind wrapped (same options)
     threshold      rebalance when slowest / mean of the measured cell work exceeds this
                    (>= 1; inf: measure only)
-    every          consider rebalancing every this many commits
+    every          consider rebalancing every this many commits (not used with passes)
     cost           'wall' (seconds per point, default) or 'work' (the inner material's cost)
     passes         balance at the start of every Newton pass by the last pass's costs
                    instead of after the commits (see the module docstring)

@@ -213,5 +213,6 @@ def main():
                   f"{r['load_average_end'][0]:.2f}", flush=True)
         print(f"identical results: {c['identical_histories']}; outputs in {a.out}", flush=True)
 
+
 if __name__ == "__main__":
     main()

@@ -439,8 +439,10 @@ class BalancedMaterial(Constitutive):
         docstring). Collective."""
         comm = self.comm
         cost = self.pass_wall if self.cost_measure == "wall" else self.pass_work
-        loads = np.array(comm.allgather(float(cost.sum())))
-        safe = comm.allreduce(int(self._clean or len(points) == self.n_home), op=MPI.MIN)
+        # one collective: every rank's load of the last pass and whether it may move now
+        gathered = comm.allgather((float(cost.sum()), bool(self._clean or len(points) == self.n_home)))
+        loads = np.array([load for load, _ in gathered])
+        safe = all(may for _, may in gathered)
         if loads.sum() > 0:
             self._pass["imbalance"].append(imbalance(loads))
         if safe and loads.sum() > 0 and imbalance(loads) > self.threshold:

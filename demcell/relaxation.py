@@ -325,9 +325,10 @@ def _plain_pair_forces(radius, s, dtheta, force, moment, h00, h01, h10, h11, pai
     loops of short, independent iterations: (1) the minimum-image branch vectors and
     distances (``_branch_vectors``, which the general loop shares), (2) the contact law per
     pair, its force, moments and energy into a scratch row, (3) the scatter to the particles
-    and the sums, in the pair order of the general loop. Each contact sees the same floating-point operations in the same order, and every
-    sum is taken in the same order: the results are bit-identical to the general loop
-    (tests/test_demcell_kernels.py compares them)."""
+    and the sums, in the pair order of the general loop. Each contact sees the same
+    floating-point operations in the same order, and every sum is taken in the same order:
+    the results are bit-identical to the general loop (tests/test_demcell_kernels.py
+    compares them)."""
     # the scratch is allocated here, not passed in: the compiler then knows that it aliases
     # none of the arrays the loops store into (passed in, it cost 5-10 % of the step)
     work = np.empty((n_pairs, 8))    # dx, dy, |d|, f_j (2), moment on i, on j, energy

@@ -5,9 +5,9 @@ few moves and every point has exactly one worker. On 2 ranks (the MPI pass; skip
 one): the FEM x DEM biaxial with a weak corner gives bit-identical results with and without
 balancing while cells move (the greedy at a threshold of 1, and a forced exchange of half
 the points every step; the same balanced between Newton passes, where a pass moves points
-only when no trial state would be lost), and a cell that fails on the rank it was moved to still cuts the
-step with a message naming its point, on every rank (the test finishing shows no rank was
-left waiting).
+only when no trial state would be lost), and a cell that fails on the rank it was moved to
+still cuts the step with a message naming its point, on every rank (the test finishing
+shows no rank was left waiting).
 
 The linear solver of these runs is PETSc's redundant LU: MUMPS on 2 processes is not
 bit-reproducible from run to run (test_femdem measured 6e-4 in a stress ratio between two

@@ -141,12 +141,15 @@ def test_mechanical_coordination_number_against_its_definition(packing60):
     cell.solve()
     st = cell.state
     n = st.n_pairs
-    # two rattlers with one contact left each, first and second in their pair (homogenize
-    # reads the flags as they are)
+    # two rattlers with one contact left each, one first and one second in the pair of that
+    # contact (homogenize reads the flags as they are); the second is picked away from the
+    # first and its partner
+    taken = set()
     for side, other in ((st.pair_i, st.pair_j), (st.pair_j, st.pair_i)):
-        k0 = next(k for k in range(n) if st.touching[k] and other[k] not in (0, 1))
+        k0 = next(k for k in range(n) if st.touching[k] and not {side[k], other[k]} & taken)
         p = side[k0]
         st.touching[[k for k in range(n) if k != k0 and p in (st.pair_i[k], st.pair_j[k])]] = 0
+        taken |= {p, other[k0]}
     touching = [k for k in range(n) if st.touching[k]]
     z = np.zeros(st.n_particles, int)
     for k in touching:

@@ -277,9 +277,10 @@ def label(run):
 
 
 def ours_run(packing, law, increments, np_, tangent, force_rtol, relaxation_tol, out, mpirun, timeout,
-             cell_options=()):
+             cell_options=(), batched=False):
     """One run of the demo on YADE's problem; cell_options: "KEY=VALUE" strings passed on as
-    --cell-option (demcell.RelaxationOptions of the cells)."""
+    --cell-option (demcell.RelaxationOptions of the cells); batched: the demo's --batched (a
+    rank's cells in one struct of arrays, solved and homogenised by one Numba call each)."""
     os.makedirs(out, exist_ok=True)
     cmd = ["nice", mpirun, "-n", str(np_), sys.executable, os.path.join(ROOT, "demos", "femdem_biaxial.py"),
            "--mesh", MESH, "--cell-type", "quadrilateral", "--degree-u", "1", "--mode", "classical",
@@ -292,6 +293,8 @@ def ours_run(packing, law, increments, np_, tangent, force_rtol, relaxation_tol,
            "--write-every", str(increments + 10), "--out", out]
     for option in cell_options:
         cmd += ["--cell-option", option]
+    if batched:
+        cmd.append("--batched")
     env = dict(os.environ, OMP_NUM_THREADS="1", OMPI_ALLOW_RUN_AS_ROOT="1", OMPI_ALLOW_RUN_AS_ROOT_CONFIRM="1",
                OMPI_MCA_rmaps_base_oversubscribe="1")
     hist = os.path.join(out, "history.csv")
@@ -317,7 +320,8 @@ def ours_run(packing, law, increments, np_, tangent, force_rtol, relaxation_tol,
                         force_ratio=float(r["force_ratio"]), accepted=int(r["accepted"])))
     curve = [(float(r["axial_strain"]), float(r["vertical_reaction"])) for r in rows]
     m.update(command=" ".join(cmd), increments=inc, curve_strain_force=curve, tangent=tangent,
-             label=" ".join([tangent, *cell_options]), cell_options=list(cell_options), force_rtol=force_rtol,
+             label=" ".join([tangent, *cell_options] + (["batched"] if batched else [])),
+             cell_options=list(cell_options), batched=batched, force_rtol=force_rtol,
              setup_wall=m["wall"] - sum(i["wall"] for i in inc), summary={
                  k: summary.get(k) for k in ("memory_per_cell_bytes", "time_max_over_ranks", "n_gauss_points",
                                              "particles_per_cell", "cell_preparation_time", "wall_time",
@@ -484,6 +488,9 @@ def main(argv=None):
     p.add_argument("--cell-option", action="append", default=[], metavar="KEY=VALUE",
                    help="run every tangent a second time with these cells (demcell.RelaxationOptions, e.g. "
                         "method=fire; repeat for more; passed on to demos/femdem_biaxial.py)")
+    p.add_argument("--batched", action="store_true",
+                   help="ours with batched cells (demos/femdem_biaxial.py --batched); the runs are labelled "
+                        "'batched', so that --reuse-yade keeps the per-cell runs beside them")
     p.add_argument("--scatter-seeds", type=int, default=6,
                    help="YADE RVEs (prepareRVE.py seeds 1..N) whose single-cell response gives the scatter of "
                         "the cell (default 6; 0: skip)")
@@ -575,11 +582,12 @@ def run_ours(res, a, law, packing, rtol):
     record = os.path.join(a.out, "femdem_yade.json")
     variants = [(t, ()) for t in a.tangents] + ([(t, tuple(a.cell_option)) for t in a.tangents] if a.cell_option else [])
     for tangent, cell_options in variants:
-        name = " ".join([tangent, *cell_options])
+        words = [tangent, *cell_options] + (["batched"] if a.batched else [])
+        name = " ".join(words)
         print(f"ours: {name}, force_rtol {rtol:.3g} ...", flush=True)
         o = ours_run(packing, law, a.increments, a.np, tangent, rtol, a.relaxation_tol,
-                     os.path.join(a.out, "ours_" + "_".join([tangent, *cell_options]).replace("=", "-")), a.mpirun,
-                     a.timeout, cell_options)
+                     os.path.join(a.out, "ours_" + "_".join(words).replace("=", "-")), a.mpirun,
+                     a.timeout, cell_options, a.batched)
         print(f"ours {name}: {o['wall']:.0f} s, mean {mean(o['increments'], 'wall'):.2f} s per increment",
               flush=True)
         fy = np.array(y["curve_strain_force"])[:, 1]

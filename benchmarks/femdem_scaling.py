@@ -15,6 +15,9 @@ come from one state of the machine; the load average is recorded before and afte
   weak     cells per rank fixed: --weak-mesh on 1 rank and the mesh twice as tall on 2 ranks
            (both with the weak corner). E_weak = T1 / T2 per step (the two problems differ:
            the taller specimen has twice the cells, and its band crosses more of them).
+  shared   the machine's ceiling: a DEM step of the same cell solves in one process alone and
+           in two at once (one per core), alternated 3 times; alone / together bounds the
+           2-rank efficiency per DEM step whatever the balance (--contention-only: just this).
   cell     the cost of one cell iteration outside the FE: a 400-disc (and a 228-disc) cell of
            the scene's law driven through 10 biaxial increments of 1e-3 (solve from the
            committed state, then the pstlo and kruyt tangents): CPU ms per solve, per 100
@@ -50,7 +53,10 @@ import subprocess
 import sys
 import time
 
-import numpy as np
+# one BLAS thread (as `make benchmark` sets): idle OpenBLAS threads spin after a call, and their
+# CPU seconds would be counted in the cell costs measured in this process
+os.environ.setdefault("OMP_NUM_THREADS", "1")
+import numpy as np  # noqa: E402
 
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 sys.path.insert(0, ROOT)
@@ -118,6 +124,14 @@ def cell_cost(particles, increments=10):
     options = CellOptions(particles=particles)
     state, _ = options.packing_state()
     cell = dc.reference_cell(state, options.law(), options.relaxation(), options.pressure)
+    # one solve and one tangent of each kind, rolled back, before the timing: the first call of
+    # a kernel in a process loads it from Numba's cache (about 0.1 s), which over 10 solves of
+    # 10 ms doubled the "ms per 100 DEM steps" reported until 2026-12-04
+    cell.set_deformation(np.array([[1.0005, 0.0], [0.0, 0.999]]))
+    cell.solve()
+    for kind in ("pstlo", "kruyt"):
+        cell.tangent(kind)
+    cell.rollback()
     out = {"particles": particles, "solve_cpu": [], "solve_steps": [], "pstlo_cpu": [], "kruyt_cpu": []}
     for k in range(1, increments + 1):
         e = 1e-3 * k
@@ -137,6 +151,67 @@ def cell_cost(particles, increments=10):
                ms_pstlo=1e3 * np.mean(out["pstlo_cpu"]), ms_kruyt=1e3 * np.mean(out["kruyt_cpu"]),
                memory_bytes=cell.memory_bytes())
     return out
+
+
+# --- the machine's ceiling: a DEM step with one core busy and with both -------------------------
+def probe(particles, seconds):
+    """Cell solves of the scene's cell for `seconds` of wall time, started on a "go" line from
+    stdin after the set-up (so that two probes time the same window); prints the CPU and wall
+    time per DEM step as JSON."""
+    import demcell as dc
+    from cosserat_fenicsx.materials.dem import CellOptions
+    options = CellOptions(particles=particles)
+    state, _ = options.packing_state()
+    cell = dc.reference_cell(state, options.law(), options.relaxation(), options.pressure)
+    cell.commit()
+
+    def strain(k):      # biaxial increments of 1-5e-3 from the committed state, in turn
+        e = 1e-3 * (1 + k % 5)
+        return np.array([[1.0 + 0.5 * e, 0.0], [0.0, 1.0 - e]])
+
+    cell.set_deformation(strain(0))
+    cell.solve()                         # compiled (or loaded from the cache) before the window
+    print("ready", flush=True)
+    sys.stdin.readline()
+    c0, w0, steps, solves = time.process_time(), time.perf_counter(), 0, 0
+    while time.perf_counter() - w0 < seconds:
+        cell.rollback()
+        cell.set_deformation(strain(solves))
+        steps += cell.solve().steps
+        solves += 1
+    cpu, wall = time.process_time() - c0, time.perf_counter() - w0
+    print(json.dumps({"cpu_us_per_step": 1e6 * cpu / steps, "wall_us_per_step": 1e6 * wall / steps,
+                      "steps": steps, "solves": solves}), flush=True)
+
+
+def contention(particles, rounds=3, seconds=8.0):
+    """The cost of a DEM step of the same cell solves in one process alone and in two at once
+    (one per core), alternated `rounds` times: alone / together is what the machine itself
+    allows the 2-rank efficiency per DEM step to be (shared cache, memory bandwidth, clock,
+    and on a virtual machine the host's other tenants), whatever the balance."""
+    env = dict(os.environ, OMP_NUM_THREADS="1")
+    cmd = [sys.executable, os.path.abspath(__file__), "--probe", "--particles", str(particles),
+           "--probe-seconds", str(seconds)]
+
+    def window(n):
+        procs = [subprocess.Popen(cmd, env=env, cwd=ROOT, stdin=subprocess.PIPE, stdout=subprocess.PIPE,
+                                  text=True) for _ in range(n)]
+        for q in procs:
+            if q.stdout.readline().strip() != "ready":
+                raise SystemExit(f"contention probe failed: {' '.join(cmd)}")
+        for q in procs:
+            q.stdin.write("go\n")
+            q.stdin.flush()
+        return [json.loads(q.communicate()[0]) for q in procs]
+
+    alone, together = [], []
+    for _ in range(rounds):
+        alone += window(1)
+        together += window(2)
+    a = float(np.median([r["cpu_us_per_step"] for r in alone]))
+    b = float(np.median([r["cpu_us_per_step"] for r in together]))
+    return {"particles": particles, "rounds": rounds, "seconds": seconds, "alone": alone, "together": together,
+            "alone_cpu_us_per_step": a, "together_cpu_us_per_step": b, "ceiling": a / b}
 
 
 # --- the cost model ------------------------------------------------------------------------------
@@ -234,11 +309,26 @@ def main():
     p.add_argument("--json", help=argparse.SUPPRESS)
     p.add_argument("--balance", action="store_true", help=argparse.SUPPRESS)
     p.add_argument("--balance-passes", action="store_true", help=argparse.SUPPRESS)
+    p.add_argument("--probe", action="store_true", help=argparse.SUPPRESS)
+    p.add_argument("--probe-seconds", type=float, default=8.0, help=argparse.SUPPRESS)
+    p.add_argument("--contention-only", action="store_true",
+                   help="only the DEM step with one core busy against both (about 1 minute)")
     a = p.parse_args()
     if a.case:
         return run_case(a)
+    if a.probe:
+        return probe(a.particles, a.probe_seconds)
     os.makedirs(a.out, exist_ok=True)
     start = time.perf_counter()
+    shared = contention(a.particles)
+    print(f"a DEM step of {a.particles}-disc cell solves: {shared['alone_cpu_us_per_step']:.2f} us of CPU "
+          f"alone, {shared['together_cpu_us_per_step']:.2f} us with both cores busy (median of "
+          f"{shared['rounds']} alternated rounds): the machine's ceiling on E per DEM step "
+          f"{shared['ceiling']:.3f}", flush=True)
+    if a.contention_only:
+        with open(os.path.join(a.out, "contention.json"), "w") as f:
+            json.dump({"contention": shared, "load_after": list(os.getloadavg())}, f, indent=1)
+        return
     cells = {n: cell_cost(n) for n in (228, 400)}
     for n, c in cells.items():
         print(f"cell of {n} discs: {c['ms_per_solve']:.1f} ms per solve ({c['mean_steps_per_solve']:.0f} DEM steps), "
@@ -250,7 +340,7 @@ def main():
             "strong_2_passes": launch(a, "strong_2_passes", 2, a.mesh, balance=True, passes=True),
             "weak_1": launch(a, "weak_1", 1, a.weak_mesh), "weak_2": launch(a, "weak_2", 2, f"{nx}x{2 * ny}")}
     T = {k: phase2(r, "wall") for k, r in runs.items()}
-    result = {"cells": cells, "runs": {k: {kk: v for kk, v in r.items() if kk != "steps"} for k, r in runs.items()},
+    result = {"contention": shared, "cells": cells, "runs": {k: {kk: v for kk, v in r.items() if kk != "steps"} for k, r in runs.items()},
               "wall_phase2": T,
               "cpu_phase2": {k: phase2(r, "cpu") for k, r in runs.items()},
               # the runs may take different Newton paths (cut-backs): per unit of cell work too
@@ -268,6 +358,10 @@ def main():
                                        for s in runs["strong_2_balanced"]["steps"] if s["phase"] == 2],
               "imbalance_2_passes": [max(s["cell_work"]) / np.mean(s["cell_work"])
                                      for s in runs["strong_2_passes"]["steps"] if s["phase"] == 2]}
+    # what is left of the per-DEM-step loss once the machine's own share is taken out: the
+    # imbalance, the exchanges and the waits, i.e. the part the code can still win back
+    result["strong_efficiency_per_dem_step_over_ceiling"] = {
+        k: e / shared["ceiling"] for k, e in result["strong_efficiency_per_dem_step"].items()}
     one = runs["strong_1"]
     checked = model(one, runs["strong_2_balanced"], ranks=(1, 2))
     n2 = len([s for s in runs["strong_2"]["steps"] if s["phase"] == 2])
@@ -285,7 +379,8 @@ def main():
         json.dump(result, f, indent=1)
     print(json.dumps({k: result[k] for k in ("strong_efficiency", "strong_efficiency_balanced",
                                                "strong_efficiency_passes", "strong_efficiency_per_dem_step",
-                                               "weak_efficiency", "model_check")}, indent=1))
+                                               "strong_efficiency_per_dem_step_over_ceiling", "weak_efficiency",
+                                               "model_check")}, indent=1))
     m = result["model"]
     for P, ts, tb, es, eb in zip(m["ranks"], m["strips"], m["balanced"], m["strips_efficiency"], m["balanced_efficiency"]):
         print(f"model, {m['points']} points: P = {P:3d}: {ts:9.2f} s/step (strips, E = {es:.2f}), "

@@ -32,6 +32,8 @@ bottom, u2 prescribed at the top, one pin at the bottom centre), the top platen 
    --tangents kruyt pstlo, pstlo as well. With --cell-option KEY=VALUE (repeatable; the cells'
    demcell.RelaxationOptions, e.g. method=fire) every tangent runs a second time with those
    cells, in the same run: the default cells and the cheaper ones against the same YADE part.
+   With --batched, every run of ours uses the demo's --batched cells (a rank's cells in one
+   struct of arrays: solve, homogenisation and Kruyt tangent one Numba call each).
    The scatter of the cell: the single-cell response of YADE RVEs from prepareRVE.py with
    makeCloud seeds 1..--scatter-seeds (cell_scatter), the yardstick of the curves' agreement.
    Newton tolerance: YADE stops when |du| / |u| < 1e-2 (L2 norms of the displacement
@@ -52,6 +54,7 @@ every 0.2 s): YADE's master and its pool workers, ours mpirun and its ranks.
     /usr/bin/python3 benchmarks/femdem_yade.py --out results/benchmarks/femdem_yade
     /usr/bin/python3 benchmarks/femdem_yade.py --increments 10 --tangents kruyt pstlo
     /usr/bin/python3 benchmarks/femdem_yade.py --tangents pstlo --cell-option method=fire
+    /usr/bin/python3 benchmarks/femdem_yade.py --reuse-yade --cell-option method=fire --batched
 
 About 15 minutes for the default 5 increments on a 2-core machine at load 1.5-5 (YADE 9 min,
 50-160 s per increment; ours 3-4 min per tangent; the scatter estimate 20 s). Measured figures

@@ -53,8 +53,8 @@ import subprocess
 import sys
 import time
 
-# one BLAS thread (as `make benchmark` sets): idle OpenBLAS threads spin after a call, and their
-# CPU seconds would be counted in the cell costs measured in this process
+# one BLAS thread, as `make benchmark` sets: OpenBLAS threads may spin after a call, and their CPU
+# seconds would then count in the cell costs this process measures with process_time
 os.environ.setdefault("OMP_NUM_THREADS", "1")
 import numpy as np  # noqa: E402
 
@@ -340,7 +340,8 @@ def main():
             "strong_2_passes": launch(a, "strong_2_passes", 2, a.mesh, balance=True, passes=True),
             "weak_1": launch(a, "weak_1", 1, a.weak_mesh), "weak_2": launch(a, "weak_2", 2, f"{nx}x{2 * ny}")}
     T = {k: phase2(r, "wall") for k, r in runs.items()}
-    result = {"contention": shared, "cells": cells, "runs": {k: {kk: v for kk, v in r.items() if kk != "steps"} for k, r in runs.items()},
+    result = {"contention": shared, "cells": cells,
+              "runs": {k: {kk: v for kk, v in r.items() if kk != "steps"} for k, r in runs.items()},
               "wall_phase2": T,
               "cpu_phase2": {k: phase2(r, "cpu") for k, r in runs.items()},
               # the runs may take different Newton paths (cut-backs): per unit of cell work too

@@ -113,18 +113,24 @@ def test_yield_condition_after_update(homogeneous):
 
 def test_global_newton_converges_quadratically_in_plastic_steps(homogeneous):
     """The consistent tangent (3.36)-(3.38) in the Jacobian form: the observed order
-    log(r_k+1/r_k)/log(r_k/r_k-1) of the last iterations above round-off is ~2."""
+    log(r_k+1/r_k)/log(r_k/r_k-1) of the last iterations above round-off is ~2.
+
+    Round-off: the assembled residual stops near 1e-14 of its first value (step 30 on 2 ranks
+    with OpenBLAS: 1, 2.0e-5, 3.6e-9, 1.1e-14, where a quadratic rate predicts 1e-16), so a
+    last residual that close to it measures the round-off, not the tangent (that order came
+    out 1.47). Residuals below 1e-12 of the first are left out: 17 of the plastic steps keep
+    an order, all of them 1.97-2.00 with reference LAPACK and OpenBLAS, serially and on 2 ranks."""
     s, test, rows = homogeneous
     infos = test.solver.infos_converged()
     orders = []
     for row, info in zip(rows, infos):
         if row["phase"] == 2 and row["plastic_fraction"] == 1.0:
-            q = convergence_orders(info.residual_history)
+            r = np.asarray(info.residual_history, dtype=float)
+            q = convergence_orders(r, floor=1e-12 * r.max())
             if q:
                 orders.append(q[-1])
-    assert len(orders) >= 20
-    assert np.median(orders) > 1.8
-    # every step superlinear (a tangent that is not consistent gives ~1); not > 1.8 for every
-    # step: the last residual above round-off depends on the LAPACK in use, and with
-    # OpenBLAS (pulled in by yade, `make benchmark`) one step's order comes out 1.74
-    assert min(orders) > 1.5
+    assert len(orders) >= 12
+    assert np.median(orders) > 1.9
+    assert min(orders) > 1.8          # a tangent that is not consistent gives ~1
+
+

@@ -132,5 +132,3 @@ def test_global_newton_converges_quadratically_in_plastic_steps(homogeneous):
     assert len(orders) >= 12
     assert np.median(orders) > 1.9
     assert min(orders) > 1.8          # a tangent that is not consistent gives ~1
-
-

@@ -118,16 +118,26 @@ def run_case(a):
 
 
 # --- the cost of one cell iteration (serial, no FE) -------------------------------------------
-def cell_cost(particles, increments=10):
+def reference_cell(particles):
+    """The scene's prepared cell (committed at F = I), as a FEM x DEM Gauss point starts."""
     import demcell as dc
     from cosserat_fenicsx.materials.dem import CellOptions
     options = CellOptions(particles=particles)
     state, _ = options.packing_state()
-    cell = dc.reference_cell(state, options.law(), options.relaxation(), options.pressure)
+    return dc.reference_cell(state, options.law(), options.relaxation(), options.pressure)
+
+
+def biaxial(e):
+    """F of a biaxial increment: axial strain -e, lateral +e/2."""
+    return np.array([[1.0 + 0.5 * e, 0.0], [0.0, 1.0 - e]])
+
+
+def cell_cost(particles, increments=10):
+    cell = reference_cell(particles)
     # one solve and one tangent of each kind, rolled back, before the timing: the first call of
     # a kernel in a process loads it from Numba's cache (about 0.1 s), which over 10 solves of
     # 10 ms doubled the "ms per 100 DEM steps" reported until 2026-12-04
-    cell.set_deformation(np.array([[1.0005, 0.0], [0.0, 0.999]]))
+    cell.set_deformation(biaxial(1e-3))
     cell.solve()
     for kind in ("pstlo", "kruyt"):
         cell.tangent(kind)
@@ -135,7 +145,7 @@ def cell_cost(particles, increments=10):
     out = {"particles": particles, "solve_cpu": [], "solve_steps": [], "pstlo_cpu": [], "kruyt_cpu": []}
     for k in range(1, increments + 1):
         e = 1e-3 * k
-        cell.set_deformation(np.array([[1.0 + 0.5 * e, 0.0], [0.0, 1.0 - e]]))
+        cell.set_deformation(biaxial(e))
         c0 = time.process_time()
         result = cell.solve()
         out["solve_cpu"].append(time.process_time() - c0)
@@ -158,16 +168,10 @@ def probe(particles, seconds):
     """Cell solves of the scene's cell for `seconds` of wall time, started on a "go" line from
     stdin after the set-up (so that two probes time the same window); prints the CPU and wall
     time per DEM step as JSON."""
-    import demcell as dc
-    from cosserat_fenicsx.materials.dem import CellOptions
-    options = CellOptions(particles=particles)
-    state, _ = options.packing_state()
-    cell = dc.reference_cell(state, options.law(), options.relaxation(), options.pressure)
-    cell.commit()
+    cell = reference_cell(particles)
 
     def strain(k):      # biaxial increments of 1-5e-3 from the committed state, in turn
-        e = 1e-3 * (1 + k % 5)
-        return np.array([[1.0 + 0.5 * e, 0.0], [0.0, 1.0 - e]])
+        return biaxial(1e-3 * (1 + k % 5))
 
     cell.set_deformation(strain(0))
     cell.solve()                         # compiled (or loaded from the cache) before the window
@@ -198,7 +202,9 @@ def contention(particles, rounds=3, seconds=8.0):
                                   text=True) for _ in range(n)]
         for q in procs:
             if q.stdout.readline().strip() != "ready":
-                raise SystemExit(f"contention probe failed: {' '.join(cmd)}")
+                for other in procs:      # none left waiting for its "go"
+                    other.kill()
+                raise SystemExit(f"contention probe failed before its window: {' '.join(cmd)}")
         for q in procs:
             q.stdin.write("go\n")
             q.stdin.flush()

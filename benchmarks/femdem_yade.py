@@ -279,6 +279,12 @@ def label(run):
     return run.get("label", run["tangent"])
 
 
+def run_words(tangent, cell_options=(), batched=False):
+    """The words naming one of ours' runs: its label in the record and the tables (joined by
+    spaces) and its folder (by underscores)."""
+    return [tangent, *cell_options] + (["batched"] if batched else [])
+
+
 def ours_run(packing, law, increments, np_, tangent, force_rtol, relaxation_tol, out, mpirun, timeout,
              cell_options=(), batched=False):
     """One run of the demo on YADE's problem; cell_options: "KEY=VALUE" strings passed on as
@@ -323,7 +329,7 @@ def ours_run(packing, law, increments, np_, tangent, force_rtol, relaxation_tol,
                         force_ratio=float(r["force_ratio"]), accepted=int(r["accepted"])))
     curve = [(float(r["axial_strain"]), float(r["vertical_reaction"])) for r in rows]
     m.update(command=" ".join(cmd), increments=inc, curve_strain_force=curve, tangent=tangent,
-             label=" ".join([tangent, *cell_options] + (["batched"] if batched else [])),
+             label=" ".join(run_words(tangent, cell_options, batched)),
              cell_options=list(cell_options), batched=batched, force_rtol=force_rtol,
              setup_wall=m["wall"] - sum(i["wall"] for i in inc), summary={
                  k: summary.get(k) for k in ("memory_per_cell_bytes", "time_max_over_ranks", "n_gauss_points",
@@ -585,7 +591,7 @@ def run_ours(res, a, law, packing, rtol):
     record = os.path.join(a.out, "femdem_yade.json")
     variants = [(t, ()) for t in a.tangents] + ([(t, tuple(a.cell_option)) for t in a.tangents] if a.cell_option else [])
     for tangent, cell_options in variants:
-        words = [tangent, *cell_options] + (["batched"] if a.batched else [])
+        words = run_words(tangent, cell_options, a.batched)
         name = " ".join(words)
         print(f"ours: {name}, force_rtol {rtol:.3g} ...", flush=True)
         o = ours_run(packing, law, a.increments, a.np, tangent, rtol, a.relaxation_tol,

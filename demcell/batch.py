@@ -122,38 +122,177 @@ def _bins(rows, cost, n_threads):
     return order, bins
 
 
-def _template(cell):
-    """A DemCell without state arrays: law, options, time step and rotation mode of `cell`."""
+def template_of(cell):
+    """A DemCell without state arrays: law, options, time step and rotation mode of `cell`
+    (DemCell.holding gives it a state)."""
     new = type(cell).__new__(type(cell))
     new.__dict__.update(cell.__dict__)
     new.state = new._committed = None
-    new._law_array = cell._law_array.copy()
+    new._law_array = cell.law_array
     return new
 
 
-class CellBatch:
-    """The cells of one rank (DemCells: each keeps its law, options and time step) in one
-    struct of arrays. Methods take ``rows``, indices of the cells concerned."""
+def homogenized_outputs(cauchy, couple, fabric, counts, particles):
+    """The values of homogenization.homogenize of many cells from their contact sums: Cauchy
+    stress (n, 2, 2) [N/m], couple stress (n, 2), fabric (n, 2, 2), counts (n, 2) of contacts
+    and sliding contacts, particles (n,). Adds the coordination number 2C/N, the anisotropy
+    (000 eq. 38), the sliding fraction and the stress ratio (000 eq. 40)."""
+    nc, nsl = counts[:, 0], counts[:, 1]
+    w = np.linalg.eigvalsh(fabric) if len(fabric) else np.zeros((0, 2))
+    anis = np.where(w[:, 0] > 0.0, w[:, 1] / np.where(w[:, 0] > 0.0, w[:, 0], 1.0) - 1.0, 0.0)
+    den = np.abs(cauchy[:, 0, 0] + cauchy[:, 1, 1])
+    ratio = np.where(den > 0.0, np.abs(cauchy[:, 0, 0] - cauchy[:, 1, 1]) / np.where(den > 0.0, den, 1.0), 0.0)
+    return {"cauchy": cauchy, "couple_stress": couple, "fabric": fabric, "n_contacts": nc, "n_sliding": nsl,
+            "coordination_number": 2.0 * nc / particles, "anisotropy": anis,
+            "sliding_fraction": np.where(nc > 0, nsl / np.maximum(nc, 1), 0.0), "stress_ratio": ratio}
 
-    def __init__(self, cells):
-        cells = list(cells)
-        if not cells:
-            raise InputError("CellBatch needs at least one cell")
+
+def demqo(store, rows, eps=1e-6):
+    """DEMQO (001 eq. 20) of the cells rows of a store (CellBatch or gpu.DeviceCellBatch), batched: each cell's current state copied and
+    frozen (contacts bilateral, no sliding, no new contacts), re-relaxed at its F with the
+    tight options of tangent._perturbation_options, then copies of it perturbed by eps L^mn
+    (and, in a micropolar cell, its curvature by eps / max|Y_k|) and relaxed, all copies of
+    all cells in one call. Returns (list of tangents: 4x4 d sigma / d F in demcell's order,
+    or the 6x6 micropolar operator in the callback's order, as DemCell.tangent('demqo')
+    gives them; DEM steps per cell)."""
+    from .network import CALLBACK_ROWS
+    from .tangent import COMPONENTS, _perturbation_options
+    rows = np.asarray(rows, dtype=np.int64)
+    n = len(rows)
+    if not n:
+        return [], np.zeros(0)
+    base = store.subset(rows)
+    for j, view in enumerate(store.views(rows)):
+        o = _perturbation_options(view, eps)          # numpy means, as a DemCell computes them
+        view.freeze_contacts()
+        base.law[j] = view.law_array
+        base.opts[j] = qs.solve_options(o, o.skin_ratio * float(view.state.radius.min()), o.max_steps)
+    all_ = np.arange(n)
+    F = base.deformation_gradients(all_)
+    base.set_targets(all_, F, store.target[rows, qs.T_PHI], store.target[rows, qs.T_KAP:qs.T_KAP + 2])
+    steps = base.solve(all_)[:, qs.R_STEPS].copy()
+    h0 = base.homogenize(all_)
+    micro = store.micropolar[rows]
+    ncol = np.where(micro, 6, 4)
+    owner = np.repeat(all_, ncol)
+    column = np.concatenate([np.arange(m) for m in ncol])
+    trials = base.subset(owner)
+    Fp = F[owner].copy()
+    kappa = trials.rotations(np.arange(len(owner)))[1]      # the base's kappa after its solve
+    k_eps = eps / np.abs(base.lattices(all_)).sum(axis=1).max(axis=1)
+    size = np.full(len(owner), float(eps))
+    for t, (j, c) in enumerate(zip(owner, column)):
+        if c < 4:
+            Fp[t][COMPONENTS[c]] += eps
+        else:
+            kappa[t, c - 4] += k_eps[j]
+            size[t] = k_eps[j]
+    phi = base.target[owner, qs.T_PHI]
+    kap_target = np.where(column[:, None] >= 4, kappa, base.target[owner, qs.T_KAP:qs.T_KAP + 2])
+    trials.set_targets(np.arange(len(owner)), Fp, phi, kap_target)
+    res = trials.solve(np.arange(len(owner)))
+    np.add.at(steps, owner, res[:, qs.R_STEPS])
+    h = trials.homogenize(np.arange(len(owner)))
+
+    def flux(hom, i, micropolar):
+        out = hom["cauchy"][i].reshape(4)
+        return np.concatenate([out, hom["couple_stress"][i]]) if micropolar else out
+    tangents = []
+    for j in range(n):
+        ref = flux(h0, j, micro[j])
+        C = np.zeros((ref.size, ref.size))
+        for t in np.flatnonzero(owner == j):
+            C[:, column[t]] = (flux(h, t, micro[j]) - ref) / size[t]
+        if micro[j]:
+            order = list(CALLBACK_ROWS)
+            C = C[np.ix_(order, order)]
+        tangents.append(C)
+    return tangents, steps
+
+
+class CellStore:
+    """What the stores of a rank's cells share: CellBatch (host memory, Numba threads) and
+    gpu.DeviceCellBatch (resident on a CUDA device). Each cell's law, options, time step and
+    target live here on the host; a store adds its state arrays and the methods that reach
+    them (solve, homogenize, kruyt, rotations, lattices, contact_counts, subset, commit,
+    rollback, state, committed_states, restore, views, nbytes)."""
+
+    def _settings(self, cells):
+        """Per-cell settings of DemCells `cells`: law, options as a solve row, time step,
+        rotation mode, the target (their current F, phi, kappa)."""
         from .interface import DemCell
+        if not cells:
+            raise InputError(f"{type(self).__name__} needs at least one cell")
         if not all(isinstance(c, DemCell) for c in cells):
-            raise InputError("CellBatch takes DemCells")
+            raise InputError(f"{type(self).__name__} takes DemCells")
         # law, options, time step, rotation mode of each cell (no state: the store holds it)
-        self.templates = [_template(c) for c in cells]
+        self.templates = [template_of(c) for c in cells]
         n = len(cells)
         self.n_cells = n
         self.micropolar = np.array([c.micropolar for c in cells])
-        self.law = np.array([c._law_array for c in cells])
+        self.law = np.array([c.law_array for c in cells])
         self.dt = np.array([c.dt for c in cells])
         self.opts = np.array([qs.solve_options(c.options, c.options.skin_ratio * float(c.state.radius.min()),
                                                c.options.max_steps) for c in cells])
         self.max_steps = np.array([c.options.max_steps for c in cells], dtype=np.int64)
         self.target = np.zeros((n, qs.N_TARGET))
         self.cost = np.full(n, np.nan)    # DEM steps of each cell's last solve (nan: none yet)
+        for k, c in enumerate(cells):
+            self.target[k, qs.T_F:qs.T_F + 4] = c.state.F.reshape(4)
+            self.target[k, qs.T_PHI] = c.state.phi
+            self.target[k, qs.T_KAP:qs.T_KAP + 2] = c.state.kappa
+
+    def set_targets(self, rows, F, phi=None, kappa=None):
+        """Targets of the cells rows: F (n, 2, 2); for micropolar cells phi (n,) and kappa (n, 2)
+        (None: the current ones)."""
+        rows = np.asarray(rows, dtype=np.int64)
+        self.target[rows, qs.T_F:qs.T_F + 4] = np.asarray(F, dtype=float).reshape(len(rows), 4)
+        phi_now, kappa_now = self.rotations(rows)
+        self.target[rows, qs.T_PHI] = phi_now if phi is None else phi
+        self.target[rows, qs.T_KAP:qs.T_KAP + 2] = kappa_now if kappa is None else kappa
+
+    def outcome(self, k, result_row):
+        """(converged, no_contacts, message, error) of cell k's solve (DemCell.solve's words;
+        error: the text of a broken-down solve)."""
+        converged, no_contacts, message, error = qs.outcome(result_row, self.dt[k])
+        no_contacts, message = qs.final_words(converged, no_contacts, self.contact_count(k) if no_contacts else -1,
+                                              [message], result_row[qs.R_MAXOVL])
+        return converged, no_contacts, message, error
+
+    def contact_count(self, k):
+        return int(self.contact_counts([k])[0])
+
+    def demqo(self, rows, eps=1e-6):
+        """DEMQO (001 eq. 20) of the cells rows, batched (the module function ``demqo``)."""
+        return demqo(self, rows, eps)
+
+    def set_cell(self, k, template, state):
+        """Cell k becomes `template`'s kind of cell (a DemCell: its law, options, time step and
+        rotation mode are taken, not its state) continuing from `state` (a CellState of the
+        same particle count)."""
+        k = int(k)
+        self.templates[k] = template_of(template)
+        self.micropolar[k] = template.micropolar
+        self.law[k] = template.law_array
+        self.dt[k] = template.dt
+        self.opts[k] = qs.solve_options(template.options, template.options.skin_ratio * float(state.radius.min()),
+                                        template.options.max_steps)
+        self.max_steps[k] = template.options.max_steps
+        self.restore(k, state)
+
+    def view(self, k):
+        """A DemCell of cell k (views into the store, or copies from a device: read it, solve
+        through the store)."""
+        return self.views([k])[0]
+
+
+class CellBatch(CellStore):
+    """The cells of one rank (DemCells: each keeps its law, options and time step) in one
+    struct of arrays. Methods take ``rows``, indices of the cells concerned."""
+
+    def __init__(self, cells):
+        cells = list(cells)
+        self._settings(cells)
         np_ = np.array([c.state.n_particles for c in cells], dtype=np.int64)
         cap = np.array([max(c.state.pair_i.shape[0], c.committed_state.pair_i.shape[0]) for c in cells],
                        dtype=np.int64)
@@ -165,9 +304,6 @@ class CellBatch:
         for k, c in enumerate(cells):
             self._put(self.current, k, c.state)
             self._put(self.committed, k, c.committed_state)
-            self.target[k, qs.T_F:qs.T_F + 4] = c.state.F.reshape(4)
-            self.target[k, qs.T_PHI] = c.state.phi
-            self.target[k, qs.T_KAP:qs.T_KAP + 2] = c.state.kappa
         del self._first_state
 
     # --- layout -------------------------------------------------------------------------------
@@ -232,15 +368,6 @@ class CellBatch:
                 store[name] = new
 
     # --- the work -------------------------------------------------------------------------------
-    def set_targets(self, rows, F, phi=None, kappa=None):
-        """Targets of the cells rows: F (n, 2, 2); for micropolar cells phi (n,) and kappa (n, 2)
-        (None: the current ones)."""
-        rows = np.asarray(rows, dtype=np.int64)
-        self.target[rows, qs.T_F:qs.T_F + 4] = np.asarray(F, dtype=float).reshape(len(rows), 4)
-        cf = self.current["cellf"][rows]
-        self.target[rows, qs.T_PHI] = cf[:, 1] if phi is None else phi
-        self.target[rows, qs.T_KAP:qs.T_KAP + 2] = cf[:, 2:4] if kappa is None else kappa
-
     def _scan(self, rows, committed):
         store = self.committed if committed else self.current
         rows = np.asarray(rows, dtype=np.int64)
@@ -292,17 +419,6 @@ class CellBatch:
         self.cost[rows] = np.maximum(result[rows, qs.R_STEPS], 1.0)
         return result[rows]
 
-    def outcome(self, k, result_row):
-        """(converged, no_contacts, message, error) of cell k's solve (DemCell.solve's words;
-        error: the text of a broken-down solve)."""
-        converged, no_contacts, message, error = qs.outcome(result_row, self.dt[k])
-        no_contacts, message = qs.final_words(converged, no_contacts, self.contact_count(k) if no_contacts else -1,
-                                              [message], result_row[qs.R_MAXOVL])
-        return converged, no_contacts, message, error
-
-    def contact_count(self, k):
-        return int(self.contact_counts([k])[0])
-
     def homogenize(self, rows):
         """Cauchy stress (n, 2, 2) [N/m], couple stress (n, 2), fabric (n, 2, 2), contacts,
         sliding contacts, coordination number 2C/N, anisotropy (000 eq. 38), sliding fraction
@@ -322,15 +438,7 @@ class CellBatch:
                                  cur["pair_j"], cur["fn"], cur["fs"], cur["mr"], cur["touching"], cur["celli"],
                                  self.law, cur["h_ref"], flag, c_, m_, f_, n_)
                 cauchy[idx], couple[idx], fabric[idx], counts[idx] = c_, m_, f_, n_
-        nc, nsl = counts[:, 0], counts[:, 1]
-        w = np.linalg.eigvalsh(fabric) if n else np.zeros((0, 2))
-        anis = np.where(w[:, 0] > 0.0, w[:, 1] / np.where(w[:, 0] > 0.0, w[:, 0], 1.0) - 1.0, 0.0)
-        den = np.abs(cauchy[:, 0, 0] + cauchy[:, 1, 1])
-        ratio = np.where(den > 0.0, np.abs(cauchy[:, 0, 0] - cauchy[:, 1, 1]) / np.where(den > 0.0, den, 1.0), 0.0)
-        particles = np.diff(self.p_off)[rows]
-        return {"cauchy": cauchy, "couple_stress": couple, "fabric": fabric, "n_contacts": nc, "n_sliding": nsl,
-                "coordination_number": 2.0 * nc / particles, "anisotropy": anis,
-                "sliding_fraction": np.where(nc > 0, nsl / np.maximum(nc, 1), 0.0), "stress_ratio": ratio}
+        return homogenized_outputs(cauchy, couple, fabric, counts, np.diff(self.p_off)[rows])
 
     def kruyt(self, rows):
         """Kruyt operators (001 eq. 13) of the cells rows, (n, 4, 4) d sigma / d F in demcell's order."""
@@ -341,68 +449,15 @@ class CellBatch:
                     cur["touching"], cur["celli"], self.law, T)
         return T.reshape(len(rows), 4, 4)
 
-    def demqo(self, rows, eps=1e-6):
-        """DEMQO (001 eq. 20) of the cells rows, batched: each cell's current state copied and
-        frozen (contacts bilateral, no sliding, no new contacts), re-relaxed at its F with the
-        tight options of tangent._perturbation_options, then copies of it perturbed by eps L^mn
-        (and, in a micropolar cell, its curvature by eps / max|Y_k|) and relaxed, all copies of
-        all cells in one call. Returns (list of tangents: 4x4 d sigma / d F in demcell's order,
-        or the 6x6 micropolar operator in the callback's order, as DemCell.tangent('demqo')
-        gives them; DEM steps per cell)."""
-        from .network import CALLBACK_ROWS
-        from .tangent import COMPONENTS, _perturbation_options
-        rows = np.asarray(rows, dtype=np.int64)
-        n = len(rows)
-        if not n:
-            return [], np.zeros(0)
-        base = self.subset(rows)
-        for j, k in enumerate(rows):
-            view = self.view(k)
-            o = _perturbation_options(view, eps)          # numpy means, as a DemCell computes them
-            view.freeze_contacts()
-            base.law[j] = view._law_array
-            base.opts[j] = qs.solve_options(o, o.skin_ratio * float(view.state.radius.min()), o.max_steps)
-        all_ = np.arange(n)
-        F = base.deformation_gradients(all_)
-        base.set_targets(all_, F, self.target[rows, qs.T_PHI], self.target[rows, qs.T_KAP:qs.T_KAP + 2])
-        steps = base.solve(all_)[:, qs.R_STEPS].copy()
-        h0 = base.homogenize(all_)
-        micro = self.micropolar[rows]
-        ncol = np.where(micro, 6, 4)
-        owner = np.repeat(all_, ncol)
-        column = np.concatenate([np.arange(m) for m in ncol])
-        trials = base.subset(owner)
-        Fp = F[owner].copy()
-        kappa = trials.current["cellf"][:, 2:4].copy()          # the base's kappa after its solve
-        k_eps = eps / np.abs(base.current["h_ref"]).sum(axis=1).max(axis=1)
-        size = np.full(len(owner), float(eps))
-        for t, (j, c) in enumerate(zip(owner, column)):
-            if c < 4:
-                Fp[t][COMPONENTS[c]] += eps
-            else:
-                kappa[t, c - 4] += k_eps[j]
-                size[t] = k_eps[j]
-        phi = base.target[owner, qs.T_PHI]
-        kap_target = np.where(column[:, None] >= 4, kappa, base.target[owner, qs.T_KAP:qs.T_KAP + 2])
-        trials.set_targets(np.arange(len(owner)), Fp, phi, kap_target)
-        res = trials.solve(np.arange(len(owner)))
-        np.add.at(steps, owner, res[:, qs.R_STEPS])
-        h = trials.homogenize(np.arange(len(owner)))
+    def rotations(self, rows, committed=False):
+        """(phi (n,) [rad], kappa (n, 2) [1/m]) of the cells rows (micropolar cells; 0 else)."""
+        cf = (self.committed if committed else self.current)["cellf"][np.asarray(rows, dtype=np.int64)]
+        return cf[:, 1].copy(), cf[:, 2:4].copy()
 
-        def flux(hom, i, micropolar):
-            out = hom["cauchy"][i].reshape(4)
-            return np.concatenate([out, hom["couple_stress"][i]]) if micropolar else out
-        tangents = []
-        for j in range(n):
-            ref = flux(h0, j, micro[j])
-            C = np.zeros((ref.size, ref.size))
-            for t in np.flatnonzero(owner == j):
-                C[:, column[t]] = (flux(h, t, micro[j]) - ref) / size[t]
-            if micro[j]:
-                order = list(CALLBACK_ROWS)
-                C = C[np.ix_(order, order)]
-            tangents.append(C)
-        return tangents, steps
+    def lattices(self, rows, committed=False):
+        """h_ref (n, 2, 2) [m] of the cells rows: the reference cell, which a lattice reduction
+        changes (F = h h_ref^-1 does not)."""
+        return (self.committed if committed else self.current)["h_ref"][np.asarray(rows, dtype=np.int64)].copy()
 
     def subset(self, rows):
         """A new CellBatch of copies of the current states of rows (current = committed),
@@ -450,20 +505,6 @@ class CellBatch:
         """Copies of the committed CellStates of rows (what a checkpoint saves)."""
         return [self._get(self.committed, int(k)) for k in rows]
 
-    def set_cell(self, k, template, state):
-        """Cell k becomes `template`'s kind of cell (a DemCell: its law, options, time step and
-        rotation mode are taken, not its state) continuing from `state` (a CellState of the
-        same particle count)."""
-        k = int(k)
-        self.templates[k] = _template(template)
-        self.micropolar[k] = template.micropolar
-        self.law[k] = template._law_array
-        self.dt[k] = template.dt
-        self.opts[k] = qs.solve_options(template.options, template.options.skin_ratio * float(state.radius.min()),
-                                        template.options.max_steps)
-        self.max_steps[k] = template.options.max_steps
-        self.restore(k, state)
-
     def restore(self, k, state):
         """Cell k continues from `state` (a CellState): committed and current."""
         self._put(self.committed, int(k), state)
@@ -474,16 +515,11 @@ class CellBatch:
         """A copy of the current CellState of cell k."""
         return self._get(self.current, int(k))
 
-    def view(self, k):
-        """A DemCell of cell k whose state arrays are views into the store (read it: its
-        tangents, homogenized outputs; solve through the batch, not through the view)."""
-        cell = _template(self.templates[int(k)])
-        cell.state = self._get(self.current, int(k), copy=False)
-        cell._committed = self._get(self.committed, int(k), copy=False)
-        cell._target = cell.state.F
-        cell._target_phi = cell.state.phi
-        cell._target_kappa = cell.state.kappa.copy()
-        return cell
+    def views(self, rows):
+        """DemCells of the cells rows whose state arrays are views into the store (read them:
+        their tangents, homogenized outputs; solve through the batch, not through a view)."""
+        return [self.templates[int(k)].holding(self._get(self.current, int(k), copy=False),
+                                               self._get(self.committed, int(k), copy=False)) for k in rows]
 
     def nbytes(self):
         """Bytes of both stores."""

@@ -220,6 +220,26 @@ class DemCell(MicroCell):
         """True when the cell carries rotation and curvature itself (FEM x DEM mode 'micropolar')."""
         return self.rotation_mode == "micropolar"
 
+    @property
+    def law_array(self):
+        """The contact law as the kernels read it (contact_law's slots, with the rotation mode
+        and a frozen network): a copy."""
+        return self._law_array.copy()
+
+    def holding(self, state, committed=None):
+        """A DemCell with this cell's law, options, time step and rotation mode that holds
+        `state` as its current state (not copied: views into a batch's store, say) and
+        `committed` (default `state`) as its committed one; its targets are those of `state`."""
+        new = DemCell.__new__(DemCell)
+        new.__dict__.update(self.__dict__)
+        new._law_array = self._law_array.copy()
+        new.state = state
+        new._committed = state if committed is None else committed
+        new._target = state.F
+        new._target_phi = state.phi
+        new._target_kappa = state.kappa.copy()
+        return new
+
     # ----- configuration
     def _law_to_array(self, law, frozen=False):
         a = law.as_array(frozen=frozen)

@@ -5,8 +5,9 @@ that calls into another module (``quasistatic``'s batched solve calls ``relaxati
 ``batch`` calls ``homogenization`` and ``tangent``) keeps the callee it was compiled with
 after that module changes (Numba issue #6845). After a ``git pull`` or an edit the batched
 cells would then run the old force loop, silently. The package therefore stamps its sources
-(one SHA-1 over all ``*.py`` of the package, about 1 ms) and deletes its cached kernels
-(``__pycache__/*.nbi``, ``*.nbc``) when the stamp differs; Numba recompiles them on first use.
+(one SHA-1 over all ``*.py`` of the package and its subpackages, about 1 ms) and deletes
+their cached kernels (``__pycache__/*.nbi``, ``*.nbc``, CPU and CUDA alike) when the stamp
+differs; Numba recompiles them on first use.
 
 Two processes importing at once (``mpirun``) may both clear: the loser only recompiles. A
 read-only install cannot write the stamp; Numba then caches elsewhere (NUMBA_CACHE_DIR or
@@ -20,10 +21,11 @@ STAMP = "numba_sources.sha1"
 
 
 def sources_digest(package_dir):
-    """SHA-1 of the package's Python sources, in file-name order."""
+    """SHA-1 of the package's Python sources (its subpackages' too: the GPU kernels of
+    demcell.gpu take their slot numbers from the package), in path order."""
     digest = hashlib.sha1()
-    for path in sorted(glob.glob(os.path.join(package_dir, "*.py"))):
-        digest.update(os.path.basename(path).encode())
+    for path in sorted(glob.glob(os.path.join(package_dir, "**", "*.py"), recursive=True)):
+        digest.update(os.path.relpath(path, package_dir).encode())
         with open(path, "rb") as f:
             digest.update(f.read())
     return digest.hexdigest()
@@ -41,7 +43,8 @@ def clear_stale_cache(package_dir):
                 return False
     except OSError:
         pass
-    for path in glob.glob(os.path.join(cache, "*.nbi")) + glob.glob(os.path.join(cache, "*.nbc")):
+    caches = glob.glob(os.path.join(package_dir, "**", "__pycache__"), recursive=True)
+    for path in [p for c in caches for p in glob.glob(os.path.join(c, "*.nbi")) + glob.glob(os.path.join(c, "*.nbc"))]:
         try:
             os.remove(path)
         except OSError:

@@ -8,7 +8,7 @@ One Numba kernel (``advance``) runs the whole loop:
      f_d = -alpha |f| sign(v), m_d = -beta |m| sign(omega) (000 section 3.2.1, eq. 30),
      or, as an alternative relaxation method, FIRE (Bitzek et al. 2006: velocity mixing
      towards the force, adaptive time step up to ``fire_dt_max`` x dt, stop when the power
-     F.v turns negative);
+     F.v turns negative; its sums over the discs in the order of lanes.py);
   4. after the ramp, the convergence test every ``check_every`` steps: kinetic / potential
      energy ratio (000 eqs. 31-32; rattlers excluded) or maximum unbalanced force over mean contact force
      (001 section 2), plus the stress targets of the stress-controlled components.
@@ -25,6 +25,7 @@ from numba import njit
 from .contact_law import (COH_N, COH_T, ETA_R, FROZEN, KN, KR, KS, MU, ROTATIONS, XI_N, XI_T,
                           contact_update_params)
 from .errors import SolveError
+from .lanes import LANES, dot, fire_sums, sum_products
 from .neighbours import build_pairs, cell_strain_norm, max_displacement, merge_history
 from .periodic_cell import contact_copy, polar
 
@@ -498,11 +499,10 @@ def constrain_moments(moment, weight, inv_i, pair_i, pair_j, touching, fn, n_pai
     (docs/micropolar_cell.md). Its reaction is a couple lambda w_p on disc p,
     lambda = -sum(w_p M_p / I_p) / sum(w_p^2 / I_p), added to the contact moments, so that
     ``moment`` then holds the net moments. Fills ``weight``; returns (lambda [m], the couple per
-    newton of contact force, 1 / sum(w_p^2 / I_p), 0 when no disc carries a force)."""
+    newton of contact force, 1 / sum(w_p^2 / I_p), 0 when no disc carries a force). The sums
+    over the discs are taken in the order of lanes.py (the GPU cells take the same)."""
     inv_s2 = contact_weights(weight, inv_i, pair_i, pair_j, touching, fn, n_pairs)
-    acc = 0.0
-    for i in range(moment.shape[0]):
-        acc += weight[i] * moment[i] * inv_i[i]
+    acc = sum_products(weight, moment, inv_i, np.empty(LANES))
     lam = -acc * inv_s2
     for i in range(moment.shape[0]):
         moment[i] += lam * weight[i]
@@ -527,9 +527,7 @@ def contact_weights(weight, inv_i, pair_i, pair_j, touching, fn, n_pairs):
             f = abs(fn[k])
             weight[pair_i[k]] += f
             weight[pair_j[k]] += f
-    s2 = 0.0
-    for i in range(weight.shape[0]):
-        s2 += weight[i] * weight[i] * inv_i[i]
+    s2 = sum_products(weight, weight, inv_i, np.empty(LANES))
     return 1.0 / s2 if s2 > 0.0 else 0.0
 
 
@@ -547,7 +545,6 @@ def leapfrog_micropolar(force, moment, v, s, omega, dtheta, theta, inv_m, inv_i,
     (gk0, gk1) = kappa^T h_ref with the new kappa and (gd0, gd1) = dkappa^T h_ref: the rotation
     per unit of fractional coordinate of the linear field and of its change in this step."""
     vmax2 = 0.0
-    mean = 0.0
     n = s.shape[0]
     for i in range(n):
         v2, dxs, dys = _kick(force, v, inv_m, i, dt, damp)
@@ -571,8 +568,7 @@ def leapfrog_micropolar(force, moment, v, s, omega, dtheta, theta, inv_m, inv_i,
         if damp > 0.0 and omega[i] != 0.0:
             mo -= damp * abs(mo) * math.copysign(1.0, omega[i])
         omega[i] += dt * inv_i[i] * mo
-        mean += weight[i] * omega[i]
-    corr = mean * inv_s2
+    corr = dot(weight, omega, np.empty(LANES)) * inv_s2
     for i in range(n):
         omega[i] -= weight[i] * inv_i[i] * corr
         dtheta[i] += omega[i] * dt
@@ -632,6 +628,7 @@ def advance(radius, mass, inertia, s, v, theta, omega, dtheta, force, moment, s_
     dt_max = dt * max(ctrl[C_DTMAX], 1.0)
     fire_a = 0.1
     fire_npos = 0
+    fire_part = np.empty((5, LANES))
     # bound on the fluctuating displacement since the last neighbour build, updated with
     # max |v| dt each step (5 % margin for the change of h during the accumulation)
     disp = max_displacement(h, s, s_build)
@@ -754,19 +751,7 @@ def advance(radius, mass, inertia, s, v, theta, omega, dtheta, force, moment, s_
         damp = alpha
         if fire:
             damp = 0.0
-            power = 0.0
-            vn2 = 0.0
-            fn2 = 0.0
-            wn2 = 0.0
-            mn2 = 0.0
-            for i in range(n):
-                power += force[i, 0] * v[i, 0] + force[i, 1] * v[i, 1]
-                vn2 += v[i, 0] * v[i, 0] + v[i, 1] * v[i, 1]
-                fn2 += force[i, 0] * force[i, 0] + force[i, 1] * force[i, 1]
-                if rot:
-                    power += moment[i] * omega[i]
-                    wn2 += omega[i] * omega[i]
-                    mn2 += moment[i] * moment[i]
+            power, vn2, fn2, wn2, mn2 = fire_sums(force, v, moment, omega, rot, fire_part)
             if power > 0.0:
                 cv = fire_a * math.sqrt(vn2 / fn2) if fn2 > 0.0 else 0.0
                 cw = fire_a * math.sqrt(wn2 / mn2) if mn2 > 0.0 else 0.0

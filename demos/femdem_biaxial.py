@@ -157,6 +157,9 @@ g.add_argument("--batched", action="store_true",
                help="the rank's cells in one struct of arrays, solved by one Numba call (same results; docs/femdem.md)")
 g.add_argument("--cell-threads", type=number(COUNT), default=1,
                help="Numba threads per rank over the cells, with --batched (default 1; ranks x threads <= cores)")
+g.add_argument("--cell-device", choices=("cpu", "gpu"), default="cpu",
+               help="where a rank's cells live: cpu (default) or gpu, its CUDA device (rank r on GPU r mod the "
+                    "GPUs; batched; docs/gpu.md); refused without a GPU and Numba's CUDA target")
 
 
 def femdem_settings(args):
@@ -176,7 +179,7 @@ def femdem_settings(args):
                          max_steps=args.max_dem_steps, extra=dict(args.cell_option)),
         balance=args.balance, balance_threshold=args.balance_threshold, balance_cost=args.balance_cost,
         balance_passes=args.balance_passes, batched=args.batched,
-        cell_threads=args.cell_threads)
+        cell_threads=args.cell_threads, cell_device=args.cell_device)
 
 
 def check(args):
@@ -201,7 +204,7 @@ except (ValueError, RuntimeError) as error:   # e.g. a packing that cannot be co
 n_points = comm.allreduce(len(test.points))
 print0(comm, f"femdem: {args.mode} mode, {args.tangent} tangent, mesh {nx}x{ny}, {n_points} Gauss points "
              f"({test.n_weak_cells} weak elements), {test.packing_info['n_particles']} discs per cell, "
-             f"{comm.size} rank(s); cells prepared in {test.preparation_time:.1f} s"
+             f"{comm.size} rank(s), cells on {test.cell_device}; cells prepared in {test.preparation_time:.1f} s"
              + (f"; mu_c = {test.mu_c:.4g} N/m, l_c = {test.l_c:.4g} m" if test.mu_c else "")
              + (f" (the cells' moduli, {test.cell_moduli['moduli_from']}: G = {test.cell_moduli['G']:.4g} N/m, "
                 f"B = {test.cell_moduli['bending_modulus']:.4g} N m, l_c / d = "
@@ -312,6 +315,7 @@ summary = {
     "steps": len(test.history), "cut_backs": int(test.history[-1]["cuts"]) if test.history else 0,
     "completed": not stopped, "stopped": stopped, "reason": stopped, **checkpoint.summary_entries(),
     "wall_time": wall, "cell_preparation_time": test.preparation_time, "ranks": comm.size,
+    "cell_device": test.cell_device,
     "time_max_over_ranks": timing,
     "memory_per_cell_bytes": memory / n_points, "snapshots": snapshots,
     "mode": test.material.describe(), "mu_c": test.mu_c, "l_c": test.l_c, "cell_moduli": test.cell_moduli,

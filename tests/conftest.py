@@ -4,7 +4,11 @@ import os
 import subprocess
 import sys
 
-import pytest
+# demcell.gpu's kernels run in Numba's CUDA simulator under `make test` (no GPU needed; set
+# before anything imports numba, which reads it once)
+os.environ.setdefault("NUMBA_ENABLE_CUDASIM", "1")
+
+import pytest  # noqa: E402
 
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 logging.getLogger().setLevel(logging.WARNING)

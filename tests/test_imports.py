@@ -94,3 +94,11 @@ def test_ehlers_scene_imports_no_demcell():
     loaded = modules_after(EHLERS_SCENE.format(root=ROOT))
     assert loaded == {"demcell": False, "cosserat_fenicsx.materials.dem": False,
                       "cosserat_fenicsx.materials.ehlers": True}
+
+
+def test_cpu_cells_load_no_cuda():
+    """The CUDA target loads only when a GPU batch is asked for (demcell.gpu)."""
+    loaded = modules_after(f"import sys, json; sys.path.insert(0, {ROOT!r}); import numpy as np, demcell; "
+                           "from demcell.batch import CellBatch; "
+                           "print(json.dumps({'cuda': 'numba.cuda' in sys.modules, 'gpu': 'demcell.gpu' in sys.modules}))")
+    assert loaded == {"cuda": False, "gpu": False}

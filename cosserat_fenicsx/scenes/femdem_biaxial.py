@@ -93,6 +93,7 @@ class FemDemSettings:
     balance_passes: bool = False       # ... at the start of every Newton pass by the last pass's costs, not per step
     batched: bool = False              # the rank's cells in one struct of arrays, one Numba solve (materials/dem/batched.py)
     cell_threads: int = 1              # Numba threads per rank over the cells (batched; ranks x threads <= cores)
+    cell_device: str = "cpu"           # cpu | gpu: the rank's batched cells on its CUDA device (demcell.gpu)
 
     def check(self):
         """Raises ValueError naming the setting; called before any cell is created."""
@@ -163,6 +164,14 @@ class FemDemSettings:
             raise ValueError(f"femdem: batched must be True or False, got {self.batched!r}")
         if not (isinstance(self.cell_threads, (int, np.integer)) and self.cell_threads >= 1):
             raise ValueError(f"femdem: cell_threads must be an integer >= 1, got {self.cell_threads!r}")
+        if self.cell_device not in ("cpu", "gpu"):
+            raise ValueError(f"femdem: cell_device must be cpu or gpu, got {self.cell_device!r}")
+        if self.cell_device == "gpu":
+            from demcell.gpu import available
+            reason = available()
+            if reason:
+                raise ValueError(f"femdem: cell_device gpu: {reason}")
+            self.batched = True          # a GPU holds the rank's cells as one batch
         if self.cell_threads > 1 and not self.batched:
             raise ValueError("femdem: cell_threads > 1 needs batched cells (--batched)")
         import numba
@@ -251,15 +260,23 @@ class FemDemBiaxial:
             self.mode = make_mode(s.mode, length_scale=self.length_scale)
             self.cell_moduli = self.mode.moduli = reference_moduli(self.mode, ref, s.tangent, s.grain_diameter)
             self.mu_c, self.l_c = self.cell_moduli["mu_c"], self.cell_moduli["l_c"]
-        material_class = DemMaterial
+        def make_material():
+            return DemMaterial(self.reference_cells, self.mode, s.tangent)
+        self.cell_device = "cpu"
         if s.batched:
             import numba
-            from ..materials.dem.batched import BatchedDemMaterial as material_class
+            from ..materials.dem.batched import BatchedDemMaterial
             numba.set_num_threads(s.cell_threads)
-        self.material = material_class(self.reference_cells, self.mode, s.tangent)
+            if s.cell_device == "gpu":
+                from demcell.gpu import use_device
+                self.cell_device = use_device(comm.rank)
+
+            def make_material():
+                return BatchedDemMaterial(self.reference_cells, self.mode, s.tangent, device=s.cell_device)
+        self.material = make_material()
         if s.balance and comm.size > 1:
             from ..balancing import BalancedMaterial
-            self.material = BalancedMaterial(comm, lambda: material_class(self.reference_cells, self.mode, s.tangent),
+            self.material = BalancedMaterial(comm, make_material,
                                              threshold=s.balance_threshold, cost=s.balance_cost,
                                              passes=s.balance_passes)
 

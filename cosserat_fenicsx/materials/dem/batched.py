@@ -1,4 +1,5 @@
-"""FEM x DEM with the cells of a rank in one struct of arrays (demcell.batch.CellBatch).
+"""FEM x DEM with the cells of a rank in one struct of arrays (demcell.batch.CellBatch), or
+resident on a GPU (demcell.gpu.DeviceCellBatch, the same methods: device='gpu').
 
 The same material as `material.DemMaterial` (same statuses, messages, history and the same
 bits: tests/test_femdem_batched.py), but an update is one call for all the points asked:
@@ -20,12 +21,27 @@ from .material import STATUS_BAD_F, STATUS_BROKEN, STATUS_NO_CONTACTS, STATUS_NO
 
 
 class BatchedDemMaterial(DemMaterial):
-    """DemMaterial with a demcell.batch.CellBatch behind it (see module doc)."""
+    """DemMaterial with a store of cells behind it (see module doc): device 'cpu' (a CellBatch
+    on the rank's Numba threads) or 'gpu' (a DeviceCellBatch on the rank's CUDA device)."""
+
+    DEVICES = ("cpu", "gpu")
+
+    def __init__(self, reference_cells, mode, tangent="pstlo", max_strain_increment=0.05, device="cpu"):
+        if device not in self.DEVICES:
+            raise ValueError(f"unknown cell device {device!r}: one of {', '.join(self.DEVICES)}")
+        super().__init__(reference_cells, mode, tangent, max_strain_increment)
+        self.device = device
 
     def initial_state(self, n_points):
-        from demcell.batch import CellBatch
         state = super().initial_state(n_points)      # the cells, as copies of the zones' reference cells
-        self.batch = CellBatch(self.cells) if n_points else None
+        if not n_points:
+            self.batch = None
+        elif self.device == "gpu":
+            from demcell.gpu import DeviceCellBatch
+            self.batch = DeviceCellBatch(self.cells)
+        else:
+            from demcell.batch import CellBatch
+            self.batch = CellBatch(self.cells)
         self._cells_list = None
         return state
 
@@ -58,14 +74,13 @@ class BatchedDemMaterial(DemMaterial):
         texts = {}
         # --- refused before the cell is touched (DemMaterial._solve): a jump too far from the
         # committed state, a non-finite or inverted F, a curvature tearing the cell
-        committed = batch.committed
         Fc = batch.deformation_gradients(points, committed=True)
         jump = np.abs(F - Fc).max(axis=(1, 2))
-        h_ref = committed["h_ref"][points]
+        h_ref = batch.lattices(points, committed=True)
         if kappa is not None:
-            dk = kappa - committed["cellf"][points, 2:4]
-            turn = np.abs(np.einsum("pa,pab->pb", dk, h_ref)).max(axis=1)
-            jump = np.maximum(jump, np.maximum(np.abs(phi - committed["cellf"][points, 1]), turn))
+            phi_c, kappa_c = batch.rotations(points, committed=True)
+            turn = np.abs(np.einsum("pa,pab->pb", kappa - kappa_c, h_ref)).max(axis=1)
+            jump = np.maximum(jump, np.maximum(np.abs(phi - phi_c), turn))
         too_far = ~(jump <= self.max_strain_increment)
         for k in np.flatnonzero(too_far):
             status[k] = STATUS_BAD_F
@@ -178,6 +193,9 @@ class BatchedDemMaterial(DemMaterial):
         if self._touched:
             self.batch.rollback(np.array(sorted(self._touched), dtype=np.int64))
         self._touched.clear()
+
+    def describe(self):
+        return dict(super().describe(), cell_device=self.device)
 
     # --- resident state ------------------------------------------------------------------
     def export_points(self, points):

@@ -100,7 +100,7 @@ class DemMaterial(Constitutive):
 
     def initial_fluxes(self):
         """Fluxes of the reference state (F = I) per point, (n, 6)."""
-        out = np.zeros((len(self.cells), 6))
+        out = np.zeros((len(self.zone), 6))
         for z, ref in enumerate(self.reference_cells):
             row = np.zeros(6)
             self.mode.fluxes(ref.homogenized(), np.zeros(6), row)

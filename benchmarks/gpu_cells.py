@@ -365,7 +365,8 @@ def relaxation(a, results):
 
 
 def variants(a, results):
-    """Threads per cell and register caps on the fixed-step batch."""
+    """Threads per cell and register caps on the fixed-step batch; the fastest becomes the
+    kernel of the parts that follow (recorded as `chosen`)."""
     from numba import cuda
     from demcell import quasistatic as qs
     import demcell as dc
@@ -378,9 +379,12 @@ def variants(a, results):
     F = biaxial_targets(n, 1e-3)
     out = []
     kernel = gb.solve_rows
+    compiled = {}
     for label, threads, regs in a.variants:
         try:
-            gb.solve_rows = cuda.jit(max_registers=regs)(solve.solve_rows.py_func) if regs else kernel
+            if regs not in compiled:
+                compiled[regs] = cuda.jit(**({"max_registers": regs} if regs else {}))(solve.solve_rows.py_func)
+            gb.solve_rows = compiled[regs]
             gpu = gpu_batch([fixed], n, threads)
             gpu.opts[:, qs.Q_TOL] = 1e-30
             rows = np.arange(n)
@@ -401,7 +405,16 @@ def variants(a, results):
             out.append({"variant": label, "error": f"{type(error).__name__}: {error}"})
         results["variants"] = out
         write(a.json, results)
-    gb.solve_rows = kernel
+    ok = [v for v in out if "cell_steps_per_s" in v]
+    if ok:
+        best = max(ok, key=lambda v: v["cell_steps_per_s"])
+        gb.solve_rows = compiled[best["max_registers"]]
+        gb.DEFAULT_THREADS = best["threads"]
+        results["chosen"] = best["variant"]
+        print(f"chosen for what follows: {best['variant']}", flush=True)
+    else:
+        gb.solve_rows = kernel
+    write(a.json, results)
 
 
 def replay(a, results):
@@ -572,8 +585,8 @@ def main():
     d.add_argument("--out", required=True)
     d.add_argument("--trace", help="a `record` directory (for the replay)")
     d.add_argument("--quick", action="store_true", help="small sizes (also for the simulator)")
-    d.add_argument("--parts", nargs="+", default=["agreement", "throughput", "relaxation", "variants", "replay",
-                                                   "large"])
+    d.add_argument("--parts", nargs="+", default=["variants", "agreement", "throughput", "relaxation", "large",
+                                                   "replay"])
     a = p.parse_args()
     if a.what == "record":
         return record(a)
@@ -587,8 +600,9 @@ def main():
         a.agree_cells, a.sizes, a.fixed_steps = 32, [1024, 8192, 32768], 1000
         a.cpu_cells, a.cpu_cells_threads, a.relax_cells, a.relax_particles = 32, 256, 8192, [228, 400]
         a.variant_cells, a.large_cells = 8192, 10092
-        a.variants = [("64 threads", 64, None), ("128 threads", 128, None), ("256 threads", 256, None),
-                      ("128 threads, 168 registers", 128, 168)]
+        a.variants = [("128 threads", 128, None), ("128 threads, 168 registers", 128, 168),
+                      ("64 threads, 168 registers", 64, 168), ("128 threads, 128 registers", 128, 128),
+                      ("64 threads, 128 registers", 64, 128), ("32 threads, 128 registers", 32, 128)]
     if "replay" in a.parts and not a.trace:
         a.parts = [p for p in a.parts if p != "replay"]
     device(a)

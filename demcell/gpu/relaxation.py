@@ -227,14 +227,15 @@ def ramp(sc, kramp, n_ramp, micropolar):
 
 @cuda.jit(device=True)
 def fire_update(sc, si, part):
-    """FIRE (Bitzek et al. 2006) after the lane sums of the step (one thread): the mixing of
+    """FIRE (Bitzek et al. 2006) after the sums of the step (combined: part[row, 0]; one
+    thread): the mixing of
     velocities and forces (MIX_FORCES with 1 - a, cv, cw), or a stop (MIX_STOP), and the new
     time step and mixing factor."""
-    power = combine_row(part, 0)
-    vn2 = combine_row(part, 1)
-    fn2 = combine_row(part, 2)
-    wn2 = combine_row(part, 3)
-    mn2 = combine_row(part, 4)
+    power = part[0, 0]
+    vn2 = part[1, 0]
+    fn2 = part[2, 0]
+    wn2 = part[3, 0]
+    mn2 = part[4, 0]
     fire_a = sc[S_FIRE_A]
     if power > 0.0:
         sc[S_CV] = fire_a * math.sqrt(vn2 / fn2) if fn2 > 0.0 else 0.0
@@ -383,6 +384,9 @@ def advance(c, p0, n, q0, capacity, pf, qf, qi, qb, cf, law, qs, qn, qt, qtb, pi
                 part[3, lane] = wn2
                 part[4, lane] = mn2
             cuda.syncthreads()
+            for row in range(t, 5, T):        # the five trees side by side
+                combine_row(part, row)
+            cuda.syncthreads()
         if kramp < n_ramp:
             kramp += 1
         if t == 0:
@@ -483,12 +487,19 @@ def advance(c, p0, n, q0, capacity, pf, qf, qi, qb, cf, law, qs, qn, qt, qtb, pi
                     pf[OMEGA, i] = 0.0
                     pf[DTHETA, i] = 0.0
                 pf[THETA, i] += pf[DTHETA, i]
-        # --- the bound on the displacement since the last build: the largest velocity (exact;
-        # every thread takes it, so that the next step needs no further barrier)
+        # --- the bound on the displacement since the last build: the largest velocity (exact in
+        # any order), in two levels (a lane per 32 threads, then the lanes); every thread takes
+        # it, so that the next step needs no further barrier
         shr[t] = vmax2
         cuda.syncthreads()
-        for u in range(T):
-            vmax2 = max(vmax2, shr[u])
+        for lane in range(t, min(T, LANES), T):
+            best = shr[lane]
+            for u in range(lane + LANES, T, LANES):
+                best = max(best, shr[u])
+            part[0, lane] = best
+        cuda.syncthreads()
+        for lane in range(min(T, LANES)):
+            vmax2 = max(vmax2, part[0, lane])
         disp += math.sqrt(vmax2) * dt
         fcur = 0
         if t == 0:

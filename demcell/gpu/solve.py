@@ -9,8 +9,9 @@ arrays of quasistatic.py (same slots), so that a cell whose pair slots filled up
 NEED_CAPACITY, and continues where it stopped once the host has enlarged them.
 """
 import math
+import os
 
-from numba import cuda, float64, int64
+from numba import config, cuda, float64, int64
 
 from ..contact_law import ROTATIONS
 from ..lanes import LANES
@@ -31,6 +32,11 @@ from .relaxation import N_SC, N_SI, advance
 
 #: code of a cell after a launch: waiting, solved, waiting for larger pair slots
 PENDING, SOLVED, FULL = 0, 1, 2
+#: registers per thread of the solve kernel: 168 (three 128-thread blocks per multiprocessor,
+#: a few spilled values) ran 18 % faster than the compiler's 182 on an H200 (docs/gpu.md);
+#: DEMCELL_GPU_MAX_REGISTERS=0 leaves the choice to the compiler
+MAX_REGISTERS = int(os.environ.get("DEMCELL_GPU_MAX_REGISTERS", "168"))
+KERNEL_OPTIONS = {} if config.ENABLE_CUDASIM or not MAX_REGISTERS else {"max_registers": MAX_REGISTERS}
 
 
 @cuda.jit(device=True)
@@ -198,7 +204,7 @@ def end_substep(c, k, status, cf, ci, wk, iw, res):
     res[R_MAXOVL] = max(res[R_MAXOVL], out[O_MAXOVL])
 
 
-@cuda.jit(cache=True)
+@cuda.jit(cache=True, **KERNEL_OPTIONS)
 def solve_rows(blocks, rows, p_off, q_off, b_off, pf, qf, qi, qb, cf, ci, law, dt, opts, target, work, iwork,
                result, code, qs, qn, qt, qtb, pis, bins, weight):
     """solve_cell for the cell rows[b] of each b in blocks, one block each; work, iwork,

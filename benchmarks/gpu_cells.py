@@ -199,8 +199,9 @@ def sync():
     cuda.synchronize()
 
 
-def cpu_rate(cell, n, F, threads, max_steps=None):
-    """CellBatch of n copies solved to F on `threads` Numba threads: (wall, cpu, results)."""
+def cpu_rate(cell, n, F, threads, max_steps=None, repeat=3):
+    """CellBatch of n copies solved to F on `threads` Numba threads: (wall, cpu, results), the
+    fastest of `repeat` solves (a shared host's other work only ever slows a run down)."""
     import numba
     from demcell.batch import CellBatch
     batch = CellBatch([cell.copy() for _ in range(n)])
@@ -212,9 +213,14 @@ def cpu_rate(cell, n, F, threads, max_steps=None):
         batch.solve(rows[:1], max_steps=max_steps)        # warm up (compiled or loaded from the cache)
         batch.rollback(rows[:1])
         batch.set_targets(rows[:1], F[:1])
-        start = clock()
-        res = batch.solve(rows, max_steps=max_steps)
-        wall, cpu = since(start)
+        best = (np.inf, np.inf)
+        for _ in range(repeat):
+            batch.rollback(rows)
+            batch.set_targets(rows, F[:n])
+            start = clock()
+            res = batch.solve(rows, max_steps=max_steps)
+            best = min(best, since(start))
+        wall, cpu = best
     finally:
         numba.set_num_threads(old)
     return wall, cpu, res, batch
@@ -292,6 +298,8 @@ def throughput(a, results):
     fixed.options = dc.RelaxationOptions(**dict(base.options.__dict__, tol=1e-30))
     tmpl = fixed
     F = biaxial_targets(max(a.sizes), 1e-3)
+    wall, _, res, _ = cpu_rate(tmpl, a.cpu_cells, F, 1, max_steps=a.fixed_steps)
+    out["cpu_one_core_before"] = a.cpu_cells * float(res[:, qs.R_STEPS].mean()) / wall
     for n in a.sizes:
         gpu = gpu_batch([tmpl], n)
         gpu.opts[:, qs.Q_TOL] = 1e-30
@@ -320,7 +328,8 @@ def throughput(a, results):
         out["cpu"].append({"threads": threads, "cells": n, "wall_s": wall, "cpu_s": cpu,
                            "cell_steps_per_s": n * steps / wall})
         print(f"fixed steps, host {threads} thread(s), {n} cells: {n * steps / wall:.3e} cell-steps/s", flush=True)
-    one = out["cpu"][0]["cell_steps_per_s"]
+    one = max(out["cpu"][0]["cell_steps_per_s"], out["cpu_one_core_before"])
+    out["cpu_one_core"] = one
     for g in out["gpu"]:
         g["over_one_core"] = g["cell_steps_per_s"] / one
         g["over_all_cores"] = g["cell_steps_per_s"] / out["cpu"][1]["cell_steps_per_s"]
@@ -505,13 +514,16 @@ def large_pass(a, results):
     F = committed[:m] + biaxial_targets(n, 2e-4, seed=10)[:m] - np.eye(2)
     host.set_targets(np.arange(m), F)
     host.solve(np.arange(1))
-    host.rollback(np.arange(m))
-    host.set_targets(np.arange(m), F)
-    start = clock()
-    res = host.solve(np.arange(m))
-    host.homogenize(np.arange(m))
-    host.kruyt(np.arange(m))
-    cwall, ccpu = since(start)
+    best = (np.inf, np.inf)
+    for _ in range(3):             # the fastest of three (see cpu_rate)
+        host.rollback(np.arange(m))
+        host.set_targets(np.arange(m), F)
+        start = clock()
+        res = host.solve(np.arange(m))
+        host.homogenize(np.arange(m))
+        host.kruyt(np.arange(m))
+        best = min(best, since(start))
+    cwall, ccpu = best
     first = passes[0]
     gpu_pass = first["solve_s"] + first["homogenize_s"] + first["kruyt_s"]
     out = {"cells": n, "particles": a.particles, "preload_s": preload[0], "passes": passes,

@@ -282,8 +282,13 @@ class CellStore:
 
     def view(self, k):
         """A DemCell of cell k (views into the store, or copies from a device: read it, solve
-        through the store)."""
+        through the store); its target is the store's."""
         return self.views([k])[0]
+
+    def _target_of(self, k):
+        """(F, phi, kappa) of cell k's target."""
+        t = self.target[int(k)]
+        return t[qs.T_F:qs.T_F + 4].reshape(2, 2), t[qs.T_PHI], t[qs.T_KAP:qs.T_KAP + 2]
 
 
 class CellBatch(CellStore):
@@ -519,7 +524,8 @@ class CellBatch(CellStore):
         """DemCells of the cells rows whose state arrays are views into the store (read them:
         their tangents, homogenized outputs; solve through the batch, not through a view)."""
         return [self.templates[int(k)].holding(self._get(self.current, int(k), copy=False),
-                                               self._get(self.committed, int(k), copy=False)) for k in rows]
+                                               self._get(self.committed, int(k), copy=False), self._target_of(k))
+                for k in rows]
 
     def nbytes(self):
         """Bytes of both stores."""

@@ -226,18 +226,20 @@ class DemCell(MicroCell):
         and a frozen network): a copy."""
         return self._law_array.copy()
 
-    def holding(self, state, committed=None):
+    def holding(self, state, committed=None, target=None):
         """A DemCell with this cell's law, options, time step and rotation mode that holds
         `state` as its current state (not copied: views into a batch's store, say) and
-        `committed` (default `state`) as its committed one; its targets are those of `state`."""
+        `committed` (default `state`) as its committed one; its targets are `target` = (F,
+        phi, kappa), default those of `state`."""
         new = DemCell.__new__(DemCell)
         new.__dict__.update(self.__dict__)
         new._law_array = self._law_array.copy()
         new.state = state
         new._committed = state if committed is None else committed
-        new._target = state.F
-        new._target_phi = state.phi
-        new._target_kappa = state.kappa.copy()
+        F, phi, kappa = (state.F, state.phi, state.kappa) if target is None else target
+        new._target = np.array(F, dtype=float).reshape(2, 2)
+        new._target_phi = float(phi)
+        new._target_kappa = np.array(kappa, dtype=float).reshape(2)
         return new
 
     # ----- configuration

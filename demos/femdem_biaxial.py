@@ -96,7 +96,8 @@ cli.add_mesh_options(parser, with_cell_size=False)
 cli.add_output_options(parser, "results/femdem_biaxial")
 cli.add_stepping_options(parser, steps=100)
 cli.add_checkpoint_options(parser, "femdem_biaxial",
-                           solver_options=("tangent", "force_rtol", "accept_rtol", "stagnation_its"))
+                           solver_options=("tangent", "force_rtol", "accept_rtol", "stagnation_its", "batched",
+                                           "cell_threads", "cell_device"))
 g = parser.add_argument_group("specimen and loading (000 section 4.1)")
 g.add_argument("--mesh", default="2x4", help="NXxNY rectangles (000: 1x1, 1x2, 2x4, 4x8; default %(default)s)")
 g.add_argument("--width", type=number(POSITIVE), default=0.01, help="specimen width W [m] (default %(default)g)")

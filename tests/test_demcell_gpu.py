@@ -252,3 +252,28 @@ def test_femdem_demo_with_gpu_cells(tmp_path):
     assert table(outs["cpu"] / "gauss_points.csv", set()) == table(outs["gpu"] / "gauss_points.csv", set())
     with open(outs["gpu"] / "summary.json") as f:
         assert "simulator" in f.read()
+
+
+@pytest.mark.slow
+def test_femdem_demo_on_two_ranks_with_restart(tmp_path):
+    """On 2 ranks: GPU cells (the simulator) write the --batched CPU cells' outputs, also when the
+    run stops after 2 steps with a checkpoint and continues (--restart), and a CPU run's
+    checkpoint continued with --cell-device gpu."""
+    from conftest import run_demo
+    common = ["--mesh", "1x1", "--particles", "16", "--steps", "3", "--axial-strain", "0.003", "--tangent", "kruyt",
+              "--cell-option", "method=fire"]
+    cpu, gpu, switched = tmp_path / "cpu", tmp_path / "gpu", tmp_path / "switched"
+    run_demo("femdem_biaxial", *common, "--batched", "--out", cpu, ranks=2)
+    run_demo("femdem_biaxial", *common, "--cell-device", "gpu", "--checkpoint-every", "1", "--stop-after", "2",
+             "--out", gpu, ranks=2)
+    run_demo("femdem_biaxial", "--restart", gpu, ranks=2)
+    run_demo("femdem_biaxial", *common, "--batched", "--checkpoint-every", "1", "--stop-after", "2", "--out", switched,
+             ranks=2)
+    run_demo("femdem_biaxial", "--restart", switched, "--cell-device", "gpu", ranks=2)
+
+    def table(path, drop):
+        with open(path) as f:
+            return [",".join(v for k, v in enumerate(line.strip().split(",")) if k not in drop) for line in f]
+    for run in (gpu, switched):
+        assert table(cpu / "history.csv", {19}) == table(run / "history.csv", {19})
+        assert table(cpu / "gauss_points.csv", set()) == table(run / "gauss_points.csv", set())

@@ -321,7 +321,7 @@ class DeviceCellBatch(CellStore):
     def views(self, rows):
         """view(k) of every k in rows, downloaded together."""
         current, committed = self._download("current", rows), self._download("committed", rows)
-        return [self.templates[int(k)].holding(a, b) for k, a, b in zip(rows, current, committed)]
+        return [self.templates[int(k)].holding(a, b, self._target_of(k)) for k, a, b in zip(rows, current, committed)]
 
     def restore(self, k, state):
         """Cell k continues from `state` (a CellState): committed and current."""

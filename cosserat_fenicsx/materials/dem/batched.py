@@ -148,15 +148,13 @@ class BatchedDemMaterial(DemMaterial):
                 self.mode.place(C, tangent_out[p])
             cost[counts > 0] = steps
         else:
-            def one(k):
-                p = int(points[k])
-                cell = batch.view(p)
-                target = batch.target[p]
-                cell._target = target[0:4].reshape(2, 2).copy()
-                cell._target_phi, cell._target_kappa = float(target[4]), target[5:7].copy()
-                self.mode.tangent(cell, None, self._kind, tangent_out[p])
-                cost[k] = cell.last_tangent_steps
             live_rows = np.flatnonzero(counts > 0)
+            cells = dict(zip(live_rows, batch.views(points[live_rows])))    # one download from a GPU
+
+            def one(k):
+                cell = cells[k]
+                self.mode.tangent(cell, None, self._kind, tangent_out[int(points[k])])
+                cost[k] = cell.last_tangent_steps
             pool = self._tangent_pool()
             if pool is None:
                 for k in live_rows:

@@ -199,6 +199,32 @@ def sync():
     cuda.synchronize()
 
 
+def never_relaxing(particles):
+    """The reference cell with a tolerance no relaxation meets: a solve runs its step budget."""
+    import demcell as dc
+    cell = reference_cell(particles)
+    cell.options = dc.RelaxationOptions(**dict(cell.options.__dict__, tol=1e-30))
+    return cell
+
+
+def gpu_fixed_steps(cell, n, F, steps, threads=None):
+    """n copies of `cell` on the device, timed over `steps` DEM steps after the ramp:
+    (wall, cpu, mean DEM steps per cell, batch)."""
+    from demcell import quasistatic as qs
+    gpu = gpu_batch([cell], n, threads)
+    rows = np.arange(n)
+    gpu.set_targets(rows, F[:n])
+    gpu.solve(rows[:min(n, 64)], max_steps=10)     # compile or load, and warm up
+    gpu.rollback(rows)
+    gpu.set_targets(rows, F[:n])
+    sync()
+    start = clock()
+    res = gpu.solve(rows, max_steps=steps)
+    sync()
+    wall, cpu = since(start)
+    return wall, cpu, float(res[:, qs.R_STEPS].mean()), gpu
+
+
 def cpu_rate(cell, n, F, threads, max_steps=None, repeat=3):
     """CellBatch of n copies solved to F on `threads` Numba threads: (wall, cpu, results), the
     fastest of `repeat` solves (a shared host's other work only ever slows a run down)."""
@@ -291,29 +317,13 @@ def agreement(a, results):
 def throughput(a, results):
     """Fixed DEM steps per cell (a tolerance never met) for batches of several sizes."""
     from demcell import quasistatic as qs
-    import demcell as dc
     out = {"particles": a.particles, "steps_per_cell": None, "gpu": [], "cpu": []}
-    base = reference_cell(a.particles)
-    fixed = base.copy()
-    fixed.options = dc.RelaxationOptions(**dict(base.options.__dict__, tol=1e-30))
-    tmpl = fixed
+    tmpl = never_relaxing(a.particles)
     F = biaxial_targets(max(a.sizes), 1e-3)
     wall, _, res, _ = cpu_rate(tmpl, a.cpu_cells, F, 1, max_steps=a.fixed_steps)
     out["cpu_one_core_before"] = a.cpu_cells * float(res[:, qs.R_STEPS].mean()) / wall
     for n in a.sizes:
-        gpu = gpu_batch([tmpl], n)
-        gpu.opts[:, qs.Q_TOL] = 1e-30
-        rows = np.arange(n)
-        gpu.set_targets(rows, F[:n])
-        gpu.solve(rows[:min(n, 64)], max_steps=10)     # compile / load and warm up
-        gpu.rollback(rows)
-        gpu.set_targets(rows, F[:n])
-        sync()
-        start = clock()
-        res = gpu.solve(rows, max_steps=a.fixed_steps)
-        sync()
-        wall, cpu = since(start)
-        steps = float(res[:, qs.R_STEPS].mean())
+        wall, cpu, steps, gpu = gpu_fixed_steps(tmpl, n, F, a.fixed_steps)
         out["steps_per_cell"] = steps
         out["gpu"].append({"cells": n, "wall_s": wall, "cpu_s": cpu, "cell_steps_per_s": n * steps / wall,
                            "bytes_per_cell": gpu.bytes_per_cell()})
@@ -377,13 +387,9 @@ def variants(a, results):
     """Threads per cell and register caps on the fixed-step batch; the fastest becomes the
     kernel of the parts that follow (recorded as `chosen`)."""
     from numba import cuda
-    from demcell import quasistatic as qs
-    import demcell as dc
     import demcell.gpu.batch as gb
     from demcell.gpu import solve
-    base = reference_cell(a.particles)
-    fixed = base.copy()
-    fixed.options = dc.RelaxationOptions(**dict(base.options.__dict__, tol=1e-30))
+    fixed = never_relaxing(a.particles)
     n = a.variant_cells
     F = biaxial_targets(n, 1e-3)
     out = []
@@ -394,19 +400,8 @@ def variants(a, results):
             if regs not in compiled:
                 compiled[regs] = cuda.jit(**({"max_registers": regs} if regs else {}))(solve.solve_rows.py_func)
             gb.solve_rows = compiled[regs]
-            gpu = gpu_batch([fixed], n, threads)
-            gpu.opts[:, qs.Q_TOL] = 1e-30
-            rows = np.arange(n)
-            gpu.set_targets(rows, F)
-            gpu.solve(rows[:8], max_steps=5)
-            gpu.rollback(rows)
-            gpu.set_targets(rows, F)
-            sync()
-            start = clock()
-            res = gpu.solve(rows, max_steps=a.fixed_steps)
-            sync()
-            wall, _ = since(start)
-            rate = n * float(res[:, qs.R_STEPS].mean()) / wall
+            wall, _, steps, _ = gpu_fixed_steps(fixed, n, F, a.fixed_steps, threads)
+            rate = n * steps / wall
             out.append({"variant": label, "threads": threads, "max_registers": regs, "cells": n, "wall_s": wall,
                         "cell_steps_per_s": rate})
             print(f"variant {label}: {rate:.3e} cell-steps/s", flush=True)

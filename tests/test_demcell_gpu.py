@@ -123,10 +123,10 @@ def test_fixed_steps_in_each_rotation_mode(packing, mode):
 
 
 def test_full_solves_substeps_growth_commit_rollback(packing):
-    """Two sub-steps, neighbour rebuilds, pair slots cut to their content (the first
+    """FIRE cells through two sub-steps, neighbour rebuilds, pair slots cut to their content (the first
     rebuild overflows them: the device grows them and the cells go on), then commit of
     one cell, a second solve and a rollback."""
-    cells = make_cells(packing, "free", n=2)
+    cells = make_cells(packing, "free", n=2, method="fire")
     for cell in cells:
         st = cell.committed_state
         for name in PAIR_FIELDS:

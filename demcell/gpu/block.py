@@ -1,10 +1,10 @@
-"""What the threads of one block do together: sums in lanes.py's order, maxima, scans.
+"""What the threads of one block do together: sums in lanes.py's order, maxima, searches.
 
 One block solves one cell; its threads take the discs (or the pairs) of the cell in turn,
 thread t the items t, t + T, t + 2 T, ... (T = blockDim.x). Every reduction whose result
 steers the motion is taken in an order fixed independently of T, so that the bits do not
-depend on the launch: sums in lanes.py's lanes and tree, maxima (exact in any order), prefix
-sums one after the other by thread 0.
+depend on the launch: sums in lanes.py's lanes and tree, maxima (exact in any order),
+integer prefix sums (exact) one after the other by thread 0.
 """
 from numba import cuda
 
@@ -37,17 +37,6 @@ def block_max(value, scratch):
         best = max(best, scratch[u])
     cuda.syncthreads()
     return best
-
-
-@cuda.jit(device=True)
-def exclusive_scan(counts, starts, base, n):
-    """starts[base + i] = sum of counts[base + 0 .. i-1] for i < n, one thread; returns the
-    total (an integer sum: exact)."""
-    total = 0
-    for i in range(n):
-        starts[base + i] = total
-        total += counts[base + i]
-    return total
 
 
 @cuda.jit(device=True)

@@ -11,7 +11,7 @@ import math
 from numba import cuda, float64
 
 from ..contact_law import KN, KS, MU
-from .kinematics import inv2
+from .kinematics import branch_vector, inv2
 from .layout import FN, FS, H, HREF, MR, NCF, NPF, NQF, PI, PJ, RADIUS, SX, SY, TOUCHING
 
 
@@ -47,12 +47,7 @@ def contact_sums(rows, micropolar, p_off, q_off, pf, qf, qi, qb, cf, ci, law, ou
             continue
         i = p0 + qi[PI, k]
         j = p0 + qi[PJ, k]
-        a = pf[SX, j] - pf[SX, i]
-        b = pf[SY, j] - pf[SY, i]
-        a -= math.floor(a + 0.5)
-        b -= math.floor(b + 0.5)
-        dx = h00 * a + h01 * b
-        dy = h10 * a + h11 * b
+        a, b, dx, dy = branch_vector(pf, i, j, h00, h01, h10, h11)
         dist = math.sqrt(dx * dx + dy * dy)
         nx = dx / dist
         ny = dy / dist
@@ -148,14 +143,7 @@ def kruyt_sums(rows, p_off, q_off, pf, qi, qb, cf, ci, law, out):
     for k in range(q0, q0 + ci[c, 0]):
         if qb[TOUCHING, k] == 0:
             continue
-        i = p0 + qi[PI, k]
-        j = p0 + qi[PJ, k]
-        a = pf[SX, j] - pf[SX, i]
-        b = pf[SY, j] - pf[SY, i]
-        a -= math.floor(a + 0.5)
-        b -= math.floor(b + 0.5)
-        dx = h00 * a + h01 * b
-        dy = h10 * a + h11 * b
+        a, b, dx, dy = branch_vector(pf, p0 + qi[PI, k], p0 + qi[PJ, k], h00, h01, h10, h11)
         length = math.sqrt(dx * dx + dy * dy)
         nx = dx / length
         ny = dy / length

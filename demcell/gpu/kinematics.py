@@ -10,6 +10,22 @@ from .layout import H, HB, HREF, SBX, SBY, SX, SY
 
 
 @cuda.jit(device=True)
+def nearest_image(a, b, h00, h01, h10, h11):
+    """The nearest periodic image of the fractional vector (a, b) (periodic_cell.fractional_branch):
+    (a, b) - round(a, b), and h times it [m]."""
+    a -= math.floor(a + 0.5)
+    b -= math.floor(b + 0.5)
+    return a, b, h00 * a + h01 * b, h10 * a + h11 * b
+
+
+@cuda.jit(device=True)
+def branch_vector(pf, i, j, h00, h01, h10, h11):
+    """periodic_cell.branch_vector from disc i to disc j (global indices): the fractional branch
+    (a, b) of the nearest image and the branch vector (dx, dy) [m]."""
+    return nearest_image(pf[SX, j] - pf[SX, i], pf[SY, j] - pf[SY, i], h00, h01, h10, h11)
+
+
+@cuda.jit(device=True)
 def inv2(a00, a01, a10, a11):
     """relaxation._inv2_scalars: the inverse of a 2x2 matrix."""
     det = a00 * a11 - a01 * a10

@@ -14,6 +14,7 @@ import math
 from numba import cuda
 
 from .block import first_slot_of, lower_bound
+from .kinematics import branch_vector
 from .layout import (BCOUNT, BIN_ITEM, BIN_OF, BONDED, BSTART, DPX, DPY, FN, FS, ICOUNT, ISTART, JCOUNT,
                      JFILL, JLIST, JSTART, MR, NCOUNT, NEW_I, NEW_J, NSTART, PI, PJ, RADIUS, SX, SY, T_DPX,
                      T_DPY, T_FN, T_FS, T_MR, TOUCHING)
@@ -23,14 +24,21 @@ from .layout import (BCOUNT, BIN_ITEM, BIN_OF, BONDED, BSTART, DPX, DPY, FN, FS,
 def within(pf, i, j, h00, h01, h10, h11, skin):
     """periodic_cell.branch_vector's distance from disc i to disc j (global indices) below
     R_i + R_j + skin."""
-    a = pf[SX, j] - pf[SX, i]
-    b = pf[SY, j] - pf[SY, i]
-    a -= math.floor(a + 0.5)
-    b -= math.floor(b + 0.5)
-    dx = h00 * a + h01 * b
-    dy = h10 * a + h11 * b
+    a, b, dx, dy = branch_vector(pf, i, j, h00, h01, h10, h11)
     lim = pf[RADIUS, i] + pf[RADIUS, j] + skin
     return dx * dx + dy * dy < lim * lim
+
+
+@cuda.jit(device=True)
+def sort_slots(arr, row, lo, hi):
+    """arr[row, lo:hi] sorted in place (insertion sort: a disc has a few entries)."""
+    for u in range(lo + 1, hi):
+        key = arr[row, u]
+        v = u - 1
+        while v >= lo and arr[row, v] > key:
+            arr[row, v + 1] = arr[row, v]
+            v -= 1
+        arr[row, v + 1] = key
 
 
 @cuda.jit(device=True)
@@ -64,14 +72,7 @@ def index_pairs(p0, n, q0, n_pairs, qi, qn, pis):
     cuda.syncthreads()
     for ii in range(t, n, T):
         i = p0 + ii
-        start = pis[JSTART, i]
-        for u in range(start + 1, start + pis[JCOUNT, i]):       # insertion sort: a few entries
-            key = qn[JLIST, u]
-            v = u - 1
-            while v >= start and qn[JLIST, v] > key:
-                qn[JLIST, v + 1] = qn[JLIST, v]
-                v -= 1
-            qn[JLIST, v + 1] = key
+        sort_slots(qn, JLIST, pis[JSTART, i], pis[JSTART, i] + pis[JCOUNT, i])
     cuda.syncthreads()
 
 
@@ -153,13 +154,7 @@ def build_pairs(p0, n, q0, capacity, pf, qn, pis, bins, b0, h00, h01, h10, h11, 
             if write == 0:
                 pis[NCOUNT, i] = m
             else:
-                for u in range(base + 1, base + m):
-                    key = qn[NEW_J, u]
-                    v = u - 1
-                    while v >= base and qn[NEW_J, v] > key:
-                        qn[NEW_J, v + 1] = qn[NEW_J, v]
-                        v -= 1
-                    qn[NEW_J, v + 1] = key
+                sort_slots(qn, NEW_J, base, base + m)
         cuda.syncthreads()
         if write == 0:
             if t == 0:

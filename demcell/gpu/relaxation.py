@@ -28,7 +28,7 @@ from ..relaxation import (C_ALPHA, C_DT, C_DTMAX, C_G, C_KAP, C_KAP_END, C_KAP_S
                           O_S22, O_STEPS, O_UNBAL)
 from .block import block_max, combine_row
 from .contacts import gather_forces, gather_weights, hold_mean_rotation, pair_forces, weight_sums
-from .kinematics import cell_strain_norm, inv2, polar
+from .kinematics import cell_strain_norm, inv2, nearest_image, polar
 from .layout import (DIST, DTHETA, DX, DY, ENERGY, FJX, FJY, FN, FX, FY, H, HB, HREF, INERTIA, MASS,
                      MOMENT, OMEGA, RADIUS, SBX, SBY, SX, SY, THETA, TOUCHING, VX, VY)
 from .neighbours import build_pairs, index_pairs, merge_history
@@ -123,7 +123,7 @@ def convergence_test(p0, n, q0, n_pairs, pf, qf, qi, qb, qs, area, crit, tol, ou
 
 
 @cuda.jit(device=True)
-def start(c, cf, law, ctrl, ipar, fse, rmax, sc, si):
+def start(c, cf, ctrl, fse, rmax, sc, si):
     """The cell's values of an advance call into the block's shared arrays (one thread)."""
     for m in range(4):
         sc[S_H + m] = cf[c, H + m]
@@ -139,12 +139,19 @@ def start(c, cf, law, ctrl, ipar, fse, rmax, sc, si):
     sc[S_DANG] = dang
     dt = ctrl[C_DT]
     sc[S_DT] = dt
+    sc[S_DT0] = dt
+    sc[S_TOL] = ctrl[C_TOL]
     sc[S_DTMAX] = dt * max(ctrl[C_DTMAX], 1.0)
     sc[S_ALPHA] = ctrl[C_ALPHA]
     sc[S_SKIN] = ctrl[C_SKIN]
     sc[S_RCUT] = 2.0 * rmax + ctrl[C_SKIN]
     sc[S_TIME] = ctrl[C_TIME]
     sc[S_PHI] = ctrl[C_PHI]
+    sc[S_PHI_START] = ctrl[C_PHI_START]
+    sc[S_PHI_END] = ctrl[C_PHI_END]
+    for m in range(2):
+        sc[S_KAP_START + m] = ctrl[C_KAP_START + m]
+        sc[S_KAP_END + m] = ctrl[C_KAP_END + m]
     sc[S_KAP] = ctrl[C_KAP]
     sc[S_KAP + 1] = ctrl[C_KAP + 1]
     sc[S_G] = ctrl[C_G]
@@ -275,15 +282,7 @@ def advance(c, p0, n, q0, capacity, pf, qf, qi, qb, cf, law, qs, qn, qt, qtb, pi
         rmax = max(rmax, pf[RADIUS, p0 + ii])
     rmax = block_max(rmax, shr)
     if t == 0:
-        start(c, cf, law, ctrl, ipar, fse, rmax, sc, si)
-        sc[S_DT0] = ctrl[C_DT]
-        sc[S_TOL] = ctrl[C_TOL]
-        sc[S_PHI_START] = ctrl[C_PHI_START]
-        sc[S_PHI_END] = ctrl[C_PHI_END]
-        sc[S_KAP_START] = ctrl[C_KAP_START]
-        sc[S_KAP_START + 1] = ctrl[C_KAP_START + 1]
-        sc[S_KAP_END] = ctrl[C_KAP_END]
-        sc[S_KAP_END + 1] = ctrl[C_KAP_END + 1]
+        start(c, cf, ctrl, fse, rmax, sc, si)
     n_pairs = ipar[I_NPAIRS]
     fcur = ipar[I_FCUR]
     kramp = ipar[I_KRAMP]
@@ -300,14 +299,9 @@ def advance(c, p0, n, q0, capacity, pf, qf, qi, qb, cf, law, qs, qn, qt, qtb, pi
     h01 = sc[S_H + 1]
     h10 = sc[S_H + 2]
     h11 = sc[S_H + 3]
-    for ii in range(t, n, T):
+    for ii in range(t, n, T):          # neighbours.max_displacement
         i = p0 + ii
-        a = pf[SX, i] - pf[SBX, i]
-        b = pf[SY, i] - pf[SBY, i]
-        a -= math.floor(a + 0.5)
-        b -= math.floor(b + 0.5)
-        ux = h00 * a + h01 * b
-        uy = h10 * a + h11 * b
+        _, _, ux, uy = nearest_image(pf[SX, i] - pf[SBX, i], pf[SY, i] - pf[SBY, i], h00, h01, h10, h11)
         u2max = max(u2max, ux * ux + uy * uy)
     disp = math.sqrt(block_max(u2max, shr))
     status = MAX_STEPS

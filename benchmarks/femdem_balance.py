@@ -46,7 +46,7 @@ from cosserat_fenicsx.balancing import imbalance  # noqa: E402
 CELL_TIMERS = ("solve", "homogenize", "tangent", "commit")
 #: redundant: PETSc's LU of the whole (small) system on every rank, bit-reproducible, so both
 #: runs take the same Newton path and do the same cell work; mumps: the scene's default
-SOLVERS = {"redundant": {"pc_type": "redundant"}, "mumps": {}}
+SOLVERS = {"redundant": {"pc_type": "redundant"}, "mumps": {"pc_type": "lu"}}
 
 
 #: the runs --order may ask for: label -> (balance, between passes)

@@ -19,7 +19,7 @@ from .elasticity import MicropolarElasticity
 from .output import FIELDS
 from .validation import COUNT, NON_NEGATIVE, POSITIVE, STEPS, Parser, Range, key_value, number
 
-PETSC_PREFIXES = ("-snes_", "-ksp_", "-pc_", "-mat_", "-log_view")
+PETSC_PREFIXES = ("-snes_", "-ksp_", "-pc_", "-mat_", "-redundant_", "-log_view")
 
 
 def make_parser(description):

@@ -48,6 +48,19 @@ DEFAULT_OPTIONS = {
     "pc_factor_mat_solver_type": "mumps",
 }
 
+#: on more than one rank: every rank factors the whole matrix with sequential MUMPS (PETSc's
+#: redundant preconditioner). MUMPS distributed over the ranks picks its slave processes by
+#: their load while it factors, so the same system gives other round-off under another
+#: machine load, and Newton, the cells and the load steps amplify it into another run
+#: (docs/robustness.md, "The same numbers"); redundant LU gives the same bits whatever the
+#: load. `-pc_type lu` (on the command line or in the options) restores the distributed
+#: factorisation, faster for large meshes on many ranks.
+PARALLEL_OPTIONS = {
+    "pc_type": "redundant",
+    "redundant_pc_type": "lu",
+    "redundant_pc_factor_mat_solver_type": "mumps",
+}
+
 REASONS = {getattr(PETSc.SNES.ConvergedReason, n): n
            for n in dir(PETSc.SNES.ConvergedReason) if n.isupper()}
 
@@ -104,13 +117,19 @@ class NewtonSolver:
         self._failure, self._fatal, self._first_residual = "", False, True
         opts = PETSc.Options()
         merged = dict(DEFAULT_OPTIONS)
+        if problem.mesh.comm.size > 1:
+            merged.update(PARALLEL_OPTIONS)
         merged.update(options or {})
         for key in opts.getAll():
-            if key.split("_")[0] in ("snes", "ksp", "pc", "mat"):
+            if key.split("_")[0] in ("snes", "ksp", "pc", "mat", "redundant"):
                 merged[key] = opts[key]
         user = dict(options or {}, **{k: opts[k] for k in opts.getAll()})
         if merged["pc_type"] not in ("lu", "cholesky") and "pc_factor_mat_solver_type" not in user:
             del merged["pc_factor_mat_solver_type"]  # MUMPS is our default for LU only
+        if merged["pc_type"] != "redundant":
+            for key in PARALLEL_OPTIONS:
+                if key.startswith("redundant_") and key not in user:
+                    merged.pop(key, None)
         for key, value in merged.items():
             opts[prefix + key] = value
         self.snes.setFunction(self._residual, self.b)

@@ -119,13 +119,13 @@ def test_femdem_checkpoint_moves_between_rank_counts(demo, tmp_path, ranks_befor
 
 def test_balanced_run_restarts_bit_for_bit_on_two_ranks(demo, tmp_path):
     """With load balancing (cells worked on away from their home rank, balancing.py) a
-    checkpoint fetches every cell from its worker and a restart puts it back home: on 2 ranks,
-    with PETSc's redundant LU (MUMPS on 2 processes is not bit-reproducible,
-    docs/balancing.md), the stopped and restarted run is the straight one to every digit. The
-    PETSc options are saved in the checkpoint: the restart is given none."""
+    checkpoint fetches every cell from its worker and a restart puts it back home: on 2 ranks
+    (the Newton solver's redundant LU by default: the same bits whatever the load,
+    tests/test_reproducible.py) the stopped and restarted run is the straight one to every
+    digit."""
     args = ("--mesh", "2x2", "--particles", 40, "--axial-strain", 0.0075, "--steps", 5, "--weak-size", 5e-3,
             "--weak-friction", 0.5, "--balance", "--balance-threshold", 1.0,
-            "--balance-cost", "work", "-pc_type", "redundant")   # DEM steps as the cost: the same moves in every run
+            "--balance-cost", "work")   # DEM steps as the cost: the same moves in every run
     demo("femdem_biaxial", *args, "--out", tmp_path / "straight", ranks=2)
     part = tmp_path / "part"
     demo("femdem_biaxial", *args, "--out", part, "--stop-after", 4, ranks=2)

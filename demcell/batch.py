@@ -79,11 +79,19 @@ def _kruyt_rows(rows, p_off, q_off, h, h_ref, s, pair_i, pair_j, touching, celli
 
 
 @njit(cache=True)
+def gradients_of(rows, h, h_ref, F):
+    """F[r] = h[c] h_ref[c]^-1 of the cells c = rows[r] (periodic_cell.deformation_gradient),
+    in one call."""
+    for r in range(rows.shape[0]):
+        F[r] = deformation_gradient(h[rows[r]], h_ref[rows[r]])
+
+
+@njit(cache=True)
 def _gradients_and_counts(rows, q_off, h, h_ref, touching, celli, F, counts):
     """F = h h_ref^-1 and the touching contacts of the cells rows."""
+    gradients_of(rows, h, h_ref, F)
     for r in range(rows.shape[0]):
         c = rows[r]
-        F[r] = deformation_gradient(h[c], h_ref[c])
         n = 0
         for k in range(q_off[c], q_off[c] + celli[c, 0]):
             n += touching[k]

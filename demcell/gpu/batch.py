@@ -18,13 +18,12 @@ import numpy as np
 from numba import cuda
 
 from .. import quasistatic as qs
-from ..batch import CellStore, homogenized_outputs
+from ..batch import CellStore, gradients_of, homogenized_outputs
 from ..errors import InputError
-from ..periodic_cell import deformation_gradient
 from . import cells as kernels
 from . import simulator
 from .block import MAX_THREADS
-from .layout import (HREF, KAP, NCF, NPF, NPI, NQF, NQN, NQS, NQT, PHI, bins_per_cell, from_columns,
+from .layout import (H, HREF, KAP, NCF, NPF, NPI, NQF, NQN, NQS, NQT, PHI, bins_per_cell, from_columns,
                      to_columns)
 from .solve import FULL, solve_rows
 
@@ -152,8 +151,8 @@ class DeviceCellBatch(CellStore):
         cf = self._mirror["committed" if committed else "current"]["cf"]
         rows = np.asarray(rows, dtype=np.int64)
         out = np.zeros((len(rows), 2, 2))
-        for r, c in enumerate(rows):
-            out[r] = deformation_gradient(cf[c, 0:4].reshape(2, 2), cf[c, HREF:HREF + 4].reshape(2, 2))
+        gradients_of(rows, np.ascontiguousarray(cf[:, H:H + 4]).reshape(-1, 2, 2),
+                     np.ascontiguousarray(cf[:, HREF:HREF + 4]).reshape(-1, 2, 2), out)
         return out
 
     def rotations(self, rows, committed=False):

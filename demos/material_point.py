@@ -15,8 +15,8 @@ Tests of the thesis (Scholz 2007, A.1, A.2, section 6.1.2), Hostun sand by defau
                5 kPa steps to 1 MN/m^2 under four readings (readings.json)
 
 Writes to --out: history.csv (axial_strain, axial_stress, volumetric_strain, then
-further columns; SI, tension positive; strains counted from the start of the
-deviatoric phase), summary.json, and material_point.png (axial stress and volumetric
+further columns, the last the time [s] from the start of the recorded phase; SI, tension
+positive; strains counted from the start of the deviatoric phase), summary.json, and material_point.png (axial stress and volumetric
 strain against axial strain).  No dolfinx needed.
 
 Example:  python3 demos/material_point.py --test triaxial --confining 300e3 --out out/tri300
@@ -73,7 +73,7 @@ def build_parser():
 
 
 HISTORY_COLUMNS = ["axial_strain", "axial_stress", "volumetric_strain", "sig22", "sig33", "mean_stress",
-                   "eps22", "eps33", "eps_p_vol", "beta", "delta", "epsilon", "gamma", "yield_function"]
+                   "eps22", "eps33", "eps_p_vol", "beta", "delta", "epsilon", "gamma", "yield_function", "time"]
 
 
 def run_test(material, test, confining, args, out, guard):
@@ -83,9 +83,14 @@ def run_test(material, test, confining, args, out, guard):
     with open(os.path.join(out, "history.csv"), "w", newline="") as f:
         writer = csv.writer(f)
         writer.writerow(HISTORY_COLUMNS)
+        # time [s] from the start of the recorded phase: a deviatoric test's first row is that
+        # start, an isotropic test's first row the end of its first step
+        rows = [0 if test in ("triaxial", "biaxial") else 1]
 
         def on_record(record):
             with guard.deferred():
+                record = dict(record, time=rows[0] * args.dt)
+                rows[0] += 1
                 writer.writerow([f"{record[c]:.10g}" for c in HISTORY_COLUMNS])
                 f.flush()
                 guard.progress(final_axial_strain=record["axial_strain"])

@@ -11,7 +11,13 @@ deviatoric phase.
 
 Optional columns ``<quantity>_std`` give the scatter sigma_n of each point over repeated
 tests (thesis eq. 4.26), used by the error analysis; a test can instead be given one
-scatter per quantity (Table 6.3 lists mean scatters per test).  Every check here runs
+scatter per quantity (Table 6.3 lists mean scatters per test).  An optional ``time``
+column [s, from the start of the measured phase] gives the loading rate the model follows.
+
+The model runs each test along the data: a load step ends at every data abscissa, and
+longer intervals are split (VirtualTest.following), so that data made by the model with
+its own steps are met exactly and measured data see a discretisation error that the
+identification estimates and reports.  Every check here runs
 before any model evaluation (bad input gets a one-line error naming file and column).
 """
 
@@ -25,7 +31,7 @@ import os
 import numpy as np
 
 from ..validation import InputError
-from .virtual_tests import KINDS, UNLOADING, VirtualTest
+from .virtual_tests import KINDS, MIN_STEPS, UNLOADING, VirtualTest
 
 #: Table 6.2 of the thesis: normalisation factors of (6.3) for the Hostun tests [Pa, -]
 TABLE_6_2 = {("triaxial", 100e3): dict(axial_stress=500e3, volumetric_strain=0.1),
@@ -94,13 +100,14 @@ def _read_columns(path):
 
 
 def read_test(path, kind, confining, quantities=None, normalisation=None, scatter=None,
-              n_steps=None, n_consolidation=40, start_pressure=0.0, unload_at=None):
+              n_steps=None, n_consolidation=40, start_pressure=0.0, unload_at=None, min_steps=MIN_STEPS):
     """TestData of one CSV file.  kind, confining [Pa]: the test (confining: cell pressure, or
     the final pressure of an isotropic test -- by default the largest pressure in the file);
     quantities: the measured quantities to fit (default: all of the kind's present in the
     file); normalisation: {quantity: phi_0}; scatter: {quantity: sigma} one value per
-    quantity when the file has no <quantity>_std column; n_steps: load steps of the model
-    run (default: enough for 1e-3 axial strain or 1/100 of the pressure per step);
+    quantity when the file has no <quantity>_std column; n_steps: equal load steps of the
+    model run (default: a step ends at every data abscissa and none is longer than
+    1/min_steps of the test's range, VirtualTest.following);
     start_pressure (isotropic kinds): the pressure the test starts from, its strains counted
     from there (e.g. a DEM cell prepared at p0); unload_at (triaxial_unloading, required): the
     axial compression at which the recorded unloading branch starts."""
@@ -129,7 +136,8 @@ def read_test(path, kind, confining, quantities=None, normalisation=None, scatte
     if not wanted:
         raise InputError(f"data file {path!r} ({kind}): none of the columns {list(measured)} is present")
     x = cols[abscissa]
-    for name in [abscissa] + wanted + [q + "_std" for q in wanted if q + "_std" in cols]:
+    for name in [abscissa] + wanted + [q + "_std" for q in wanted if q + "_std" in cols] + \
+            (["time"] if "time" in cols else []):
         bad = ~np.isfinite(cols[name])
         if bad.any():
             raise InputError(f"data file {path!r}: column {name!r} has {int(bad.sum())} non-finite value(s) "
@@ -145,11 +153,11 @@ def read_test(path, kind, confining, quantities=None, normalisation=None, scatte
         p_start = float(start_pressure or 0.0)
         if x.min() < p_start * (1 - 1e-9):
             raise InputError(f"data file {path!r}: pressures below the start pressure {p_start:g} Pa")
-        test = VirtualTest(kind, top, n_steps=n_steps or 100, start_pressure=p_start)
+        fields = dict(start_pressure=p_start, n_consolidation=n_consolidation)
     else:
         if confining is None:
             raise InputError(f"data file {path!r}: a {kind} test needs its confining pressure")
-        extra = {}
+        fields = dict(n_consolidation=n_consolidation)
         if kind in UNLOADING:
             if unload_at is None:
                 raise InputError(f"data file {path!r}: a {kind} test needs 'unload_at' (the axial compression "
@@ -158,17 +166,22 @@ def read_test(path, kind, confining, quantities=None, normalisation=None, scatte
                 raise InputError(f"data file {path!r}: an unloading branch has axial strains >= 0 "
                                  "(counted from its start, tension positive)")
             reach = float(x.max())
-            extra = dict(unload_at=float(unload_at))
-            default_steps = max(10, int(math.ceil(reach / 5e-5)))
+            fields["unload_at"] = float(unload_at)
         else:
             if np.any(x > 1e-12):
                 raise InputError(f"data file {path!r}: axial strains must be <= 0 (compression, tension positive)")
             reach = float(-x.min())
-            default_steps = max(20, int(math.ceil(reach / 1e-3)))
         if not reach > 0:
             raise InputError(f"data file {path!r}: the axial strain never leaves 0")
-        test = VirtualTest(kind, float(confining), axial_strain=reach, n_steps=n_steps or default_steps,
-                           n_consolidation=n_consolidation, **extra)
+        fields["axial_strain"] = reach
+        top = float(confining)
+    try:
+        if n_steps:
+            test = VirtualTest(kind, top, n_steps=int(n_steps), **fields)
+        else:
+            test = VirtualTest.following(kind, top, x, times=cols.get("time"), min_steps=min_steps, **fields)
+    except InputError as error:
+        raise InputError(f"data file {path!r}: {error}") from None
     y = {q: cols[q] for q in wanted}
     std = {}
     for q in wanted:

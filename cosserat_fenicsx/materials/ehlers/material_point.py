@@ -124,24 +124,56 @@ def _as_arrays(records, pt=None):
     return h
 
 
-def consolidate(pt, sigma, n_steps=40, plane_strain=False, dt=1.0, records=None, e_ref=None):
+def consolidate(pt, sigma, n_steps=40, plane_strain=False, dt=1.0, records=None, e_ref=None, path=None):
     """Stress-controlled proportional loading from the current state to diagonal ``sigma``
     (sig11, sig22, sig33) [Pa]; with plane_strain the total eps33 stays 0 instead and
     only sig11, sig22 are prescribed (sig33 follows from the model). Returns the records
     of the steps (appended to `records` when given, so a caller keeps them on failure);
-    their strains are counted from e_ref (7,) (default: zero)."""
+    their strains are counted from e_ref (7,) (default: zero).  path: a LoadPath of the
+    fractions of the way to ``sigma`` at the step ends and their time steps (default:
+    n_steps equal steps of dt)."""
     sigma = np.broadcast_to(np.asarray(sigma, dtype=float), (3,))
     mask = np.array([True, True, not plane_strain, False, False, False, False])
     s0 = pt.stress.copy()
     recs = [] if records is None else records
-    for k in range(1, n_steps + 1):
+    for k, dt_k in (_uniform(n_steps, dt) if path is None else path.steps()):
         tgt = np.zeros(7)
-        tgt[:3] = s0[:3] + k / n_steps * (sigma - s0[:3])
+        tgt[:3] = s0[:3] + k * (sigma - s0[:3]) if path is not None else s0[:3] + k / n_steps * (sigma - s0[:3])
         if plane_strain:
             tgt[2] = 0.0
-        pt.advance(mask, tgt, dt)
+        pt.advance(mask, tgt, dt_k)
         _record(pt, recs, np.zeros(7) if e_ref is None else e_ref)
     return recs
+
+
+def _uniform(n_steps, dt):
+    """(k, dt) of n_steps equal steps: the step ends are k / n_steps of the way."""
+    return ((k, dt) for k in range(1, n_steps + 1))
+
+
+class LoadPath:
+    """A non-uniform load path of one phase: ``fractions`` (n,) of the way from the phase's
+    start to its end at each step end (increasing, the last 1), and ``dts`` (n,) the time
+    of each step [s].  A test run along the abscissae of measured data (each data point a
+    step end) uses one, so that the model's discretisation follows the data's."""
+
+    def __init__(self, fractions, dts):
+        self.fractions = np.asarray(fractions, dtype=float)
+        self.dts = np.asarray(dts, dtype=float)
+        f, d = self.fractions, self.dts
+        if f.ndim != 1 or f.size == 0 or d.shape != f.shape:
+            raise InputError(f"load path: fractions {f.shape} and time steps {d.shape} must be equal, non-empty 1D")
+        if not (np.all(np.isfinite(f)) and np.all(np.diff(np.concatenate([[0.0], f])) > 0)
+                and abs(f[-1] - 1.0) <= 1e-12):
+            raise InputError("load path: the fractions must increase from above 0 to 1")
+        if not (np.all(np.isfinite(d)) and np.all(d > 0)):
+            raise InputError("load path: every time step must be finite and > 0")
+
+    def __len__(self):
+        return self.fractions.size
+
+    def steps(self):
+        return zip(self.fractions, self.dts)
 
 
 def consolidate_state(material, sigma0, n_steps=40):
@@ -228,16 +260,18 @@ def _new_point(material, point):
     return point
 
 
-def _isotropic(pt, recs, p_max, n_steps, plane_strain, dt, p_start, n_consolidation):
+def _isotropic(pt, recs, p_max, n_steps, plane_strain, dt, p_start, n_consolidation, path):
     """Isotropic compression to p_max; with p_start > 0 the point is first consolidated to
-    p_start (not recorded) and the records start there, strains counted from that state."""
+    p_start (not recorded) and the records start there, strains counted from that state.
+    path: a LoadPath of the recorded phase (fractions of the way from p_start to p_max)."""
     if p_start > 0.0:
         consolidate(pt, -p_start, n_steps=n_consolidation, plane_strain=plane_strain, dt=dt)
         e_ref = pt.strain.copy()
         _record(pt, recs, e_ref)
-        consolidate(pt, -p_max, n_steps=n_steps, plane_strain=plane_strain, dt=dt, records=recs, e_ref=e_ref)
+        consolidate(pt, -p_max, n_steps=n_steps, plane_strain=plane_strain, dt=dt, records=recs, e_ref=e_ref,
+                    path=path)
     else:
-        consolidate(pt, -p_max, n_steps=n_steps, plane_strain=plane_strain, dt=dt, records=recs)
+        consolidate(pt, -p_max, n_steps=n_steps, plane_strain=plane_strain, dt=dt, records=recs, path=path)
 
 
 def _check_start(p_start, p_max):
@@ -247,55 +281,57 @@ def _check_start(p_start, p_max):
 
 
 def hydrostatic_test(material, p_max=1.0e6, n_steps=200, dt=1.0, stop_on_failure=False, on_record=None,
-                     point=None, p_start=0.0, n_consolidation=40):
+                     point=None, p_start=0.0, n_consolidation=40, path=None):
     """Hydrostatic compression to mean stress -p_max (A.1): sig11 = sig22 = sig33 = -p.
     (stop_on_failure: _run_test; on_record(record): called as each step's record is made;
-    point: the MaterialPoint to drive, see _new_point; p_start: see _isotropic.)"""
+    point: the MaterialPoint to drive, see _new_point; p_start, path: see _isotropic.)"""
     _check_test(p_max, 0.1, n_steps, n_consolidation, dt)
     _check_start(p_start, p_max)
     pt = _new_point(material, point)
     recs = _Records(on_record)
-    return _run_test(pt, recs, lambda: _isotropic(pt, recs, p_max, n_steps, False, dt, p_start, n_consolidation),
-                     stop_on_failure)
+    return _run_test(pt, recs, lambda: _isotropic(pt, recs, p_max, n_steps, False, dt, p_start, n_consolidation,
+                                                  path), stop_on_failure)
 
 
 def isotropic_plane_strain_test(material, p_max=1.0e6, n_steps=200, dt=1.0, stop_on_failure=False,
-                                on_record=None, point=None, p_start=0.0, n_consolidation=40):
+                                on_record=None, point=None, p_start=0.0, n_consolidation=40, path=None):
     """Isotropic compression in plane strain: sig11 = sig22 = -p, eps33 = 0 (sig33 from the
     model), p increased to p_max.  The 2D counterpart of the hydrostatic test, as a periodic
     disc cell runs it (its pressure is the in-plane one, -(sig11 + sig22)/2, its 'volumetric'
-    strain eps11 + eps22, the area change).  p_start: see _isotropic."""
+    strain eps11 + eps22, the area change).  p_start, path: see _isotropic."""
     _check_test(p_max, 0.1, n_steps, n_consolidation, dt)
     _check_start(p_start, p_max)
     pt = _new_point(material, point)
     recs = _Records(on_record)
-    return _run_test(pt, recs, lambda: _isotropic(pt, recs, p_max, n_steps, True, dt, p_start, n_consolidation),
-                     stop_on_failure)
+    return _run_test(pt, recs, lambda: _isotropic(pt, recs, p_max, n_steps, True, dt, p_start, n_consolidation,
+                                                  path), stop_on_failure)
 
 
-def _compression(pt, recs, mask, lateral, confining, axial_strain, n_steps, dt, change=None):
+def _compression(pt, recs, mask, lateral, confining, axial_strain, n_steps, dt, change=None, path=None):
     """The deviatoric phase of the triaxial and biaxial tests: eps11 decreased by
     axial_strain in n_steps from the current state (or changed by the signed `change`),
     -confining on the `lateral` components; strains counted from the start of the phase.
-    recs None: the phase is not recorded."""
+    recs None: the phase is not recorded.  path: a LoadPath (its fractions of the change
+    and time steps) instead of n_steps equal steps of dt."""
     e_ref = pt.strain.copy()
     change = -axial_strain if change is None else change
     if recs is not None:
         _record(pt, recs, e_ref)
-    for k in range(1, n_steps + 1):
+    for k, dt_k in (_uniform(n_steps, dt) if path is None else path.steps()):
         tgt = np.zeros(7)
-        tgt[0] = e_ref[0] + change * k / n_steps
+        tgt[0] = e_ref[0] + change * k if path is not None else e_ref[0] + change * k / n_steps
         tgt[lateral] = -confining
-        pt.advance(mask, tgt, dt)
+        pt.advance(mask, tgt, dt_k)
         if recs is not None:
             _record(pt, recs, e_ref)
 
 
 def triaxial_test(material, confining=100e3, axial_strain=0.15, n_steps=600, n_consolidation=40, dt=1.0,
-                  stop_on_failure=False, on_record=None, point=None):
+                  stop_on_failure=False, on_record=None, point=None, path=None):
     """Triaxial compression (A.1): isotropic consolidation to -p, then eps11 decreased by
     ``axial_strain`` at constant lateral stress sig22 = sig33 = -p (eps22 = eps33 free).
-    Axial and volumetric strains are counted from the start of the deviatoric phase."""
+    Axial and volumetric strains are counted from the start of the deviatoric phase.
+    path: a LoadPath of the deviatoric phase instead of n_steps equal steps of dt."""
     _check_test(confining, axial_strain, n_steps, n_consolidation, dt)
     pt = _new_point(material, point)
     recs = _Records(on_record)
@@ -303,12 +339,12 @@ def triaxial_test(material, confining=100e3, axial_strain=0.15, n_steps=600, n_c
     def load():
         consolidate(pt, -confining, n_steps=n_consolidation, dt=dt)
         mask = np.array([False, True, True, False, False, False, False])
-        _compression(pt, recs, mask, [1, 2], confining, axial_strain, n_steps, dt)
+        _compression(pt, recs, mask, [1, 2], confining, axial_strain, n_steps, dt, path=path)
     return _run_test(pt, recs, load, stop_on_failure)
 
 
 def unloading_test(material, confining=100e3, unload_at=0.02, axial_strain=5e-4, n_steps=10, n_consolidation=40,
-                   dt=1.0, stop_on_failure=False, on_record=None, point=None, n_loading=None):
+                   dt=1.0, stop_on_failure=False, on_record=None, point=None, n_loading=None, path=None):
     """An unloading branch of a triaxial test, the data of the elastic step 1(a) of the
     thesis' stepwise identification (4.3, eq. 4.19): consolidation to -p, axial compression
     to eps11 = -unload_at at sig22 = sig33 = -p (n_loading steps, 1e-3 each by default, not
@@ -326,14 +362,15 @@ def unloading_test(material, confining=100e3, unload_at=0.02, axial_strain=5e-4,
         consolidate(pt, -confining, n_steps=n_consolidation, dt=dt)
         mask = np.array([False, True, True, False, False, False, False])
         _compression(pt, None, mask, [1, 2], confining, unload_at, n_loading, dt)
-        _compression(pt, recs, mask, [1, 2], confining, 0.0, n_steps, dt, change=axial_strain)
+        _compression(pt, recs, mask, [1, 2], confining, 0.0, n_steps, dt, change=axial_strain, path=path)
     return _run_test(pt, recs, load, stop_on_failure)
 
 
 def biaxial_test(material, confining=100e3, axial_strain=0.15, n_steps=600, n_consolidation=40, dt=1.0,
-                 stop_on_failure=False, on_record=None, point=None):
+                 stop_on_failure=False, on_record=None, point=None, path=None):
     """Homogeneous plane-strain biaxial test (A.2): consolidation sig11 = sig22 = -p with
-    eps33 = 0, then eps11 decreased at sig22 = -p, eps33 = 0 (sig33 from the model)."""
+    eps33 = 0, then eps11 decreased at sig22 = -p, eps33 = 0 (sig33 from the model).
+    path: as for triaxial_test."""
     _check_test(confining, axial_strain, n_steps, n_consolidation, dt)
     pt = _new_point(material, point)
     recs = _Records(on_record)
@@ -341,7 +378,7 @@ def biaxial_test(material, confining=100e3, axial_strain=0.15, n_steps=600, n_co
     def load():
         consolidate(pt, -confining, n_steps=n_consolidation, plane_strain=True, dt=dt)
         mask = np.array([False, True, False, False, False, False, False])
-        _compression(pt, recs, mask, [1], confining, axial_strain, n_steps, dt)
+        _compression(pt, recs, mask, [1], confining, axial_strain, n_steps, dt, path=path)
     return _run_test(pt, recs, load, stop_on_failure)
 
 

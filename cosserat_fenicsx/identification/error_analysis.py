@@ -64,10 +64,11 @@ class ErrorAnalysis:
         per = {}
         for i, n in enumerate(self.names):
             v = float(self.values[i])
-            per[n] = dict(value=v, std=float(self.std[i]),
-                          relative_std=float(self.std[i] / abs(v)) if v != 0 else None,
-                          interval_joint=[float(lo[i]), float(hi[i])],
-                          interval_marginal=[float(mlo[i]), float(mhi[i])])
+            per[n] = dict(value=v, std=_finite(self.std[i]),
+                          relative_std=_finite(self.std[i] / abs(v)) if v != 0 else None,
+                          determined=bool(np.isfinite(self.std[i])),
+                          interval_joint=[_finite(lo[i]), _finite(hi[i])],
+                          interval_marginal=[_finite(mlo[i]), _finite(mhi[i])])
         return dict(method="thesis section 4.5: s0 (4.27), K (4.28), sigma_p (4.29), "
                            "intervals (4.30) joint and t marginal, correlation (4.31)",
                     n_data=self.n_data, n_parameters=len(self.names), s0=self.s0,
@@ -75,16 +76,24 @@ class ErrorAnalysis:
                     joint_factor=self.joint_factor, marginal_factor=self.marginal_factor,
                     condition_number=self.condition_number if np.isfinite(self.condition_number) else None,
                     rank_deficient=self.rank_deficient, serially_correlated=self.serially_correlated,
-                    parameters=per, correlation=self.correlation.tolist(), names=list(self.names))
+                    parameters=per, correlation=[[_finite(c) for c in row] for row in self.correlation],
+                    names=list(self.names))
 
 
-def _newey_west(J, w, r, blocks, lags):
-    """B = sum over blocks of sum_{|l| <= L} (1 - |l|/(L + 1)) sum_i g_i g_{i+l}^T, g_i = w_i r_i J_i:
-    the variance of the score when the errors of neighbouring points of a curve are correlated
-    (Newey & West 1987, Bartlett weights), points of different blocks independent."""
-    g = (w * r)[:, None] * J
-    B = np.zeros((J.shape[1], J.shape[1]))
-    rho = _lag1_autocorrelation(np.sqrt(w) * r, blocks)
+def _finite(x):
+    """A float for JSON, None where it is not finite (an undetermined parameter)."""
+    x = float(x)
+    return x if np.isfinite(x) else None
+
+
+def _newey_west(Jw, rw, blocks, lags):
+    """B = sum over blocks of sum_{|l| <= L} (1 - |l|/(L + 1)) sum_i g_i g_{i+l}^T, g_i = w_i r_i J_i
+    (from the weighted Jw = sqrt(w) J and rw = sqrt(w) r): the variance of the score when the
+    errors of neighbouring points of a curve are correlated (Newey & West 1987, Bartlett
+    weights), points of different blocks independent."""
+    g = rw[:, None] * Jw
+    B = np.zeros((Jw.shape[1], Jw.shape[1]))
+    rho = _lag1_autocorrelation(rw, blocks)
     start = 0
     for n in blocks:
         gb = g[start:start + n]
@@ -115,12 +124,13 @@ def _lag1_autocorrelation(e, blocks):
 
 
 def analyse(names, values, jacobian, residual, sigma=None, weights=None, alpha=0.05, serial_blocks=None,
-            lags=None):
+            lags=None, sqrt_weights=None):
     """Error analysis at the optimum.
 
     jacobian (N, P): d phi_n / d s_k; residual (N,): phi_n(s_hat) - phi~_n;
     sigma (N,): data scatter sigma_n (4.26), or None: then `weights` (N,) (the objective's
-    w_n) fix the relative scatter sigma_n ~ 1/sqrt(w_n) and s0 carries the common factor.
+    w_n) fix the relative scatter sigma_n ~ 1/sqrt(w_n) and s0 carries the common factor
+    (sqrt_weights: sqrt(w_n) instead, for weights whose squares underflow).
     serial_blocks (list of lengths summing to N, the curves in data order): the errors of
     neighbouring points of one curve may be correlated (a DEM curve's points share its loading
     path); (4.28) assumes them independent and then understates K.  K becomes the sandwich
@@ -136,15 +146,25 @@ def analyse(names, values, jacobian, residual, sigma=None, weights=None, alpha=0
     if N <= P:
         raise ValueError(f"error analysis needs more data points than parameters (N = {N}, P = {P})")
     if sigma is not None:
-        w = 1.0 / np.asarray(sigma, dtype=float) ** 2
+        sw = 1.0 / np.asarray(sigma, dtype=float)
         known = True
     else:
-        w = np.ones(N) if weights is None else np.asarray(weights, dtype=float)
+        sw = (np.ones(N) if weights is None and sqrt_weights is None else
+              np.asarray(sqrt_weights, dtype=float) if sqrt_weights is not None else
+              np.sqrt(np.asarray(weights, dtype=float)))
+        sw = sw / sw.max() if np.all(np.isfinite(sw)) and sw.max() > 0 else sw   # the common factor is s0's
         known = False
-    if not (np.all(np.isfinite(w)) and np.all(w > 0)):
+    if P == 0:
+        raise ValueError("error analysis: no free parameter (all at a bound)")
+    if not (np.all(np.isfinite(sw)) and np.all(sw > 0)):
         raise ValueError("error analysis: data scatter (or weights) must be finite and > 0")
-    s0sq = float(r @ (w * r) / (N - P))                                  # (4.27)
-    A = J.T @ (w[:, None] * J)                                           # Fisher matrix
+    rw = sw * r
+    top = float(np.max(np.abs(rw)))
+    s0sq = (top * float(np.linalg.norm(rw / top))) ** 2 / (N - P) if top > 0 else 0.0   # (4.27), no overflow
+    if not np.isfinite(s0sq):
+        raise ValueError(f"error analysis: the weighted residuals (up to {top:.3g}) are too large to square")
+    Jw = sw[:, None] * J
+    A = Jw.T @ Jw                                                        # Fisher matrix
     # scale columns so that the condition number measures identifiability, not units
     d = np.sqrt(np.diag(A))
     d[d == 0] = 1.0
@@ -153,6 +173,11 @@ def analyse(names, values, jacobian, residual, sigma=None, weights=None, alpha=0
     cond = float(ev[-1] / ev[0]) if ev[0] > 0 else float("inf")
     deficient = not np.isfinite(cond) or cond > 1e14
     Ainv = np.linalg.pinv(An, rcond=1e-14) / np.outer(d, d)
+    # parameters the data do not determine: a zero sensitivity, or a part in a null direction
+    # of the Fisher matrix; the pseudo-inverse would give them a variance of 0
+    vals, vecs = np.linalg.eigh(An)
+    null = vecs[:, vals <= max(vals[-1], 0.0) * 1e-14]
+    undetermined = (np.diag(A) == 0) | (np.abs(null) > 1e-6).any(axis=1)
     if serial_blocks is None:
         K = s0sq * Ainv                                                  # (4.28)
     else:
@@ -160,11 +185,15 @@ def analyse(names, values, jacobian, residual, sigma=None, weights=None, alpha=0
             raise ValueError(f"error analysis: serial blocks of {sum(serial_blocks)} points for {N} data")
         # sandwich; (N / (N - P)) is the small-sample factor that makes it equal to (4.28)
         # for independent errors
-        K = (N / (N - P)) * Ainv @ _newey_west(J, w, r, serial_blocks, lags) @ Ainv
+        K = (N / (N - P)) * Ainv @ _newey_west(Jw, rw, serial_blocks, lags) @ Ainv
+    if not np.all(np.isfinite(K)):
+        raise ValueError("error analysis: the covariance (4.28) overflows")
     std = np.sqrt(np.clip(np.diag(K), 0.0, None))                        # (4.29)
+    std[undetermined] = np.inf
     with np.errstate(invalid="ignore", divide="ignore"):
         corr = K / np.outer(std, std)                                    # (4.31)
     corr[~np.isfinite(corr)] = 0.0
+    corr[undetermined, :] = corr[:, undetermined] = np.nan
     np.fill_diagonal(corr, 1.0)
     joint = float(np.sqrt(P * stats.f.ppf(1.0 - alpha, P, N - P)))       # (4.30)
     marginal = float(stats.t.ppf(1.0 - alpha / 2.0, N - P))

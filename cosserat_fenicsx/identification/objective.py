@@ -13,7 +13,10 @@ strain, or pressure), so the interpolation weights do not depend on s and the se
 of phi(x_i) is the same interpolation of the record sensitivities.
 
 The objective works on the weighted residual vector r_n = sqrt(w_n) (phi_n - phi~_n) and its
-Jacobian (f = r.r, grad f = 2 J^T r, Gauss-Newton Hessian 2 J^T J, eq. 4.13).  Tests are
+Jacobian (f = r.r, grad f = 2 J^T r, Gauss-Newton Hessian 2 J^T J, eq. 4.13).  sqrt(w_n) =
+1 / (phi_0 sqrt(N_tq)) is formed directly, so any finite data give finite weights.  A test
+the model cannot run to its end adds one more residual, sqrt(FAILURE_PENALTY), so that a
+least-squares solver sees the failure as a worse point and steps back.  Tests are
 independent: with processes > 1 they are evaluated in parallel worker processes.
 """
 
@@ -35,8 +38,8 @@ class Evaluation:
 
     s: np.ndarray
     f: float
-    residual: np.ndarray          # weighted, r_n = sqrt(w_n) (phi_n - phi~_n)
-    jacobian: np.ndarray | None   # weighted, dr_n / ds_k
+    residual: np.ndarray          # weighted, r_n = sqrt(w_n) (phi_n - phi~_n), then one per test: its penalty
+    jacobian: np.ndarray | None   # weighted, dr_n / ds_k (zero rows for the penalties)
     raw_residual: np.ndarray      # phi_n - phi~_n
     raw_jacobian: np.ndarray | None   # d phi_n / d s_k
     curves: dict                  # label -> {"x": model abscissa, q: model values}
@@ -47,6 +50,11 @@ class Evaluation:
     @property
     def gradient(self):
         return 2.0 * self.jacobian.T @ self.residual
+
+    @property
+    def failures(self):
+        """{test: why the model stopped} of the tests it could not run to their end."""
+        return {label: why for label, why in self.stopped.items() if why}
 
 
 def _interp_matrix(x_model, x_data):
@@ -176,15 +184,16 @@ class Objective:
         self.n_evaluations = 0
         self.n_jacobians = 0
         # weights (4.17), data vector and its scatter, in one flat order: test, quantity, point
-        w, y, sig, self.blocks = [], [], [], []
+        sw, y, sig, self.blocks = [], [], [], []
         for d in self.data:
             for q in d.y:
                 n = len(d.y[q])
-                w.append(np.full(n, 1.0 / (d.normalisation[q] ** 2 * n)))
+                sw.append(np.full(n, (1.0 / d.normalisation[q]) / np.sqrt(n)))
                 y.append(d.y[q])
                 sig.append(d.std.get(q, np.full(n, np.nan)))
                 self.blocks.append((d.label, q, n))
-        self.weights = np.concatenate(w)
+        #: sqrt(w_n) of (4.17); w_n itself may underflow for data of huge magnitude
+        self.sqrt_weights = np.concatenate(sw)
         self.observed = np.concatenate(y)
         scatter = np.concatenate(sig)
         self.scatter = scatter if np.all(np.isfinite(scatter)) else None
@@ -192,6 +201,11 @@ class Objective:
     @property
     def n_data(self):
         return self.observed.size
+
+    @property
+    def weights(self):
+        """w_n of (4.17)."""
+        return self.sqrt_weights ** 2
 
     def close(self):
         if self._pool is not None:
@@ -211,17 +225,45 @@ class Objective:
 
     def evaluate(self, s, jacobian=True):
         """Evaluation at s (SI values of parameter_set.names)."""
+        return self._evaluate(s, jacobian, [d.test for d in self.data])
+
+    def discretisation_error(self, s, factor=2):
+        """The model's discretisation error at s, estimated by running every test with its
+        steps split in `factor` (Richardson for a first-order scheme: the error of the
+        model as run is factor/(factor - 1) times the change): a dict with the objective
+        that the error alone would make ("f"), its largest size per test and quantity in
+        units of phi_0 ("largest"), and, when the data's scatter is known, its RMS in units
+        of the scatter ("rms_over_scatter").  None when the model fails on the finer steps."""
+        coarse = self.evaluate(s, jacobian=False)
+        fine = self._evaluate(s, False, [d.test.refined(factor) for d in self.data])
+        if coarse.failures or fine.failures:
+            return None
+        error = (coarse.raw_residual - fine.raw_residual) * factor / (factor - 1.0)
+        weighted = self.sqrt_weights * error
+        largest, k = {}, 0
+        for d in self.data:
+            for q in d.y:
+                m = len(d.y[q])
+                largest.setdefault(d.label, {})[q] = float(np.max(np.abs(error[k:k + m])) / d.normalisation[q])
+                k += m
+        out = dict(f=float(weighted @ weighted), largest=largest, steps_factor=factor,
+                   method="Richardson: the tests run again with every step split in steps_factor (first order)")
+        if self.scatter is not None:
+            out["rms_over_scatter"] = float(np.sqrt(np.mean((error / self.scatter) ** 2)))
+        return out
+
+    def _evaluate(self, s, jacobian, tests):
         t0, c0 = time.perf_counter(), time.process_time()
         params = self.parameter_set.parameters(s)
         names = self.parameter_set.names
-        results = self._map([(params, d.test, names, jacobian, self.sensitivity) for d in self.data])
+        results = self._map([(params, test, names, jacobian, self.sensitivity) for test in tests])
         model, dmodel, curves, stopped = [], [], {}, {}
-        for d, res in zip(self.data, results):
+        for d, test, res in zip(self.data, tests, results):
             if isinstance(res, Exception):
                 raise type(res)(f"{d.label}: {res}") from res
             h, dh, failure = res
             stopped[d.label] = failure
-            x, ys, ds = _with_origin(d.test, h, dh, list(d.y))
+            x, ys, ds = _with_origin(test, h, dh, list(d.y))
             P = _interp_matrix(x, d.x)
             curves[d.label] = dict(x=x, **ys)
             for q in d.y:
@@ -230,17 +272,17 @@ class Objective:
                     dmodel.append(P @ ds[q])
         phi = np.concatenate(model)
         raw = phi - self.observed
-        sw = np.sqrt(self.weights)
-        r = sw * raw
-        n_failed = sum(1 for v in stopped.values() if v)
+        sw = self.sqrt_weights
+        penalties = np.array([np.sqrt(FAILURE_PENALTY) if stopped[d.label] else 0.0 for d in self.data])
+        r = np.concatenate([sw * raw, penalties])
         J = Jw = None
         if jacobian:
             J = np.vstack(dmodel)
-            Jw = sw[:, None] * J
+            Jw = np.vstack([sw[:, None] * J, np.zeros((penalties.size, J.shape[1]))])
             self.n_jacobians += 1
         self.n_evaluations += 1
         # the parent's CPU time; worker processes add theirs (reported by the caller's totals)
-        return Evaluation(s=np.array(s, dtype=float), f=float(r @ r) + FAILURE_PENALTY * n_failed, residual=r, jacobian=Jw, raw_residual=raw,
+        return Evaluation(s=np.array(s, dtype=float), f=float(r @ r), residual=r, jacobian=Jw, raw_residual=raw,
                           raw_jacobian=J, curves=curves, stopped=stopped,
                           wall_time=time.perf_counter() - t0, cpu_time=time.process_time() - c0)
 

@@ -26,6 +26,11 @@ The optimiser sees the scaled variables z = s / scale.  Each model evaluation gi
 the sensitivities together; results are cached by z so that separate calls for f and its
 derivatives run the model once.  The best point seen is kept: an identification that stops
 without converging still returns (and the demo writes) it, with the reason.
+
+A solver's own "converged" is not taken on trust: a result is reported as not converged when
+the model could not run a test at the best point (its Jacobian is zero there, so the
+solver's gradient test proves nothing), or when the fit never left its start although the
+start is not a stationary point (every trial step failed or made f worse).
 """
 
 from __future__ import annotations
@@ -93,6 +98,9 @@ class _Problem:
         self.best = None
         self.history = []
         self.t0 = time.perf_counter()
+        self.trials = 0
+        self.failed_trials = 0
+        self.first_failure = ""
 
     def evaluate(self, z):
         key = np.asarray(z, dtype=float).tobytes()
@@ -101,6 +109,12 @@ class _Problem:
             e = self.objective.evaluate(s, jacobian=True)
             self.cache.clear()  # only the latest point is asked for again
             self.cache[key] = e
+            self.trials += 1
+            if e.failures:
+                self.failed_trials += 1
+                if not self.first_failure:
+                    label, why = next(iter(e.failures.items()))
+                    self.first_failure = f"{label}: {why}"
             if self.best is None or e.f < self.best.f:
                 self.best = e
         return self.cache[key]
@@ -166,6 +180,34 @@ def _trust_constr(p, z0, max_iterations, gtol, constraints):
     return bool(res.success), str(res.message)
 
 
+def _stationary(p, z):
+    """(stationary, |projected gradient|) at z: stationary within round-off when the
+    projected gradient is below 1e-6 of the largest it could be, 2 |J| |r| (0 at an exact fit)."""
+    e = p.evaluate(z)
+    size = 2.0 * np.linalg.norm(e.jacobian * p.pset.scale) * np.linalg.norm(e.residual)
+    pg = _projected_gradient(z, p.gradient(z), p.lo, p.hi)
+    return pg <= 1e-6 * size, pg
+
+
+def _verdict(p, z0, converged, message):
+    """The solver's (converged, message), checked against what happened (see module doc)."""
+    failed = (f"the model failed at {p.failed_trials} of {p.trials} trial points (first: {p.first_failure})"
+              if p.failed_trials else "")
+    if p.best.failures:
+        label, why = next(iter(p.best.failures.items()))
+        return False, f"the model cannot run {', '.join(p.best.failures)} at the best point found ({label}: {why})"
+    moved = not np.array_equal(p.best.s, p.pset.from_scaled(np.clip(z0, p.lo, p.hi)))
+    if not moved or p.failed_trials:
+        stationary, pg = _stationary(p, p.pset.to_scaled(p.best.s))
+        if not stationary and not moved:
+            return False, (f"the fit did not move from its start, where the projected gradient is {pg:.3g}, not 0 "
+                           f"(solver: {message})" + (f"; {failed}" if failed else ""))
+        if not stationary:
+            return False, (f"the fit stopped at the edge of the parameters the model can run, its projected "
+                           f"gradient {pg:.3g} pointing beyond: {failed} (solver: {message})")
+    return converged, message + (f"; {failed}" if failed else "")
+
+
 def identify(objective: Objective, method="auto", max_iterations=60, ftol=1e-12, gtol=1e-10, progress=None):
     """Minimise `objective` from its parameter set's start.  method: one of METHODS ("auto":
     trf unless a nonlinear constraint applies, then SLSQP).  progress(IterationRecord):
@@ -194,6 +236,7 @@ def identify(objective: Objective, method="auto", max_iterations=60, ftol=1e-12,
     else:
         p.record(z0)
         converged, message = _trust_constr(p, z0, max_iterations, gtol, constraints)
+    converged, message = _verdict(p, z0, converged, message)
     e = p.best
     return IdentificationResult(names=pset.names, values=e.s.copy(), start=pset.start, f=e.f, f_start=f_start,
                                 converged=converged, message=message, method=method,

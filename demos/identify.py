@@ -51,6 +51,7 @@ import time
 import numpy as np
 
 sys.path.insert(0, os.path.join(os.path.dirname(os.path.abspath(__file__)), ".."))
+from cosserat_fenicsx.identification.virtual_tests import MIN_STEPS  # noqa: E402
 from cosserat_fenicsx.validation import NON_NEGATIVE, STEPS, InputError, Parser, Range, number  # noqa: E402
 
 def build_parser():
@@ -93,8 +94,12 @@ def build_parser():
     m.add_argument("--eta", type=number(NON_NEGATIVE), default=1e-4, help="Perzyna time [s] (2.81)")
     m.add_argument("--micropolar", action="store_true",
                    help="keep the micropolar terms (homogeneous tests do not see them, 6.1.1)")
+    m.add_argument("--min-model-steps", type=number(STEPS), default=MIN_STEPS,
+                   help="the model runs each test along its data, a step ending at every data point, intervals "
+                        "split so that a test has at least this many steps over its range (default %(default)s, "
+                        "the material-point demo's)")
     m.add_argument("--n-steps-per-test", type=number(STEPS), default=None, dest="model_steps",
-                   help="model load steps per test (default: 1e-3 axial strain or 1/100 of the pressure per step)")
+                   help="equal model load steps per test instead (the data's abscissae not followed)")
     return p
 
 
@@ -172,7 +177,8 @@ def load_data(args, config):
         out.append(read_test(e["file"], e["kind"], e.get("confining"), quantities=e.get("quantities"),
                              normalisation=e.get("normalisation"), scatter=e.get("scatter"),
                              n_steps=args.model_steps and int(args.model_steps),
-                             start_pressure=e.get("start_pressure", 0.0), unload_at=e.get("unload_at")))
+                             start_pressure=e.get("start_pressure", 0.0), unload_at=e.get("unload_at"),
+                             min_steps=int(args.min_model_steps)))
     return out
 
 
@@ -207,11 +213,24 @@ def main(argv=None):
             for n in all_names:
                 start_values[n] = start_values[n] * (1.0 + args.disturb) if start_values[n] != 0 else 0.0
         start = EhlersParameters(**start_values)
+        try:   # the micropolar values the result file keeps (homogeneous tests do not see them)
+            defaults = EhlersParameters()
+            polar = EhlersParameters(**dict(start_values, micropolar=True, mu_c=base.get("mu_c"),
+                                            k_sigma=base.get("k_sigma", defaults.k_sigma),
+                                            k_mu=base.get("k_mu", defaults.k_mu)))
+        except (TypeError, ValueError) as error:
+            raise InputError(f"start parameters: {error}") from None
+        identified = set()
         for st in stages:   # names, bounds, constraints and data at the start, stage by stage
-            check_homogeneous(ParameterSet.for_stage(st.params, start, bounds).names)
+            names = ParameterSet.for_stage(st.params, start, bounds).names
+            check_homogeneous(names)
+            identified.update(names)
             kinds = {d.test.kind for d in data} if data is not None else virtual_kinds(stages)
             if st.kinds is not None and not kinds & set(st.kinds):
                 raise InputError(f"stage {','.join(st.params)}: no data of the kinds {list(st.kinds)}")
+        unused = sorted(set(bounds) - identified)
+        if unused:
+            raise InputError(f"bounds given for {unused}, which no stage identifies (identified: {sorted(identified)})")
     except (InputError, ValueError) as error:
         parser.refuse(error)
     os.makedirs(args.out, exist_ok=True)
@@ -229,7 +248,7 @@ def main(argv=None):
     for d in data:
         print(f"  {d.label}: {len(d.x)} points, quantities {list(d.y)}, normalisation "
               + ", ".join(f"{q} {v:.4g}" for q, v in d.normalisation.items()) + f"  ({d.source})")
-    result = run_stages(data, stages, start, bounds, args, log=print, out=args.out, guard=guard)
+    result = run_stages(data, stages, start, bounds, args, log=print, out=args.out, guard=guard, polar=polar)
     summary = write_outputs(result, data, args, reference if virtual else None)
     summary["wall_time_s"] = time.perf_counter() - t_start
     summary["cpu_time_s_main_process"] = time.process_time() - c_start

@@ -1,8 +1,11 @@
 """A stepwise identification run and its outputs (thesis 4.3, 6.1; used by demos/identify.py).
 
 Each stage identifies its parameters with those of the earlier stages fixed at their
-identified values; the error analysis (4.5) is made for every stage at its optimum.  The
-iterations go to iterations.csv as they happen; the figures and summary.json at the end.
+identified values; the error analysis (4.5) is made for every stage that reached an optimum,
+and the model's discretisation error is estimated there (steps halved) and reported beside
+the objective.  The iterations go to iterations.csv as they happen; the best parameter set
+to identified_parameters.json after every stage (with what was identified and whether the
+fit converged); the figures and summary.json at the end.
 """
 
 from __future__ import annotations
@@ -13,10 +16,10 @@ import os
 
 import numpy as np
 
-from ..materials.ehlers.parameters import write_parameter_file
+from ..materials.ehlers.parameters import EhlersParameters, write_parameter_file
 from .error_analysis import analyse, plot_correlation
 from .objective import Objective
-from .parameter_set import ParameterSet
+from .parameter_set import MICROPOLAR, ParameterSet
 from .sqp import identify
 
 
@@ -44,12 +47,47 @@ class StageResult:
     objective: Objective
     start_evaluation: object
     at_bound: list
+    discretisation: dict = None   # Objective.discretisation_error at the best point
 
 
-def run_stages(data, stages, start, bounds, args, log=print, out=None, guard=None):
+def polar_form(parameters: EhlersParameters) -> EhlersParameters:
+    """The micropolar form of a set: itself, or for a non-polar set (mu_c = k_sigma = k_mu =
+    0 there) the class defaults of those (mu_c = mu, Hostun's k_sigma and k_mu)."""
+    if parameters.micropolar:
+        return parameters
+    defaults = EhlersParameters()
+    return EhlersParameters(**dict(parameters.as_dict(), micropolar=True, mu_c=None, k_sigma=defaults.k_sigma,
+                                   k_mu=defaults.k_mu))
+
+
+def result_parameters(identified: EhlersParameters, polar: EhlersParameters) -> EhlersParameters:
+    """The set to write: the identified values, with the micropolar parameters that no
+    homogeneous test sees (mu_c, k_sigma, k_mu are 0 in the non-polar model that ran them)
+    taken from `polar`, the start set in its micropolar form, so that a finite-element demo
+    can run the file."""
+    values = identified.as_dict()
+    values.update({n: getattr(polar, n) for n in MICROPOLAR})
+    values.update(micropolar=True)
+    return EhlersParameters(**values)
+
+
+def _write_result(out, current, polar, stages, k, n_stages):
+    identified = [n for st in stages for n in st.names]
+    converged = all(st.identification.converged for st in stages)
+    note = (f"demos/identify.py, after stage {k} of {n_stages}; {', '.join(MICROPOLAR)} are the start's "
+            "(homogeneous tests do not see them)")
+    write_parameter_file(os.path.join(out, "identified_parameters.json"), result_parameters(current, polar),
+                         note=note, identification=dict(
+                             identified=identified, converged=converged, stages_completed=k, stages=n_stages,
+                             reasons=[st.identification.message for st in stages if not st.identification.converged],
+                             not_identified_micropolar=[n for n in MICROPOLAR if n not in identified]))
+
+
+def run_stages(data, stages, start, bounds, args, log=print, out=None, guard=None, polar=None):
     """Run the stages; returns (final EhlersParameters, [StageResult]).  guard: a RunGuard
     that counts the iterations (summary.json as the run goes; a signal waits until an
-    iteration's row and the best parameters are written)."""
+    iteration's row and the best parameters are written).  polar: the start set in its
+    micropolar form, whose micropolar values the result file keeps (default: start's)."""
     from contextlib import nullcontext
     current = start
     results = []
@@ -84,7 +122,7 @@ def run_stages(data, stages, start, bounds, args, log=print, out=None, guard=Non
                 res = identify(objective, method=args.method, max_iterations=args.max_iterations, progress=progress)
             finally:
                 objective.close()
-            analysis = None
+            analysis = discretisation = None
             best = res.best
             # a parameter at an active bound is held fixed in the error analysis: the linearised
             # statistics of 4.5 assume an interior optimum
@@ -94,26 +132,37 @@ def run_stages(data, stages, start, bounds, args, log=print, out=None, guard=Non
             free = [k for k, n in enumerate(pset.names) if n not in at_bound]
             if at_bound:
                 log(f"  at a bound (held fixed in the error analysis): {', '.join(at_bound)}")
-            try:
-                blocks = [n for _, _, n in objective.blocks] if args.serial_correlation else None
-                analysis = analyse([pset.names[k] for k in free], res.values[free], best.raw_jacobian[:, free],
-                                   best.raw_residual, sigma=objective.scatter, weights=objective.weights,
-                                   alpha=1.0 - args.confidence, serial_blocks=blocks)
-            except ValueError as error:
-                log(f"  error analysis not possible: {error}")
-            results.append(StageResult(pset.names, res, analysis, objective, start_eval, at_bound))
-            current = pset.parameters(res.values)
-            if out is not None:   # the best point so far, written as soon as it is known
-                write_parameter_file(os.path.join(out, "identified_parameters.json"), current,
-                                     note=f"demos/identify.py, after stage {k} of {len(stages)}")
             log(f"stage {k}: {'converged' if res.converged else 'NOT converged'} ({res.message}); "
                 f"f {res.f_start:.4g} -> {res.f:.4g} in {res.iterations} iterations, {res.evaluations} "
                 f"evaluations, {res.wall_time:.1f} s")
+            if not best.failures:
+                discretisation = objective.discretisation_error(best.s)
+                log("  " + describe_discretisation(discretisation, res.f))
+            if not res.converged:
+                log("  no error analysis: the statistics of 4.5 hold at an optimum only")
+            elif not free:
+                log("  no error analysis: every parameter is at a bound")
+            else:
+                try:
+                    blocks = [n for _, _, n in objective.blocks] if args.serial_correlation else None
+                    analysis = analyse([pset.names[k] for k in free], res.values[free], best.raw_jacobian[:, free],
+                                       best.raw_residual, sigma=objective.scatter,
+                                       sqrt_weights=objective.sqrt_weights, alpha=1.0 - args.confidence,
+                                       serial_blocks=blocks)
+                except ValueError as error:
+                    log(f"  no {error}")
+            results.append(StageResult(pset.names, res, analysis, objective, start_eval, at_bound, discretisation))
+            current = pset.parameters(res.values)
+            if out is not None:   # the best point so far, written as soon as it is known
+                _write_result(out, current, polar or polar_form(start), results, k, len(stages))
             if analysis is not None:
                 log(f"  s0 = {analysis.s0:.3g} (4.27), condition number {analysis.condition_number:.3g}")
                 lo, hi = analysis.intervals(joint=True)
                 for i, n in enumerate(analysis.names):
                     v = analysis.values[i]
+                    if not np.isfinite(analysis.std[i]):
+                        log(f"  {n:14s} {v:+.6g}  not determined by the data (rank-deficient sensitivities)")
+                        continue
                     log(f"  {n:14s} {v:+.6g}  std {analysis.std[i]:.3g} "
                         f"({100 * analysis.std[i] / max(abs(v), 1e-300):.2g} %)  "
                         f"{100 * args.confidence:g} % (4.30) [{lo[i]:+.5g}, {hi[i]:+.5g}]")
@@ -121,6 +170,21 @@ def run_stages(data, stages, start, bounds, args, log=print, out=None, guard=Non
         if rows is not None:
             f.close()
     return current, results
+
+
+def describe_discretisation(estimate, f):
+    """One line: the model's discretisation error beside the objective f."""
+    if estimate is None:
+        return "model discretisation error: not estimated (the model fails with the steps halved)"
+    label, q, size = max(((t, q, v) for t, qs in estimate["largest"].items() for q, v in qs.items()),
+                         key=lambda item: item[2])
+    line = (f"model discretisation error (steps halved, Richardson): alone it would make f = {estimate['f']:.3g} "
+            f"(the fit's f = {f:.3g}); largest {100 * size:.2g} % of phi_0 ({label}, {q})")
+    if "rms_over_scatter" in estimate:
+        line += f"; RMS {estimate['rms_over_scatter']:.2g} of the data's scatter"
+        if estimate["rms_over_scatter"] > 0.3:
+            line += ": NOT negligible, raise --min-model-steps"
+    return line
 
 
 def write_outputs(result, data, args, reference=None):
@@ -138,8 +202,8 @@ def write_outputs(result, data, args, reference=None):
                      identified=r.values_dict(), f_start=r.f_start, f=r.f, converged=r.converged,
                      message=r.message, iterations=r.iterations, evaluations=r.evaluations,
                      wall_time_s=r.wall_time, terms=st.objective.terms(r.best),
-                     model_stopped={k: v for k, v in r.best.stopped.items() if v},
-                     at_bound=st.at_bound,
+                     model_stopped=r.best.failures, at_bound=st.at_bound,
+                     discretisation_error=st.discretisation,
                      error_analysis=st.analysis.to_dict() if st.analysis is not None else None)
         if reference is not None:
             entry["reference"] = {n: float(getattr(reference, n)) for n in st.names}

@@ -96,9 +96,14 @@ class BiaxialSettings:
         meshes.check_node_at_centre(nx, self.degree_u)
         from ..materials.ehlers.parameters import hostun   # no Numba: the parameters only
         try:
-            hostun(**dict(self.material, eta=self.material.get("eta", self.eta) / self.step_time))
+            used = hostun(**dict(self.material, eta=self.material.get("eta", self.eta) / self.step_time))
         except ValueError as error:
             raise InputError(f"biaxial: {error}") from None
+        if self.micropolar and not used.mu_c > 0:
+            # no stiffness couples the rotation to the displacement: the Newton matrix is singular
+            raise InputError("biaxial: mu_c = 0 leaves the micropolar rotation without stiffness; give mu_c > 0 "
+                             "(--mu-c, or in the parameter file: a homogeneous identification cannot see it) or "
+                             "run the classical continuum (--classical)")
 
 
 class ZonedMaterial(Constitutive):

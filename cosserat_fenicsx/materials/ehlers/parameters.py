@@ -255,12 +255,17 @@ def material_values(parameters: EhlersParameters) -> dict:
     return {k: v for k, v in parameters.as_dict().items() if k not in NUMERICAL_FIELDS}
 
 
-def write_parameter_file(path, parameters: EhlersParameters, note=""):
+def write_parameter_file(path, parameters: EhlersParameters, note="", identification=None):
     """JSON parameter file (what demos/identify.py writes, and --parameters of the
-    material-point and biaxial demos reads): {"parameters": {name: value (SI)}, "note": ...}."""
+    material-point and biaxial demos reads): {"parameters": {name: value (SI)}, "note": ...,
+    "identification": {...}} (the last: what an identification identified, whether it
+    converged; the readers ignore it)."""
     import json
+    doc = dict(parameters=material_values(parameters), units="SI (Pa, m)", note=note)
+    if identification is not None:
+        doc["identification"] = identification
     with open(path, "w") as f:
-        json.dump(dict(parameters=material_values(parameters), units="SI (Pa, m)", note=note), f, indent=1)
+        json.dump(doc, f, indent=1, allow_nan=False)
 
 
 def read_parameter_file(path) -> dict:

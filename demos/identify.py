@@ -52,7 +52,7 @@ import numpy as np
 
 sys.path.insert(0, os.path.join(os.path.dirname(os.path.abspath(__file__)), ".."))
 from cosserat_fenicsx.identification.virtual_tests import MIN_STEPS  # noqa: E402
-from cosserat_fenicsx.validation import NON_NEGATIVE, STEPS, InputError, Parser, Range, number  # noqa: E402
+from cosserat_fenicsx.validation import NON_NEGATIVE, POSITIVE, STEPS, InputError, Parser, Range, number  # noqa: E402
 
 def build_parser():
     p = Parser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter, allow_abbrev=False)
@@ -98,6 +98,12 @@ def build_parser():
                    help="the model runs each test along its data, a step ending at every data point, intervals "
                         "split so that a test has at least this many steps over its range (default %(default)s, "
                         "the material-point demo's)")
+    m.add_argument("--model-refinements", type=number(Range(0, 6, integer=True)), default=3,
+                   help="times every model step may be halved after a fit whose parameters the model's "
+                        "discretisation moves by more than --max-discretisation-shift (default %(default)s)")
+    m.add_argument("--max-discretisation-shift", type=number(POSITIVE), default=0.25,
+                   help="largest shift of a parameter by the model's discretisation error, in standard "
+                        "deviations, accepted without halving the steps (default %(default)g)")
     m.add_argument("--n-steps-per-test", type=number(STEPS), default=None, dest="model_steps",
                    help="equal model load steps per test instead (the data's abscissae not followed)")
     return p

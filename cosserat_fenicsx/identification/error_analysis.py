@@ -159,10 +159,6 @@ def analyse(names, values, jacobian, residual, sigma=None, weights=None, alpha=0
     if not (np.all(np.isfinite(sw)) and np.all(sw > 0)):
         raise ValueError("error analysis: data scatter (or weights) must be finite and > 0")
     rw = sw * r
-    top = float(np.max(np.abs(rw)))
-    s0sq = (top * float(np.linalg.norm(rw / top))) ** 2 / (N - P) if top > 0 else 0.0   # (4.27), no overflow
-    if not np.isfinite(s0sq):
-        raise ValueError(f"error analysis: the weighted residuals (up to {top:.3g}) are too large to square")
     Jw = sw[:, None] * J
     A = Jw.T @ Jw                                                        # Fisher matrix
     # scale columns so that the condition number measures identifiability, not units
@@ -178,6 +174,11 @@ def analyse(names, values, jacobian, residual, sigma=None, weights=None, alpha=0
     vals, vecs = np.linalg.eigh(An)
     null = vecs[:, vals <= max(vals[-1], 0.0) * 1e-14]
     undetermined = (np.diag(A) == 0) | (np.abs(null) > 1e-6).any(axis=1)
+    rank = P - null.shape[1]          # what the data determine; the rest spends no degree of freedom
+    top = float(np.max(np.abs(rw)))
+    s0sq = (top * float(np.linalg.norm(rw / top))) ** 2 / (N - rank) if top > 0 else 0.0   # (4.27), no overflow
+    if not np.isfinite(s0sq):
+        raise ValueError(f"error analysis: the weighted residuals (up to {top:.3g}) are too large to square")
     if serial_blocks is None:
         K = s0sq * Ainv                                                  # (4.28)
     else:
@@ -185,7 +186,7 @@ def analyse(names, values, jacobian, residual, sigma=None, weights=None, alpha=0
             raise ValueError(f"error analysis: serial blocks of {sum(serial_blocks)} points for {N} data")
         # sandwich; (N / (N - P)) is the small-sample factor that makes it equal to (4.28)
         # for independent errors
-        K = (N / (N - P)) * Ainv @ _newey_west(Jw, rw, serial_blocks, lags) @ Ainv
+        K = (N / (N - rank)) * Ainv @ _newey_west(Jw, rw, serial_blocks, lags) @ Ainv
     if not np.all(np.isfinite(K)):
         raise ValueError("error analysis: the covariance (4.28) overflows")
     std = np.sqrt(np.clip(np.diag(K), 0.0, None))                        # (4.29)
@@ -195,8 +196,8 @@ def analyse(names, values, jacobian, residual, sigma=None, weights=None, alpha=0
     corr[~np.isfinite(corr)] = 0.0
     corr[undetermined, :] = corr[:, undetermined] = np.nan
     np.fill_diagonal(corr, 1.0)
-    joint = float(np.sqrt(P * stats.f.ppf(1.0 - alpha, P, N - P)))       # (4.30)
-    marginal = float(stats.t.ppf(1.0 - alpha / 2.0, N - P))
+    joint = float(np.sqrt(rank * stats.f.ppf(1.0 - alpha, rank, N - rank))) if rank else float("inf")  # (4.30)
+    marginal = float(stats.t.ppf(1.0 - alpha / 2.0, N - rank))
     return ErrorAnalysis(names=list(names), values=np.asarray(values, dtype=float), n_data=N,
                          s0=float(np.sqrt(s0sq)), scatter_known=known, covariance=K, std=std,
                          correlation=corr, alpha=alpha, joint_factor=joint, marginal_factor=marginal,

@@ -227,13 +227,16 @@ class Objective:
         """Evaluation at s (SI values of parameter_set.names)."""
         return self._evaluate(s, jacobian, [d.test for d in self.data])
 
-    def discretisation_error(self, s, factor=2):
+    def discretisation_error(self, s, factor=2, jacobian=None, names=None):
         """The model's discretisation error at s, estimated by running every test with its
         steps split in `factor` (Richardson for a first-order scheme: the error of the
         model as run is factor/(factor - 1) times the change): a dict with the objective
         that the error alone would make ("f"), its largest size per test and quantity in
         units of phi_0 ("largest"), and, when the data's scatter is known, its RMS in units
-        of the scatter ("rms_over_scatter").  None when the model fails on the finer steps."""
+        of the scatter ("rms_over_scatter").  jacobian (N, P) at s, of the parameters
+        `names`: also the shift of the fitted parameters that the error causes when the
+        data follow the time-continuous model ("parameter_shift", the Gauss-Newton step
+        -(J^T W J)^-1 J^T W e).  None when the model fails on the finer steps."""
         coarse = self.evaluate(s, jacobian=False)
         fine = self._evaluate(s, False, [d.test.refined(factor) for d in self.data])
         if coarse.failures or fine.failures:
@@ -250,6 +253,9 @@ class Objective:
                    method="Richardson: the tests run again with every step split in steps_factor (first order)")
         if self.scatter is not None:
             out["rms_over_scatter"] = float(np.sqrt(np.mean((error / self.scatter) ** 2)))
+        if jacobian is not None:
+            shift = -np.linalg.lstsq(self.sqrt_weights[:, None] * np.asarray(jacobian), weighted, rcond=None)[0]
+            out["parameter_shift"] = dict(zip(names or self.parameter_set.names, map(float, shift)))
         return out
 
     def _evaluate(self, s, jacobian, tests):

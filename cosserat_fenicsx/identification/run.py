@@ -3,7 +3,9 @@
 Each stage identifies its parameters with those of the earlier stages fixed at their
 identified values; the error analysis (4.5) is made for every stage that reached an optimum,
 and the model's discretisation error is estimated there (steps halved) and reported beside
-the objective.  The iterations go to iterations.csv as they happen; the best parameter set
+the objective with the shift it causes in the parameters; where that shift is not small
+against the parameters' standard deviations every model step is halved and the stage
+fitted again.  The iterations go to iterations.csv as they happen; the best parameter set
 to identified_parameters.json after every stage (with what was identified and whether the
 fit converged); the figures and summary.json at the end.
 """
@@ -48,6 +50,8 @@ class StageResult:
     start_evaluation: object
     at_bound: list
     discretisation: dict = None   # Objective.discretisation_error at the best point
+    parameter_set: ParameterSet = None
+    refinements: int = 0          # times every model step was halved after the first fit
 
 
 def polar_form(parameters: EhlersParameters) -> EhlersParameters:
@@ -84,7 +88,11 @@ def _write_result(out, current, polar, stages, k, n_stages):
 
 
 def run_stages(data, stages, start, bounds, args, log=print, out=None, guard=None, polar=None):
-    """Run the stages; returns (final EhlersParameters, [StageResult]).  guard: a RunGuard
+    """Run the stages; returns (final EhlersParameters, [StageResult]).  After a stage's fit
+    the model's discretisation error is estimated (steps halved) with the shift it causes in
+    the parameters; while a shift exceeds args.max_discretisation_shift standard deviations
+    every step is halved and the stage fitted again (at most args.model_refinements times),
+    unless the halved steps fit the data worse.  guard: a RunGuard
     that counts the iterations (summary.json as the run goes; a signal waits until an
     iteration's row and the best parameters are written).  polar: the start set in its
     micropolar form, whose micropolar values the result file keeps (default: start's)."""
@@ -96,14 +104,9 @@ def run_stages(data, stages, start, bounds, args, log=print, out=None, guard=Non
         f = open(os.path.join(out, "iterations.csv"), "w", newline="")
         rows = csv.writer(f)
         rows.writerow(["stage", "iteration", "objective", "projected_gradient", "wall_time", "values"])
+    data = list(data)
     try:
         for k, stage in enumerate(stages, start=1):
-            pset = ParameterSet.for_stage(stage.params, current, bounds)
-            objective = Objective(stage.select(data), pset, sensitivity=args.sensitivity, processes=args.processes)
-            log(f"stage {k}: {len(pset.names)} parameters {', '.join(pset.names)} "
-                f"({args.method}, {args.sensitivity} sensitivities, {objective.n_data} data points of "
-                f"{'all tests' if stage.kinds is None else ', '.join(stage.kinds)})")
-
             def progress(rec, k=k):
                 vals = " ".join(f"{n}={v:.5g}" for n, v in rec.values.items())
                 with guard.deferred() if guard is not None else nullcontext():
@@ -117,59 +120,125 @@ def run_stages(data, stages, start, bounds, args, log=print, out=None, guard=Non
                     if guard is not None:
                         guard.progress(stage=k, iteration=rec.iteration, objective=rec.f, current=rec.values)
 
-            start_eval = objective.evaluate(pset.start, jacobian=False)
-            try:
-                res = identify(objective, method=args.method, max_iterations=args.max_iterations, progress=progress)
-            finally:
-                objective.close()
-            analysis = discretisation = None
-            best = res.best
-            # a parameter at an active bound is held fixed in the error analysis: the linearised
-            # statistics of 4.5 assume an interior optimum
-            tol = 1e-3 * pset.scale   # closer than 0.1 % of the parameter's scale
-            at_bound = [n for n, v, lo, hi, t in zip(pset.names, res.values, pset.lower, pset.upper, tol)
-                        if v - lo <= t or hi - v <= t]
-            free = [k for k, n in enumerate(pset.names) if n not in at_bound]
-            if at_bound:
-                log(f"  at a bound (held fixed in the error analysis): {', '.join(at_bound)}")
-            log(f"stage {k}: {'converged' if res.converged else 'NOT converged'} ({res.message}); "
-                f"f {res.f_start:.4g} -> {res.f:.4g} in {res.iterations} iterations, {res.evaluations} "
-                f"evaluations, {res.wall_time:.1f} s")
-            if not best.failures:
-                discretisation = objective.discretisation_error(best.s)
-                log("  " + describe_discretisation(discretisation, res.f))
-            if not res.converged:
-                log("  no error analysis: the statistics of 4.5 hold at an optimum only")
-            elif not free:
-                log("  no error analysis: every parameter is at a bound")
-            else:
-                try:
-                    blocks = [n for _, _, n in objective.blocks] if args.serial_correlation else None
-                    analysis = analyse([pset.names[k] for k in free], res.values[free], best.raw_jacobian[:, free],
-                                       best.raw_residual, sigma=objective.scatter,
-                                       sqrt_weights=objective.sqrt_weights, alpha=1.0 - args.confidence,
-                                       serial_blocks=blocks)
-                except ValueError as error:
-                    log(f"  no {error}")
-            results.append(StageResult(pset.names, res, analysis, objective, start_eval, at_bound, discretisation))
-            current = pset.parameters(res.values)
+            stage_data = stage.select(data)
+            result = _fit(k, stage, stage_data, current, bounds, args, progress, log)
+            # refine until the model's steps no longer move the parameters beyond a fraction of
+            # their standard deviation -- unless the data agree better with the coarser steps
+            # (data made by the model itself with those steps)
+            for level in range(1, args.model_refinements + 1):
+                ratio, name = _discretisation_shift(result)
+                if ratio is None or ratio <= args.max_discretisation_shift:
+                    break
+                log(f"  the model's discretisation moves {name} by {ratio:.2g} of its standard deviation "
+                    f"(above {args.max_discretisation_shift:g}): every step halved, fitted again")
+                refined = [dataclasses.replace(d, test=d.test.refined()) for d in stage_data]
+                trial = _fit(k, stage, refined, result.parameter_set.parameters(result.identification.values),
+                             bounds, args, progress, log, start_evaluation=result.start_evaluation)
+                if not (trial.identification.converged and trial.identification.f < result.identification.f):
+                    log(f"  halved steps: f {result.identification.f:.4g} -> {trial.identification.f:.4g}; the data "
+                        "agree with the coarser steps (made by the model with them?): those kept")
+                    break
+                first, last = result.identification, trial.identification
+                # the stage's record: from its first start, every iteration and evaluation counted
+                combined = dataclasses.replace(last, start=first.start, f_start=first.f_start,
+                                               iterations=first.iterations + last.iterations,
+                                               evaluations=first.evaluations + last.evaluations,
+                                               history=first.history + last.history,
+                                               wall_time=first.wall_time + last.wall_time,
+                                               cpu_time=first.cpu_time + last.cpu_time)
+                result = dataclasses.replace(trial, identification=combined, refinements=level)
+                swap = {id(old): new for old, new in zip(stage_data, refined)}
+                data = [swap.get(id(d), d) for d in data]
+                stage_data = refined
+            results.append(result)
+            current = result.parameter_set.parameters(result.identification.values)
             if out is not None:   # the best point so far, written as soon as it is known
                 _write_result(out, current, polar or polar_form(start), results, k, len(stages))
-            if analysis is not None:
-                log(f"  s0 = {analysis.s0:.3g} (4.27), condition number {analysis.condition_number:.3g}")
-                lo, hi = analysis.intervals(joint=True)
-                for i, n in enumerate(analysis.names):
-                    v = analysis.values[i]
-                    if not np.isfinite(analysis.std[i]):
-                        log(f"  {n:14s} {v:+.6g}  not determined by the data (rank-deficient sensitivities)")
-                        continue
-                    log(f"  {n:14s} {v:+.6g}  std {analysis.std[i]:.3g} "
-                        f"({100 * analysis.std[i] / max(abs(v), 1e-300):.2g} %)  "
-                        f"{100 * args.confidence:g} % (4.30) [{lo[i]:+.5g}, {hi[i]:+.5g}]")
+            _log_analysis(result.analysis, args, log)
     finally:
         if rows is not None:
             f.close()
     return current, results
+
+
+
+def _fit(k, stage, data, current, bounds, args, progress, log, start_evaluation=None):
+    """One fit of a stage's parameters from `current`, its verdict, the discretisation
+    estimate and the error analysis (4.5) at the best point: a StageResult."""
+    pset = ParameterSet.for_stage(stage.params, current, bounds)
+    objective = Objective(data, pset, sensitivity=args.sensitivity, processes=args.processes)
+    log(f"stage {k}: {len(pset.names)} parameters {', '.join(pset.names)} "
+        f"({args.method}, {args.sensitivity} sensitivities, {objective.n_data} data points of "
+        f"{'all tests' if stage.kinds is None else ', '.join(stage.kinds)}; model steps "
+        + ", ".join(str(d.test.n_steps) for d in data) + ")")
+    try:
+        if start_evaluation is None:
+            start_evaluation = objective.evaluate(pset.start, jacobian=False)
+        res = identify(objective, method=args.method, max_iterations=args.max_iterations, progress=progress)
+        best = res.best
+        # a parameter at an active bound is held fixed in the error analysis: the linearised
+        # statistics of 4.5 assume an interior optimum
+        tol = 1e-3 * pset.scale   # closer than 0.1 % of the parameter's scale
+        at_bound = [n for n, v, lo, hi, t in zip(pset.names, res.values, pset.lower, pset.upper, tol)
+                    if v - lo <= t or hi - v <= t]
+        free = [i for i, n in enumerate(pset.names) if n not in at_bound]
+        if at_bound:
+            log(f"  at a bound (held fixed in the error analysis): {', '.join(at_bound)}")
+        log(f"stage {k}: {'converged' if res.converged else 'NOT converged'} ({res.message}); "
+            f"f {res.f_start:.4g} -> {res.f:.4g} in {res.iterations} iterations, {res.evaluations} "
+            f"evaluations, {res.wall_time:.1f} s")
+        discretisation = analysis = None
+        if not best.failures:
+            discretisation = objective.discretisation_error(
+                best.s, jacobian=best.raw_jacobian[:, free] if res.converged and free else None,
+                names=[pset.names[i] for i in free])
+            log("  " + describe_discretisation(discretisation, res.f))
+        if not res.converged:
+            log("  no error analysis: the statistics of 4.5 hold at an optimum only")
+        elif not free:
+            log("  no error analysis: every parameter is at a bound")
+        else:
+            try:
+                blocks = [n for _, _, n in objective.blocks] if args.serial_correlation else None
+                analysis = analyse([pset.names[i] for i in free], res.values[free], best.raw_jacobian[:, free],
+                                   best.raw_residual, sigma=objective.scatter,
+                                   sqrt_weights=objective.sqrt_weights, alpha=1.0 - args.confidence,
+                                   serial_blocks=blocks)
+            except ValueError as error:
+                log(f"  no {error}")
+    finally:
+        objective.close()
+    return StageResult(pset.names, res, analysis, objective, start_evaluation, at_bound, discretisation, pset)
+
+
+def _discretisation_shift(result):
+    """The largest shift of a parameter by the model's discretisation, in units of its
+    standard deviation, and its name; (None, None) without an error analysis."""
+    est, analysis = result.discretisation, result.analysis
+    if analysis is None or est is None or "parameter_shift" not in est:
+        return None, None
+    ratios = {n: abs(est["parameter_shift"][n]) / sd for n, sd in zip(analysis.names, analysis.std)
+              if np.isfinite(sd) and n in est["parameter_shift"]}
+    ratios = {n: (r if np.isfinite(r) else np.inf) for n, r in ratios.items()}
+    if not ratios:
+        return None, None
+    name = max(ratios, key=ratios.get)
+    return ratios[name], name
+
+
+def _log_analysis(analysis, args, log):
+    if analysis is None:
+        return
+    log(f"  s0 = {analysis.s0:.3g} (4.27), condition number {analysis.condition_number:.3g}")
+    lo, hi = analysis.intervals(joint=True)
+    for i, n in enumerate(analysis.names):
+        v = analysis.values[i]
+        if not np.isfinite(analysis.std[i]):
+            log(f"  {n:14s} {v:+.6g}  not determined by the data (rank-deficient sensitivities)")
+            continue
+        log(f"  {n:14s} {v:+.6g}  std {analysis.std[i]:.3g} "
+            f"({100 * analysis.std[i] / max(abs(v), 1e-300):.2g} %)  "
+            f"{100 * args.confidence:g} % (4.30) [{lo[i]:+.5g}, {hi[i]:+.5g}]")
 
 
 def describe_discretisation(estimate, f):
@@ -191,9 +260,11 @@ def write_outputs(result, data, args, reference=None):
     """Figures and the summary dict (the caller writes summary.json)."""
     final, stages = result
     out = args.out
+    steps = {d.label: d.test.n_steps for st in stages for d in st.objective.data}   # as the last fit ran them
     summary = dict(method=args.method, sensitivity=args.sensitivity, processes=args.processes,
                    tests=[dict(label=d.label, source=d.source, points=len(d.x), quantities=list(d.y),
-                               normalisation=d.normalisation, model_steps=d.test.n_steps) for d in data],
+                               normalisation=d.normalisation, model_steps=steps.get(d.label, d.test.n_steps))
+                          for d in data],
                    stages=[])
     for st in stages:
         r = st.identification
@@ -203,7 +274,7 @@ def write_outputs(result, data, args, reference=None):
                      message=r.message, iterations=r.iterations, evaluations=r.evaluations,
                      wall_time_s=r.wall_time, terms=st.objective.terms(r.best),
                      model_stopped=r.best.failures, at_bound=st.at_bound,
-                     discretisation_error=st.discretisation,
+                     discretisation_error=st.discretisation, model_refinements=st.refinements,
                      error_analysis=st.analysis.to_dict() if st.analysis is not None else None)
         if reference is not None:
             entry["reference"] = {n: float(getattr(reference, n)) for n in st.names}

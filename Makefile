@@ -75,6 +75,7 @@ benchmark: deps
 	$(PYTHON) benchmarks/identification_sensitivity.py --out $(OUT)/benchmarks/identification_sensitivity
 	$(PYTHON) benchmarks/identification_cost.py --out $(OUT)/benchmarks/identification_cost
 	$(PYTHON) benchmarks/reidentification.py --draws 100 --out $(OUT)/benchmarks/reidentification
+	$(PYTHON) benchmarks/reidentification.py --steps 4800 --every 80 --model-min-steps 600 --draws 40 --out $(OUT)/benchmarks/reidentification_steps
 	$(PYTHON) benchmarks/skew_stress_cost.py --out $(OUT)/benchmarks/skew_stress_cost
 	$(PYTHON) benchmarks/identify_micropolar.py --out $(OUT)/benchmarks/identify_micropolar
 	$(PYTHON) benchmarks/dem_virtual_tests.py --out $(OUT)/benchmarks/dem_virtual_tests

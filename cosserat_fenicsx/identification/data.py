@@ -241,11 +241,14 @@ THESIS_TESTS = (("hydrostatic", 1.0e6), ("triaxial", 100e3), ("triaxial", 300e3)
 THESIS_UNLOADING = tuple(("triaxial_unloading", p) for k, p in THESIS_TESTS if k == "triaxial")
 
 
-def thesis_virtual_data(reference, n_steps=75, every=3, noise=0.0, rng=None, unloading=False):
+def thesis_virtual_data(reference, n_steps=75, every=3, noise=0.0, rng=None, unloading=False, model_min_steps=None):
     """Virtual data of the five tests of 6.1 run with the parameter set `reference`
     (re-identification, thesis 6.2.3's method); noise: Gaussian, as a fraction of each
     quantity's phi_0 of Table 6.2, recorded as the data's scatter; unloading: the three
-    unloading branches of THESIS_UNLOADING (10 steps each, every point kept) come first."""
+    unloading branches of THESIS_UNLOADING (10 steps each, every point kept) come first.
+    model_min_steps: the model does not run the steps that made the data but follows the
+    data as it would follow measured data (VirtualTest.following with the data's times,
+    1 s per data step), at least this many steps over each deviatoric/pressure range."""
     from ..materials.ehlers import EhlersMaterial
     material = EhlersMaterial(**reference.as_dict())
     rng = rng or np.random.default_rng(0)
@@ -258,5 +261,13 @@ def thesis_virtual_data(reference, n_steps=75, every=3, noise=0.0, rng=None, unl
         if noise > 0:
             sig = {q: noise * default_normalisation(kind, p, q, np.asarray(h[q]), thesis=True)
                    for q in test.quantities}
-        data.append(from_history(test, h, every=1 if kind in UNLOADING else every, noise=sig, rng=rng))
+        d = from_history(test, h, every=1 if kind in UNLOADING else every, noise=sig, rng=rng)
+        if model_min_steps and kind not in UNLOADING:
+            # record k ends step k of a deviatoric phase (record 0 its start), step k+1 of a pressure one
+            steps = np.arange(1, len(h[test.abscissa]), every) if test.abscissa == "axial_strain" \
+                else np.arange(0, len(h[test.abscissa]), every) + 1
+            fields = dict(axial_strain=test.axial_strain) if test.abscissa == "axial_strain" else {}
+            d = dataclasses.replace(d, test=VirtualTest.following(kind, p, d.x, times=steps * 1.0,
+                                                                  min_steps=model_min_steps, **fields))
+        data.append(d)
     return data

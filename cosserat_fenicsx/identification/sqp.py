@@ -189,7 +189,12 @@ def _stationary(p, z):
     return pg <= 1e-6 * size, pg
 
 
-def _verdict(p, z0, converged, message):
+#: a fit whose objective fell below this fraction of its start meets the data to round-off:
+#: a sum of squares has its minimum there, whatever direction the round-off gradient points
+EXACT_FIT = 1e-12
+
+
+def _verdict(p, z0, converged, message, f_start):
     """The solver's (converged, message), checked against what happened (see module doc)."""
     failed = (f"the model failed at {p.failed_trials} of {p.trials} trial points (first: {p.first_failure})"
               if p.failed_trials else "")
@@ -197,7 +202,8 @@ def _verdict(p, z0, converged, message):
         label, why = next(iter(p.best.failures.items()))
         return False, f"the model cannot run {', '.join(p.best.failures)} at the best point found ({label}: {why})"
     moved = not np.array_equal(p.best.s, p.pset.from_scaled(np.clip(z0, p.lo, p.hi)))
-    if not moved or p.failed_trials:
+    exact = p.best.f <= EXACT_FIT * f_start
+    if not exact and (not moved or p.failed_trials):
         stationary, pg = _stationary(p, p.pset.to_scaled(p.best.s))
         if not stationary and not moved:
             return False, (f"the fit did not move from its start, where the projected gradient is {pg:.3g}, not 0 "
@@ -236,7 +242,7 @@ def identify(objective: Objective, method="auto", max_iterations=60, ftol=1e-12,
     else:
         p.record(z0)
         converged, message = _trust_constr(p, z0, max_iterations, gtol, constraints)
-    converged, message = _verdict(p, z0, converged, message)
+    converged, message = _verdict(p, z0, converged, message, f_start)
     e = p.best
     return IdentificationResult(names=pset.names, values=e.s.copy(), start=pset.start, f=e.f, f_start=f_start,
                                 converged=converged, message=message, method=method,

@@ -9,7 +9,9 @@ After a converged step (every `every` steps, and at `stop_after`) a run writes D
                       scene's own per-point arrays, at the Gauss-point coordinates
     resident_R.npz    the material's resident state of rank R's points
                       (Constitutive.export_points: every DEM cell) with their coordinates
-    run.pkl           the scene's history rows, Newton records and other run state
+    run.json          the scene's history rows, Newton records and other run state, as strict
+                      JSON (state_codec: data only, never code)
+    run_arrays.npz    the numpy arrays in that run state (only when it holds any)
 
 Everything is keyed by coordinates, not by the partition, so a checkpoint written on n ranks
 restarts on m: each rank finds its dofs and Gauss points by nearest coordinates within a
@@ -20,24 +22,31 @@ run repeats the uninterrupted one bit for bit (same partition, same arrays, same
 operations); on another number of ranks it differs by what the partition changes anyway
 (the order of the assembly sums).
 
+Nothing in a checkpoint is code: every file is JSON or an array file read without pickle, so
+a checkpoint received from someone else cannot run anything when read. Format 1 kept the run
+state as a pickle (run.pkl) and is refused rather than read.
+
 A scene that checkpoints provides `problem`, `points` (the (x, y) of its Gauss points in the
 callback's order), `checkpoint_state()` -> (per-point arrays, run-state dict) and
 `restore_state(per_point, run_state)`.
 """
 import json
 import os
-import pickle
 import shutil
 import time
+import zipfile
 
 import numpy as np
 
+from . import state_codec
 from .stepping import StepperPosition
 
-FORMAT = 1
+FORMAT = 2
 DIRECTORY = "checkpoint"
 #: a saved dof or point matches a current one within this fraction of the mesh's extent
 MATCH_TOLERANCE = 1e-8
+RUN_STATE = "run.json"
+RUN_ARRAYS = "run_arrays.npz"
 
 
 class CheckpointError(RuntimeError):
@@ -60,6 +69,11 @@ def read_meta(directory, label=None):
             meta = json.load(f)
     except (OSError, ValueError) as error:
         raise CheckpointError(f"cannot read {path}: {error}") from None
+    if not isinstance(meta, dict):
+        raise CheckpointError(f"cannot read {path}: a JSON {type(meta).__name__}, not an object")
+    if meta.get("format") == 1:      # its run state is a pickle: reading it could run any code
+        raise CheckpointError(f"{path}: checkpoint format 1 (run state pickled in run.pkl) cannot be read safely: "
+                              f"unpickling can run code; this version reads format {FORMAT} only")
     if meta.get("format") != FORMAT:
         raise CheckpointError(f"{path}: checkpoint format {meta.get('format')!r}, this version reads {FORMAT}")
     if label is not None and meta.get("label") != label:
@@ -110,8 +124,9 @@ class Checkpointer:
         return self.every is not None or self.stop_after is not None
 
     def attach(self, scene, extra=None):
-        """The scene to save; `extra()` -> a picklable dict of the demo's own run state
-        (e.g. what its plot collects), handed back by restore as `self.restored_extra`."""
+        """The scene to save; `extra()` -> a dict of the demo's own run state (e.g. what its
+        plot collects; data that state_codec stores), handed back by restore as
+        `self.restored_extra`."""
         self.scene, self.extra = scene, extra
 
     # --- what a demo asks --------------------------------------------------------------------
@@ -205,11 +220,14 @@ class Checkpointer:
         resident = problem.material.export_points(np.arange(cb.n_points))
         fields = _gather_fields(comm, problem)
         gathered = comm.gather((points, arrays), root=0)
-        error = ""
+        error, encoded = "", None
         if comm.rank == 0:
-            try:
+            try:     # encoded first: a run state that cannot be stored leaves no directory
+                encoded = encode_run_state(run_state)
                 shutil.rmtree(tmp, ignore_errors=True)
                 os.makedirs(tmp)
+            except CheckpointError as e:
+                error = str(e)
             except OSError as e:
                 error = f"cannot write the checkpoint in {tmp}: {e}"
         error = comm.bcast(error, root=0)
@@ -217,8 +235,8 @@ class Checkpointer:
             try:     # the resident state stays per rank (the big part: a DEM cell per point)
                 np.savez(os.path.join(tmp, f"resident_{comm.rank}.npz"), coordinates=points, **resident)
                 if comm.rank == 0:
-                    self._write_rank0(tmp, position, fields, gathered, run_state)
-            except (OSError, pickle.PicklingError) as e:
+                    self._write_rank0(tmp, position, fields, gathered, encoded)
+            except (OSError, ValueError) as e:
                 error = f"cannot write the checkpoint in {tmp}: {e}"
         errors = [e for e in comm.allgather(error) if e]
         if errors:
@@ -232,14 +250,13 @@ class Checkpointer:
         if comm.rank == 0:
             self.size_bytes = sum(os.path.getsize(os.path.join(final, f)) for f in os.listdir(final))
 
-    def _write_rank0(self, tmp, position, fields, gathered, run_state):
+    def _write_rank0(self, tmp, position, fields, gathered, encoded):
         import dolfinx
         np.savez(os.path.join(tmp, "fields.npz"), **fields)
         pts = np.concatenate([g[0] for g in gathered])
         np.savez(os.path.join(tmp, "points.npz"), coordinates=pts,
                  **{k: np.concatenate([g[1][k] for g in gathered]) for k in gathered[0][1]})
-        with open(os.path.join(tmp, "run.pkl"), "wb") as f:
-            pickle.dump(run_state, f)
+        write_encoded_run_state(tmp, encoded)
         meta = {"format": FORMAT, "label": self.label, "step": position.step, "time": position.time,
                 "dt": position.dt, "cuts": position.cuts, "ranks": self.comm.size, "n_points": len(pts),
                 "dolfinx": dolfinx.__version__, "fields_file": self.fields_file, "options": self.options}
@@ -269,7 +286,7 @@ class Checkpointer:
             plan = self._read(path, meta, problem, mine, scale)
         except CheckpointError as e:
             error = str(e)
-        except (OSError, KeyError, ValueError, pickle.UnpicklingError) as e:
+        except (OSError, KeyError, ValueError, TypeError, AttributeError, EOFError, zipfile.BadZipFile) as e:
             error = f"cannot restore from {path}: {type(e).__name__}: {e}"
         errors = [e for e in self.comm.allgather(error) if e]
         if errors:
@@ -292,7 +309,7 @@ class Checkpointer:
     def _read(self, path, meta, problem, mine, scale):
         """Everything this rank needs from the checkpoint, matched to its dofs and points
         (local: no MPI). Returns (fields, resident, per-point arrays, run state)."""
-        with np.load(os.path.join(path, "fields.npz")) as z:
+        with np.load(os.path.join(path, "fields.npz"), allow_pickle=False) as z:
             saved = dict(z)
         fields = []
         for c in _components(problem):
@@ -304,7 +321,7 @@ class Checkpointer:
         found = np.zeros(len(mine), dtype=np.int64)
         resident = []
         for rank in range(meta["ranks"]):      # every rank reads every file: any partition fits
-            with np.load(os.path.join(path, f"resident_{rank}.npz")) as z:
+            with np.load(os.path.join(path, f"resident_{rank}.npz"), allow_pickle=False) as z:
                 saved = dict(z)
             rows, points = _saved_among(saved.pop("coordinates"), mine, scale)
             resident.append((rows, points, saved))
@@ -312,13 +329,78 @@ class Checkpointer:
         if (found != 1).any():
             raise CheckpointError(f"{int(np.count_nonzero(found != 1))} Gauss point(s) have no (or two) saved "
                                   "material states")
-        with np.load(os.path.join(path, "points.npz")) as z:
+        with np.load(os.path.join(path, "points.npz"), allow_pickle=False) as z:
             saved = dict(z)
         rows = _nearest_rows(saved.pop("coordinates"), mine, scale)
         arrays = {k: v[rows] for k, v in saved.items()}
-        with open(os.path.join(path, "run.pkl"), "rb") as f:
-            run_state = pickle.load(f)
+        run_state = read_run_state(path)
         return fields, resident, arrays, run_state
+
+
+# --- the run state: strict JSON and arrays, data only (state_codec) --------------------------
+def _run_state_types():
+    """The records a run state may hold besides plain data (the Newton solver's SolveInfo)."""
+    from .snes import SolveInfo
+    return (SolveInfo,)
+
+
+def encode_run_state(run_state):
+    """(JSON document, arrays) of a run state; CheckpointError naming the key of a value that
+    cannot be stored (a checkpoint holds data only)."""
+    if type(run_state) is not dict:
+        raise CheckpointError(f"cannot write the checkpoint: the run state is a {type(run_state).__name__}, not a dict")
+    try:
+        return state_codec.encode(run_state, _run_state_types())
+    except state_codec.StateCodecError as error:
+        raise CheckpointError(f"cannot write the checkpoint: {error}") from None
+
+
+def write_encoded_run_state(path, encoded):
+    """run.json (and run_arrays.npz when there are arrays) in the checkpoint directory `path`."""
+    document, arrays = encoded
+    with open(os.path.join(path, RUN_STATE), "w") as f:
+        json.dump(document, f, allow_nan=False)
+    if arrays:
+        np.savez(os.path.join(path, RUN_ARRAYS), **arrays)
+
+
+def write_run_state(path, run_state):
+    """Write `run_state` (a dict) to the checkpoint directory `path`."""
+    write_encoded_run_state(path, encode_run_state(run_state))
+
+
+def _refuse_constant(name):
+    raise ValueError(f"{name} is not strict JSON")
+
+
+def read_run_state(path):
+    """The run state in the checkpoint directory `path` (run.json and run_arrays.npz); a file
+    that is missing, damaged or holds anything the writer does not write is a
+    CheckpointError naming it. Nothing read here can run code."""
+    name = os.path.join(path, RUN_STATE)
+    try:
+        with open(name) as f:
+            document = json.load(f, parse_constant=_refuse_constant)
+    except (OSError, ValueError) as error:       # json.JSONDecodeError and UnicodeDecodeError are ValueErrors
+        raise CheckpointError(f"cannot read {name}: {error}") from None
+    if type(document) is not dict:
+        raise CheckpointError(f"cannot read {name}: a JSON {type(document).__name__}, not an object")
+    arrays = {}
+    arrays_name = os.path.join(path, RUN_ARRAYS)
+    if os.path.exists(arrays_name):
+        try:
+            with np.load(arrays_name, allow_pickle=False) as z:
+                arrays = dict(z)
+        except (OSError, ValueError, EOFError, zipfile.BadZipFile) as error:   # an object array is refused here, unread
+            raise CheckpointError(f"cannot read {arrays_name}: {error}") from None
+    try:
+        state = state_codec.decode(document, arrays, _run_state_types(),
+                                   arrays_name=RUN_ARRAYS if os.path.exists(arrays_name) else f"{RUN_ARRAYS} (missing)")
+    except (state_codec.StateCodecError, TypeError, AttributeError) as error:
+        raise CheckpointError(f"cannot read {name}: {error}") from None
+    if type(state) is not dict:
+        raise CheckpointError(f"cannot read {name}: it holds a {type(state).__name__}, not the run state's dict")
+    return state
 
 
 # --- FE fields by dof coordinates ----------------------------------------------------------

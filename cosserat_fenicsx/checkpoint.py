@@ -76,9 +76,31 @@ def read_meta(directory, label=None):
                               f"unpickling can run code; this version reads format {FORMAT} only")
     if meta.get("format") != FORMAT:
         raise CheckpointError(f"{path}: checkpoint format {meta.get('format')!r}, this version reads {FORMAT}")
+    for key, kind, ok in _META_FIELDS:
+        value = meta.get(key)
+        if not isinstance(value, kind) or isinstance(value, bool) or not ok(value):
+            raise CheckpointError(f"{path}: {key!r} is {'missing' if key not in meta else repr(value)[:60]}, "
+                                  "not what a checkpoint writes")
     if label is not None and meta.get("label") != label:
         raise CheckpointError(f"the checkpoint in {directory} is of {meta.get('label')!r}, not {label!r}")
+    try:     # strict JSON on disk: an infinite option (e.g. rolling friction) is tagged there
+        meta["options"] = state_codec.decode(meta["options"], {})
+    except state_codec.StateCodecError as error:
+        raise CheckpointError(f"{path}: options: {error}") from None
+    if not isinstance(meta["options"], dict):
+        raise CheckpointError(f"{path}: 'options' is not an object of option values")
     return meta
+
+
+#: meta.json's fields: name, type, check
+_META_FIELDS = (("label", str, lambda v: True),
+                ("step", int, lambda v: v >= 0),
+                ("time", (int, float), lambda v: np.isfinite(v)),
+                ("dt", (int, float), lambda v: np.isfinite(v) and v > 0),
+                ("cuts", int, lambda v: v >= 0),
+                ("ranks", int, lambda v: v >= 1),
+                ("n_points", int, lambda v: v >= 0),
+                ("options", (dict, list), lambda v: True))
 
 
 def stepper_keywords(checkpoint):
@@ -259,9 +281,10 @@ class Checkpointer:
         write_encoded_run_state(tmp, encoded)
         meta = {"format": FORMAT, "label": self.label, "step": position.step, "time": position.time,
                 "dt": position.dt, "cuts": position.cuts, "ranks": self.comm.size, "n_points": len(pts),
-                "dolfinx": dolfinx.__version__, "fields_file": self.fields_file, "options": self.options}
+                "dolfinx": dolfinx.__version__, "fields_file": self.fields_file,
+                "options": state_codec.encode(self.options)[0]}
         with open(os.path.join(tmp, "meta.json"), "w") as f:     # last: a complete directory has it
-            json.dump(meta, f, indent=1)
+            json.dump(meta, f, indent=1, allow_nan=False)
 
     # --- reading -----------------------------------------------------------------------------
     def restore(self, scene, extra=None):

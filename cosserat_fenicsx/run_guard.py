@@ -22,9 +22,13 @@ mpi4py, time.sleep), not in one that holds it (a Numba kernel, most dolfinx and 
 calls). A rank held there until mpirun's SIGKILL leaves summary.json as its last step wrote
 it (`completed: false`, reason RUNNING); its files are readable all the same (closed after
 the last step).
+
+summary.json is strict JSON (strict_json): an infinite or undefined number is written as the
+string "inf", "-inf" or "nan".
 """
 from contextlib import contextmanager
 import json
+import math
 import os
 import signal
 import sys
@@ -37,11 +41,28 @@ RANK_GRACE = 0.5   # [s] a rank other than 0 keeps computing this long after the
 MAIN_GRACE = 0.3   # [s] rank 0's watchdog waits this long for the main thread's handler
 
 
-def _json_default(value):
+def strict_json(value):
+    """`value` made of strict-JSON values, as every summary.json is written: tuples and
+    arrays become lists, numpy numbers Python numbers, and a number that JSON cannot hold
+    the string "inf", "-inf" or "nan" (e.g. the default rolling friction, infinite), so
+    that any JSON reader takes the file.  Anything else: its float, or its str()."""
+    if isinstance(value, dict):
+        return {str(k): strict_json(v) for k, v in value.items()}
+    if isinstance(value, (list, tuple)):
+        return [strict_json(v) for v in value]
+    if value is None or isinstance(value, (bool, str)):
+        return value
+    if hasattr(value, "tolist") and not isinstance(value, (int, float)):     # numpy arrays and scalars
+        return strict_json(value.tolist())
+    if isinstance(value, int):
+        return int(value)
     try:
-        return float(value)
+        number = float(value)
     except (TypeError, ValueError):
         return str(value)
+    if math.isfinite(number):
+        return number
+    return "nan" if math.isnan(number) else ("inf" if number > 0 else "-inf")
 
 
 class RunGuard:
@@ -130,7 +151,7 @@ class RunGuard:
         data.setdefault("steps_completed", self.steps)
         tmp = self.path + ".tmp"
         with open(tmp, "w") as f:
-            json.dump(data, f, indent=2, sort_keys=True, default=_json_default)
+            json.dump(strict_json(data), f, indent=2, sort_keys=True, allow_nan=False)
         os.replace(tmp, self.path)
 
     def _handler(self, signum, frame):

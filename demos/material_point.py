@@ -32,6 +32,7 @@ import numpy as np
 
 sys.path.insert(0, os.path.join(os.path.dirname(os.path.abspath(__file__)), ".."))
 from cosserat_fenicsx.identification.data import TABLE_6_2  # noqa: E402  (no Numba, no dolfinx)
+from cosserat_fenicsx.run_guard import strict_json  # noqa: E402
 
 #: reference values of the spec, section 4.6 (reading H1; a reconstruction, not thesis data)
 SPEC_H1 = {
@@ -169,7 +170,7 @@ def run_readings(args):
               + (f"  | {err[:60]}" if err else ""))
     os.makedirs(args.out, exist_ok=True)
     with open(os.path.join(args.out, "readings.json"), "w") as f:
-        json.dump(out, f, indent=2)
+        json.dump(strict_json(out), f, indent=2, allow_nan=False)
     return out
 
 
@@ -223,7 +224,7 @@ def main(argv=None):
         table[key]["table_6_2"] = TABLE_6_2[(test, None if test == "hydrostatic" else p)]
     table["wall_time_s"] = time.perf_counter() - t0
     with open(os.path.join(args.out, "h1_comparison.json"), "w") as f:
-        json.dump(table, f, indent=2)
+        json.dump(strict_json(table), f, indent=2, allow_nan=False)
     for key, rows in table.items():
         if key == "wall_time_s":
             continue

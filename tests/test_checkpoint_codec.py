@@ -278,3 +278,35 @@ def test_checkpoint_module_reads_arrays_without_pickle():
     imported = {alias.name for node in ast.walk(tree) if isinstance(node, (ast.Import, ast.ImportFrom))
                 for alias in node.names}
     assert "pickle" not in imported
+
+
+@pytest.mark.parametrize("change, named", [
+    (dict(step=None), "'step'"), (dict(step=-1), "'step'"), (dict(step="2"), "'step'"), (dict(step=True), "'step'"),
+    (dict(time=float("nan")), "'time'"), (dict(dt=0.0), "'dt'"), (dict(ranks=0), "'ranks'"),
+    (dict(n_points=1.5), "'n_points'"), (dict(options=3), "'options'"), (dict(options=[1, 2]), "options"),
+    (dict(options={"friction": {"__float__": "big"}}), "options"), (dict(label=7), "'label'")])
+def test_a_damaged_meta_file_is_refused_naming_the_field(tmp_path, change, named):
+    """meta.json checked field by field before anything else is read: one line naming the
+    file and the field (a missing 'step' or an 'options' list were a KeyError/AttributeError)."""
+    path = fake_checkpoint(tmp_path, tmp_path / "marker", format=FORMAT)
+    meta = json.loads((path / "meta.json").read_text())
+    meta.update(change)
+    for key in [k for k, v in change.items() if v is None]:
+        del meta[key]
+    (path / "meta.json").write_text(json.dumps(meta))
+    with pytest.raises(CheckpointError) as error:
+        read_meta(str(tmp_path))
+    message = str(error.value)
+    assert named in message and "meta.json" in message and "\n" not in message
+
+
+def test_infinite_options_are_strict_json_in_meta(tmp_path):
+    """An infinite option (the default rolling friction) is tagged in meta.json, which stays
+    strict JSON, and read back as inf."""
+    from cosserat_fenicsx import state_codec
+    path = fake_checkpoint(tmp_path, tmp_path / "marker", format=FORMAT)
+    meta = json.loads((path / "meta.json").read_text())
+    meta["options"] = state_codec.encode({"rolling_friction": float("inf"), "mesh": (2, 4)})[0]
+    (path / "meta.json").write_text(json.dumps(meta, allow_nan=False))
+    options = read_meta(str(tmp_path))["options"]
+    assert options["rolling_friction"] == float("inf") and options["mesh"] == (2, 4)

@@ -123,3 +123,19 @@ def test_interrupted_material_point_keeps_its_history(tmp_path):
     assert code == 128 + signal.SIGINT
     summary, rows = check_interrupted(out, signal.SIGINT, None)
     assert len(rows) >= 50 and summary["steps_completed"] == len(rows)
+
+
+def test_summaries_are_strict_json(tmp_path):
+    """summary.json takes any JSON reader: infinite and undefined numbers (an infinite rolling
+    friction, a NaN estimate) are written as strings, numpy values as numbers, tuples as lists."""
+    import json
+    import numpy as np
+    from cosserat_fenicsx.run_guard import RunGuard, strict_json
+    assert strict_json({"a": math.inf, "b": (-math.inf, np.nan), "c": np.float32(0.5), "d": np.int64(3),
+                        "e": np.arange(2), 4: None}) == {"a": "inf", "b": ["-inf", "nan"], "c": 0.5, "d": 3,
+                                                         "e": [0, 1], "4": None}
+    path = tmp_path / "summary.json"
+    RunGuard(None, str(path)).finish(dict(rolling_friction=math.inf, estimate=np.float64("nan")))
+    text = path.read_text()
+    summary = json.loads(text, parse_constant=lambda name: pytest.fail(f"{name} in summary.json"))
+    assert summary["rolling_friction"] == "inf" and summary["estimate"] == "nan"

@@ -150,10 +150,15 @@ def virtual_kinds(stages):
 
 
 def read_json(path, what):
+    """A JSON file, strictly (NaN and Infinity are not JSON): one line naming it if not."""
+    def refuse(name):
+        raise ValueError(f"{name} is not a JSON value")
     try:
-        with open(path) as f:
-            return json.load(f)
-    except (OSError, json.JSONDecodeError) as error:
+        with open(path, encoding="utf-8") as f:
+            return json.load(f, parse_constant=refuse)
+    except UnicodeDecodeError:
+        raise InputError(f"{what} {path!r}: not a text (UTF-8 JSON) file") from None
+    except (OSError, ValueError) as error:
         raise InputError(f"{what} {path!r}: {error}") from None
 
 
@@ -192,12 +197,13 @@ def main(argv=None):
     parser = build_parser()
     args = parser.parse_args(argv)
     t_start, c_start = time.perf_counter(), time.process_time()
+    from cosserat_fenicsx.identification.config import check_bounds, check_config
     from cosserat_fenicsx.identification.objective import check_homogeneous
     from cosserat_fenicsx.identification.parameter_set import ParameterSet
     from cosserat_fenicsx.materials.ehlers.parameters import EhlersParameters, read_parameter_file
     # ---- every input checked before any model run
     try:
-        config = read_json(args.config, "config") if args.config else {}
+        config = check_config(read_json(args.config, "config"), f"config {args.config!r}") if args.config else {}
         stages = parse_stages(args.params, config.get("stages", config.get("params", [])), args.stepwise)
         base = dict(eta=args.eta, micropolar=args.micropolar)
         if config.get("base"):
@@ -205,8 +211,8 @@ def main(argv=None):
         if args.start:
             base.update(read_parameter_file(args.start))
         base.update(config.get("start", {}))
-        bounds = read_json(args.bounds, "bounds") if args.bounds else config.get("bounds", {})
-        bounds = {k: tuple(v) for k, v in bounds.items()}
+        bounds = (check_bounds(read_json(args.bounds, "bounds"), f"bounds {args.bounds!r}") if args.bounds
+                  else check_bounds(config.get("bounds", {}), "config 'bounds'"))
         try:
             reference = EhlersParameters(**base)
         except (TypeError, ValueError) as error:

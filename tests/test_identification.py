@@ -342,3 +342,37 @@ def test_interrupted_identification_leaves_its_files_and_no_workers(tmp_path):
     time.sleep(2.0)          # a worker notices its parent is gone within 0.5 s
     left = subprocess.run(["pgrep", "-f", str(out)], capture_output=True, text=True).stdout.split()
     assert not left, f"worker processes left behind: {left}"
+
+
+@pytest.mark.parametrize("doc, named", [
+    ([1, 2], "JSON array"), ({"bounds": 3}, "'bounds'"), ({"bounds": {"psi1": 3}}, "'psi1'"),
+    ({"bounds": {"psi1": [1, "x"]}}, "'psi1'"), ({"stages": 5}, "'stages'"), ({"stages": [5]}, "stages[0]"),
+    ({"stages": [{"params": "psi1", "kinds": 3}]}, "stages[0]"), ({"tests": {"file": "a"}}, "'tests'"),
+    ({"tests": [{"file": "a.csv", "kind": "triaxial", "confining": [1]}]}, "tests[0].confining"),
+    ({"tests": [{"file": "a.csv", "kind": "triaxial", "normalisation": [1]}]}, "tests[0].normalisation"),
+    ({"tests": [{"file": "a.csv"}]}, "'kind'"), ({"tests": [{"file": "a.csv", "kind": "triaxial", "confinig": 1}]},
+                                                "'confinig'"),
+    ({"base": [1]}, "'base'"), ({"start": {"psi1": None}}, "'psi1'"), ({"bound": {}}, "'bound'")])
+def test_config_shapes_are_checked(doc, named):
+    """A config of the wrong shape (a list at the top, bounds as a number, a stage that is a
+    number, a confining pressure given as a list, an unknown key) is refused in one line
+    naming the field, not met later by an AttributeError."""
+    from cosserat_fenicsx.identification.config import check_config
+    with pytest.raises(InputError) as error:
+        check_config(doc, "config c.json")
+    assert named in str(error.value) and "c.json" in str(error.value) and "\n" not in str(error.value)
+
+
+def test_damaged_input_files_are_refused_naming_them(tmp_path):
+    """A repeated column, a binary file, NaN in a JSON file: one line each, naming the file."""
+    (tmp_path / "dup.csv").write_text("axial_strain,axial_stress,axial_stress\n-0.01,1,2\n")
+    with pytest.raises(InputError, match="dup.csv.*more than once"):
+        D.read_test(str(tmp_path / "dup.csv"), "triaxial", 1e5)
+    (tmp_path / "bin.csv").write_bytes(bytes(range(256)))
+    with pytest.raises(InputError, match="bin.csv.*not a text"):
+        D.read_test(str(tmp_path / "bin.csv"), "triaxial", 1e5)
+    from conftest import run_demo
+    (tmp_path / "c.json").write_text('{"start": {"psi1": NaN}}')
+    proc = run_demo("identify", "--config", tmp_path / "c.json", "--out", tmp_path / "out", check=False)
+    assert proc.returncode == 2 and "c.json" in proc.stderr and "NaN" in proc.stderr
+    assert "Traceback" not in proc.stderr and not (tmp_path / "out").exists()

@@ -82,11 +82,25 @@ def default_normalisation(kind, confining, quantity, values, thesis=False):
 def _read_columns(path):
     if not os.path.isfile(path):
         raise InputError(f"data file {path!r} does not exist")
-    with open(path, newline="") as f:
-        rows = [r for r in csv.reader(f) if r and not r[0].lstrip().startswith("#")]
+    try:
+        with open(path, newline="", encoding="utf-8") as f:
+            text = f.read()
+    except OSError as error:
+        raise InputError(f"data file {path!r}: {error.strerror or error}") from None
+    except UnicodeDecodeError:
+        raise InputError(f"data file {path!r}: not a text (UTF-8 CSV) file") from None
+    if "\0" in text:
+        raise InputError(f"data file {path!r}: not a text (CSV) file: it holds NUL bytes")
+    try:
+        rows = [r for r in csv.reader(text.splitlines()) if r and not r[0].lstrip().startswith("#")]
+    except csv.Error as error:
+        raise InputError(f"data file {path!r}: not a CSV file ({error})") from None
     if len(rows) < 2:
         raise InputError(f"data file {path!r}: a header line and at least one row are needed")
     header = [h.strip() for h in rows[0]]
+    repeated = sorted({h for h in header if header.count(h) > 1})
+    if repeated:
+        raise InputError(f"data file {path!r}: column(s) {repeated} appear more than once in the header")
     cols = {h: [] for h in header}
     for i, row in enumerate(rows[1:], start=2):
         if len(row) != len(header):

@@ -179,6 +179,10 @@ def parse(argv=None):
         check_pressure_ratio(a.pressure, a.kn)
         dc.ContactLaw(kn=a.kn, ks=a.ks, friction=a.friction, rotations=not a.no_rotation)
         if a.packing is not None:
+            ignored = sorted(p.given_options(argv) & {"particles", "seed", "anisotropy"})
+            if ignored:       # the file sets the discs: these would be silently without effect
+                raise InputError(f"--packing gives the discs: {', '.join('--' + o for o in ignored)} would have no "
+                                 f"effect (leave {'it' if len(ignored) == 1 else 'them'} out)")
             dc.load_packing(a.packing)        # missing, truncated or inconsistent: refused now
     except ValueError as error:
         p.refuse(error)

@@ -189,6 +189,11 @@ def check(args):
     if args.mode == "micropolar" and (args.mu_c is not None or args.l_c is not None):
         raise ValueError("--mu-c and --l-c are hybrid-mode options: in mode micropolar the skew and couple "
                          "stresses come from the cells")
+    if args.packing is not None and getattr(args, "restart", None) is None:
+        ignored = sorted(parser.given_options() & {"particles", "seed"})
+        if ignored:           # the file sets the discs: these would be silently without effect
+            raise ValueError(f"--packing gives the discs: {', '.join('--' + o for o in ignored)} would have no "
+                             f"effect (leave {'it' if len(ignored) == 1 else 'them'} out)")
     femdem_settings(args).check()             # every option, before any cell exists
 
 

@@ -162,6 +162,8 @@ def test_demo_curvature_bending_modulus(tmp_path):
     (["--test", "shear", "--axial-strain", "0.1"], "--axial-strain is an option of --test biaxial"),
     (["--test", "curvature", "--rotation-jump", "0.01", "--increment", "0.02"], "--increment must be in"),
     (["--test", "curvature", "--rotation-jump", "2"], "--rotation-jump"),
+    (["--packing", "p.npz", "--particles", "50"], "--packing gives the discs: --particles would have no effect"),
+    (["--packing", "p.npz", "--anisotropy", "0.05", "--seed", "1"], "--anisotropy, --seed would have no effect"),
 ])
 def test_demo_refuses_options_of_another_test(tmp_path, args, message):
     out = tmp_path / "out"

@@ -77,6 +77,7 @@ CASES = [   # (id, args, pattern the error line must match)
     ("classical-mu-c", ["--mode", "classical", "--mu-c", 100], r"--mu-c"),
     ("classical-l-c", ["--mode", "classical", "--l-c", 1e-3], r"--l-c"),
     ("kn-zero", ["--kn", 0], r"\bkn\b"),
+    ("seed-beside-packing", ["--packing", "p.npz", "--seed", 3], r"--packing gives the discs: --seed"),
     ("kn-negative", ["--kn", -1], r"\bkn\b"),
     ("ks-negative", ["--ks", -1], r"\bks\b"),
     ("friction-negative", ["--friction", -0.1], r"\bfriction\b"),

@@ -153,8 +153,9 @@ class Checkpointer:
 
     # --- what a demo asks --------------------------------------------------------------------
     def start(self, scene, guard=None, extra=None):
-        """Attach the scene and, for a restart, restore it (a failure stops the run through
-        `guard`, a run_guard.RunGuard, with the reason). Returns the StepperPosition the
+        """Attach the scene and, for a restart, restore it (a failure refuses the restart
+        through `guard`, a run_guard.RunGuard: one line, exit 2, the earlier outputs as they
+        were -- the guard of a restart is made with write_now=False). Returns the StepperPosition the
         run continues from, None for a fresh run."""
         if not self.restart:
             self.attach(scene, extra)
@@ -164,7 +165,7 @@ class Checkpointer:
         except CheckpointError as error:
             if guard is None:
                 raise
-            guard.stop(f"restart: {error}")
+            guard.refuse(f"restart: {error}")
         if guard is not None:
             guard.steps = position.step
         if self.comm.rank == 0:
@@ -424,6 +425,58 @@ def read_run_state(path):
     if type(state) is not dict:
         raise CheckpointError(f"cannot read {name}: it holds a {type(state).__name__}, not the run state's dict")
     return state
+
+
+def _load_arrays(name):
+    """{key: array} of one .npz of the checkpoint, read without pickle; CheckpointError naming it."""
+    try:
+        with np.load(name, allow_pickle=False) as z:
+            return dict(z)
+    except (OSError, ValueError, EOFError, zipfile.BadZipFile) as error:
+        raise CheckpointError(f"cannot read {name}: {type(error).__name__}: {error}") from None
+
+
+def _check_table(name, arrays, n_rows=None, per_point=True):
+    """A table keyed by coordinates: 'coordinates' (n, 2) finite, every other array with n
+    rows (per_point; a material's resident arrays may be flattened over its points) and no
+    NaN (an infinite entry may be a material's own, e.g. a frictionless bound)."""
+    coordinates = arrays.get("coordinates")
+    if coordinates is None or coordinates.ndim != 2 or coordinates.shape[1] != 2 or \
+            not np.issubdtype(coordinates.dtype, np.floating) or not np.all(np.isfinite(coordinates)):
+        raise CheckpointError(f"{name}: 'coordinates' must be finite (n, 2) floats")
+    n = len(coordinates)
+    if n_rows is not None and n != n_rows:
+        raise CheckpointError(f"{name}: {n} rows, meta.json says {n_rows}")
+    for key, value in arrays.items():
+        if per_point and (value.ndim == 0 or len(value) != n):
+            raise CheckpointError(f"{name}: {key!r} has shape {value.shape}, not {n} rows")
+        if np.issubdtype(value.dtype, np.number) and not np.issubdtype(value.dtype, np.integer) and \
+                np.isnan(value).any():
+            raise CheckpointError(f"{name}: {key!r} holds NaN: a damaged checkpoint")
+    return n
+
+
+def verify(directory, meta):
+    """Every file of the checkpoint in `directory` read and checked (present, readable
+    without pickle, the shapes meta.json announces, no NaN, the run state decodable) before
+    a restart touches anything; CheckpointError naming the file and the field."""
+    path = checkpoint_path(directory)
+    fields = _load_arrays(os.path.join(path, "fields.npz"))
+    components = sorted({k.rsplit("_", 1)[0] for k in fields})
+    if not components:
+        raise CheckpointError(f"{os.path.join(path, 'fields.npz')}: no field")
+    for c in components:
+        table = {"coordinates": fields.get(f"{c}_coordinates"), "values": fields.get(f"{c}_values")}
+        if any(v is None for v in table.values()):
+            raise CheckpointError(f"{os.path.join(path, 'fields.npz')}: {c!r} needs {c}_coordinates and {c}_values")
+        _check_table(os.path.join(path, "fields.npz") + f" ({c})", table)
+    _check_table(os.path.join(path, "points.npz"), _load_arrays(os.path.join(path, "points.npz")), meta["n_points"])
+    total = sum(_check_table(os.path.join(path, f"resident_{rank}.npz"),
+                             _load_arrays(os.path.join(path, f"resident_{rank}.npz")), per_point=False)
+                for rank in range(meta["ranks"]))
+    if total != meta["n_points"]:
+        raise CheckpointError(f"{path}: the resident files hold {total} points, meta.json says {meta['n_points']}")
+    read_run_state(path)
 
 
 # --- FE fields by dof coordinates ----------------------------------------------------------

@@ -113,11 +113,19 @@ def restart_arguments(parser, args, argv=None):
     run-control options and the demo's solver options typed now (args.restart_changes: dest
     -> [saved, new] of the solver options that changed). Any other typed option that differs
     from the saved one, a missing checkpoint or one of another demo is a ValueError naming it."""
-    from .checkpoint import CheckpointError, read_meta
-    try:
-        meta = read_meta(args.restart, parser.checkpoint_label)
-    except CheckpointError as error:
-        raise ValueError(f"--restart {args.restart}: {error}") from None
+    from mpi4py import MPI
+    from .checkpoint import CheckpointError, read_meta, verify
+    comm = MPI.COMM_WORLD
+    error = None
+    if comm.rank == 0:         # read once; every rank gets the verdict (a damaged file refused everywhere)
+        try:
+            verify(args.restart, read_meta(args.restart, parser.checkpoint_label))
+        except CheckpointError as e:
+            error = str(e)
+    error = comm.bcast(error, root=0)
+    if error is not None:
+        raise ValueError(f"--restart {args.restart}: {error}")
+    meta = read_meta(args.restart, parser.checkpoint_label)
     saved = meta["options"]
     typed = parser.given_options(argv)
     solver = getattr(parser, "restart_solver_options", ())

@@ -73,7 +73,7 @@ class RunGuard:
     entries  what the summary says before the first step (settings, ...)
     """
 
-    def __init__(self, comm, path, entries=None, label=""):
+    def __init__(self, comm, path, entries=None, label="", write_now=True):
         self.rank = comm.rank if comm is not None else 0
         self.path, self.label = path, label
         self.entries = dict(entries or {})
@@ -82,7 +82,8 @@ class RunGuard:
         self._wakeup = None
         self._previous = {sig: signal.signal(sig, self._handler) for sig in SIGNALS}
         self._start_watchdog()
-        self._write(completed=False, reason=RUNNING)
+        if write_now:      # a restart writes at its first step: a refused one leaves the earlier summary
+            self._write(completed=False, reason=RUNNING)
 
     # --- progress ---------------------------------------------------------------------
     def progress(self, **entries):
@@ -133,6 +134,15 @@ class RunGuard:
             print(f"{self.label + ': ' if self.label else ''}stopped: {reason}", file=sys.stderr, flush=True)
         self.finish(dict(self.entries, **entries, completed=False, reason=reason))
         sys.exit(1)
+
+    def refuse(self, reason):
+        """An input found bad after the guard exists (e.g. a checkpoint that does not fit the
+        mesh): one line on rank 0, summary.json left as it was, exit status 2 on every rank."""
+        reason = " ".join(str(reason).split())
+        if self.rank == 0:
+            print(f"{self.label + ': ' if self.label else ''}refused: {reason}", file=sys.stderr, flush=True)
+        self.release()
+        sys.exit(2)
 
     def release(self):
         for sig, handler in self._previous.items():

@@ -111,7 +111,7 @@ def biaxial_settings(args):
 
 args = cli.parse(parser, check=lambda args: biaxial_settings(args).check())
 comm = MPI.COMM_WORLD
-guard = RunGuard(comm, os.path.join(args.out, "summary.json"), label="biaxial")
+guard = RunGuard(comm, os.path.join(args.out, "summary.json"), label="biaxial", write_now=args.restart is None)
 classical = args.cauchy
 try:
     test = BiaxialTest(comm, biaxial_settings(args))

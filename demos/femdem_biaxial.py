@@ -202,7 +202,8 @@ comm = MPI.COMM_WORLD
 settings = femdem_settings(args)
 nx, ny = settings.nx, settings.ny
 guard = RunGuard(comm, os.path.join(args.out, "summary.json"),
-                 {"options": {k: v for k, v in vars(args).items() if k != "elasticity"}}, label="femdem")
+                 {"options": {k: v for k, v in vars(args).items() if k != "elasticity"}}, label="femdem",
+                 write_now=args.restart is None)
 try:
     test = FemDemBiaxial(comm, settings)
 except (ValueError, RuntimeError) as error:   # e.g. a packing that cannot be compacted (demcell errors)

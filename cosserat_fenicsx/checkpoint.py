@@ -67,7 +67,7 @@ def read_meta(directory, label=None):
     try:
         with open(path) as f:
             meta = json.load(f)
-    except (OSError, ValueError) as error:
+    except (OSError, ValueError, RecursionError) as error:   # RecursionError: nested too deeply
         raise CheckpointError(f"cannot read {path}: {error}") from None
     if not isinstance(meta, dict):
         raise CheckpointError(f"cannot read {path}: a JSON {type(meta).__name__}, not an object")
@@ -405,7 +405,7 @@ def read_run_state(path):
     try:
         with open(name) as f:
             document = json.load(f, parse_constant=_refuse_constant)
-    except (OSError, ValueError) as error:       # json.JSONDecodeError and UnicodeDecodeError are ValueErrors
+    except (OSError, ValueError, RecursionError) as error:       # json.JSONDecodeError and UnicodeDecodeError are ValueErrors
         raise CheckpointError(f"cannot read {name}: {error}") from None
     if type(document) is not dict:
         raise CheckpointError(f"cannot read {name}: a JSON {type(document).__name__}, not an object")
@@ -420,7 +420,7 @@ def read_run_state(path):
     try:
         state = state_codec.decode(document, arrays, _run_state_types(),
                                    arrays_name=RUN_ARRAYS if os.path.exists(arrays_name) else f"{RUN_ARRAYS} (missing)")
-    except (state_codec.StateCodecError, TypeError, AttributeError) as error:
+    except (state_codec.StateCodecError, TypeError, AttributeError, RecursionError) as error:
         raise CheckpointError(f"cannot read {name}: {error}") from None
     if type(state) is not dict:
         raise CheckpointError(f"cannot read {name}: it holds a {type(state).__name__}, not the run state's dict")
@@ -432,8 +432,8 @@ def _load_arrays(name):
     try:
         with np.load(name, allow_pickle=False) as z:
             return dict(z)
-    except (OSError, ValueError, EOFError, zipfile.BadZipFile) as error:
-        raise CheckpointError(f"cannot read {name}: {type(error).__name__}: {error}") from None
+    except Exception as error:   # noqa: BLE001 -- whatever the zip, zlib and npy layers raise on a damaged file
+        raise CheckpointError(f"cannot read {name}: {type(error).__name__}: {' '.join(str(error).split())}") from None
 
 
 def _check_table(name, arrays, n_rows=None, per_point=True):

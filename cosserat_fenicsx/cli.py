@@ -127,6 +127,7 @@ def restart_arguments(parser, args, argv=None):
         raise ValueError(f"--restart {args.restart}: {error}")
     meta = read_meta(args.restart, parser.checkpoint_label)
     saved = meta["options"]
+    parser.check_saved(saved, f"--restart {args.restart}: the checkpoint's options")
     typed = parser.given_options(argv)
     solver = getattr(parser, "restart_solver_options", ())
     changes = {}

@@ -190,6 +190,42 @@ class Parser(argparse.ArgumentParser):
         """An InputError or ValueError found after parsing, still before any work."""
         self.error(" ".join(str(error).split()) or type(error).__name__)
 
+    def check_saved(self, values, where):
+        """Option values read from a file (a checkpoint's options) checked as if typed: each
+        a dest of this parser, a flag a boolean, a choice among its choices, a number in its
+        declared range, a list where the option collects several; ValueError naming `where`
+        and the option."""
+        actions = {a.dest: a for a in self._actions}
+        for dest, value in values.items():
+            action = actions.get(dest)
+            if action is None:
+                continue             # the run's own entries (petsc_options, ...), not typed options
+            flag = action.option_strings[-1] if action.option_strings else dest
+            if action.nargs == 0:                 # a flag (store_true / store_false)
+                ok = isinstance(value, bool)
+            elif isinstance(action, argparse._AppendAction) or action.nargs in ("*", "+"):
+                ok = value is None or isinstance(value, (list, tuple))
+            elif value is None:
+                ok = action.default is None
+            elif action.choices is not None:
+                ok = isinstance(value, (str, int, float)) and not isinstance(value, bool) and value in action.choices
+            elif isinstance(action.type, Number):
+                ok = isinstance(value, (int, float)) and not isinstance(value, bool)
+                if ok:
+                    try:
+                        action.type(repr(float(value)))
+                    except argparse.ArgumentTypeError as error:
+                        raise ValueError(f"{where}: {flag} {error}") from None
+            else:
+                ok = isinstance(value, (str, int, float)) and not isinstance(value, bool)
+                if ok and action.type is not None and isinstance(value, str):
+                    try:
+                        action.type(value)
+                    except (argparse.ArgumentTypeError, ValueError, TypeError) as error:
+                        raise ValueError(f"{where}: {flag} {value!r}: {error}"[:300]) from None
+            if not ok:
+                raise ValueError(f"{where}: {flag} is {value!r}"[:200] + ", not a value this option takes")
+
     def given_options(self, argv=None):
         """The dests of the options given explicitly in argv (default sys.argv[1:]), so a
         value read from a file can be overridden only by what the user typed."""

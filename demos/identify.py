@@ -43,7 +43,6 @@ Examples:
       --params plastic --out out/identify_lab
 """
 import argparse
-import json
 import os
 import sys
 import time
@@ -149,19 +148,6 @@ def virtual_kinds(stages):
     return {k for k, _ in THESIS_TESTS} | ({k for k, _ in THESIS_UNLOADING} & asked)
 
 
-def read_json(path, what):
-    """A JSON file, strictly (NaN and Infinity are not JSON): one line naming it if not."""
-    def refuse(name):
-        raise ValueError(f"{name} is not a JSON value")
-    try:
-        with open(path, encoding="utf-8") as f:
-            return json.load(f, parse_constant=refuse)
-    except UnicodeDecodeError:
-        raise InputError(f"{what} {path!r}: not a text (UTF-8 JSON) file") from None
-    except (OSError, ValueError) as error:
-        raise InputError(f"{what} {path!r}: {error}") from None
-
-
 def load_data(args, config):
     """TestData list from --data or the config, or None (virtual data)."""
     from cosserat_fenicsx.identification.data import read_test
@@ -197,7 +183,7 @@ def main(argv=None):
     parser = build_parser()
     args = parser.parse_args(argv)
     t_start, c_start = time.perf_counter(), time.process_time()
-    from cosserat_fenicsx.identification.config import check_bounds, check_config
+    from cosserat_fenicsx.identification.config import check_bounds, check_config, read_json
     from cosserat_fenicsx.identification.objective import check_homogeneous
     from cosserat_fenicsx.identification.parameter_set import ParameterSet
     from cosserat_fenicsx.materials.ehlers.parameters import EhlersParameters, read_parameter_file

@@ -10,9 +10,11 @@ kinds, files) are checked where they are used, also before any model run.
 
 from __future__ import annotations
 
+import json
 import math
 
 from ..validation import InputError
+from .virtual_tests import KINDS
 
 #: what a test entry of the config may hold: key -> (what it is, check)
 TEST_KEYS = {
@@ -22,6 +24,22 @@ TEST_KEYS = {
     "unload_at": "an axial compression",
 }
 CONFIG_KEYS = ("tests", "stages", "params", "base", "start", "bounds")
+
+
+def read_json(path, what):
+    """A JSON file, strictly (NaN and Infinity are not JSON): InputError in one line naming
+    it when it cannot be read."""
+    def refuse(name):
+        raise ValueError(f"{name} is not a JSON value")
+    try:
+        with open(path, encoding="utf-8") as f:
+            return json.load(f, parse_constant=refuse)
+    except UnicodeDecodeError:
+        raise InputError(f"{what} {path!r}: not a text (UTF-8 JSON) file") from None
+    except RecursionError:
+        raise InputError(f"{what} {path!r}: nested too deeply") from None
+    except (OSError, ValueError) as error:
+        raise InputError(f"{what} {path!r}: {' '.join(str(error).split())}") from None
 
 
 def _number(value):
@@ -95,6 +113,10 @@ def check_config(doc, where):
                 raise InputError(f"{where}: tests[{i}]: unknown key {key!r} (known: {list(TEST_KEYS)})")
             if not _TEST_CHECKS[key](value):
                 raise InputError(f"{where}: tests[{i}].{key} must be {TEST_KEYS[key]}, got {value!r}"[:200])
+        if test["kind"] not in KINDS:
+            raise InputError(f"{where}: tests[{i}].kind {test['kind']!r} is not one of {sorted(KINDS)}"[:200])
+        if KINDS[test["kind"]][0] != "pressure" and test.get("confining") is None:
+            raise InputError(f"{where}: tests[{i}] ({test['kind']}) needs 'confining', its cell pressure [Pa]")
     for key in ("stages", "params"):
         stages = doc.get(key, [])
         if not isinstance(stages, list):

@@ -272,11 +272,18 @@ def read_parameter_file(path) -> dict:
     """The {name: value} of a parameter file, checked (unknown names, non-numbers, a set that
     EhlersParameters refuses): ValueError naming the file, before any model runs."""
     import json
+
+    def refuse(name):
+        raise ValueError(f"{name} is not a JSON value")
     try:
-        with open(path) as f:
-            doc = json.load(f)
-    except (OSError, json.JSONDecodeError) as error:
-        raise ValueError(f"parameter file {path!r}: {error}") from None
+        with open(path, encoding="utf-8") as f:
+            doc = json.load(f, parse_constant=refuse)
+    except UnicodeDecodeError:
+        raise ValueError(f"parameter file {path!r}: not a text (UTF-8 JSON) file") from None
+    except RecursionError:
+        raise ValueError(f"parameter file {path!r}: nested too deeply") from None
+    except (OSError, ValueError) as error:
+        raise ValueError(f"parameter file {path!r}: {' '.join(str(error).split())}") from None
     values = doc.get("parameters", doc) if isinstance(doc, dict) else None
     if not isinstance(values, dict):
         raise ValueError(f"parameter file {path!r}: expected a JSON object of parameter values")

@@ -82,6 +82,8 @@ benchmark: deps
 	$(PYTHON) benchmarks/dem_calibration.py --dem $(OUT)/benchmarks/dem_virtual_tests --out $(OUT)/benchmarks/dem_calibration
 	$(PYTHON) benchmarks/femdem_vs_ehlers.py --parameters $(OUT)/benchmarks/dem_calibration/identify/identified_parameters.json --out $(OUT)/benchmarks/femdem_vs_ehlers
 	$(PYTHON) benchmarks/robustness_sweep.py --random 2 --out $(OUT)/benchmarks/robustness_sweep
+	$(PYTHON) benchmarks/damaged_inputs.py --per-kind 80 --restarts 20 --out $(OUT)/benchmarks/damaged_inputs
+	DAMAGE_EXAMPLES=40 DAMAGE_RANDOM=1 $(PYTHON) -m pytest -q -p no:cacheprovider tests/test_damaged_inputs.py
 	$(PYTHON) benchmarks/interrupt_runs.py --trials 12 --ranks $(NP) --signal INT --out $(OUT)/benchmarks/interrupt_runs
 	ROBUSTNESS_EXAMPLES=25 ROBUSTNESS_RANDOM=1 $(PYTHON) -m pytest -q -p no:cacheprovider tests/test_robustness_properties.py
 	$(PYTHON) -m pytest -q -p no:cacheprovider -m slow tests

@@ -20,6 +20,7 @@ that are not batched: pstlo's sparse solve, DEMQO and CTO's perturbations work o
 import numpy as np
 from numba import get_num_threads, njit, prange
 
+from . import checks
 from . import quasistatic as qs
 from .contact_law import KN, KS, MU
 from .errors import InputError
@@ -250,14 +251,38 @@ class CellStore:
             self.target[k, qs.T_PHI] = c.state.phi
             self.target[k, qs.T_KAP:qs.T_KAP + 2] = c.state.kappa
 
+    def rows_of(self, rows):
+        """`rows` as an int64 array of cell indices in [0, n_cells), else InputError."""
+        r = np.asarray(rows)
+        if r.ndim != 1 or (r.size and (r.dtype.kind not in "iu" or r.min() < 0 or r.max() >= self.n_cells)):
+            raise InputError(f"rows must be a 1D array of cell indices in [0, {self.n_cells}), got "
+                             f"{checks.one_line(repr(rows))[:80]}")
+        return r.astype(np.int64)
+
     def set_targets(self, rows, F, phi=None, kappa=None):
-        """Targets of the cells rows: F (n, 2, 2); for micropolar cells phi (n,) and kappa (n, 2)
-        (None: the current ones)."""
-        rows = np.asarray(rows, dtype=np.int64)
-        self.target[rows, qs.T_F:qs.T_F + 4] = np.asarray(F, dtype=float).reshape(len(rows), 4)
+        """Targets of the cells rows: F (n, 2, 2) finite with det F > 0; for micropolar cells
+        phi (n,) and kappa (n, 2), finite (None: the current ones)."""
+        rows = self.rows_of(rows)
+        n = len(rows)
+        F = checks.array("F", F, (n, 2, 2))
+        with np.errstate(over="ignore", invalid="ignore"):      # (refused below: det F not finite)
+            det = np.linalg.det(F) if n else np.zeros(0)
+        if not np.all((det > 0.0) & np.isfinite(det)):
+            k = int(np.flatnonzero(~((det > 0.0) & np.isfinite(det)))[0])
+            raise InputError(f"F must have a finite det F > 0 (an admissible deformation), got det F[{k}] = "
+                             f"{det[k]:.3g}")
+        phi = None if phi is None else checks.array("phi", phi, (n,))
+        kappa = None if kappa is None else checks.array("kappa", kappa, (n, 2))
+        self.target[rows, qs.T_F:qs.T_F + 4] = F.reshape(n, 4)
         phi_now, kappa_now = self.rotations(rows)
         self.target[rows, qs.T_PHI] = phi_now if phi is None else phi
         self.target[rows, qs.T_KAP:qs.T_KAP + 2] = kappa_now if kappa is None else kappa
+
+    @staticmethod
+    def substep_limit(max_steps):
+        """The per-sub-step budget `max_steps` of solve (None, or an integer >= 1)."""
+        max_steps = checks.optional("max_steps", max_steps, checks.COUNT)
+        return None if max_steps is None else min(max_steps, checks.MAX_BUDGET)
 
     def outcome(self, k, result_row):
         """(converged, no_contacts, message, error) of cell k's solve (DemCell.solve's words;
@@ -400,8 +425,10 @@ class CellBatch(CellStore):
         """Solve the cells rows from their current states to their targets (DemCell.solve
         without servo). Returns the result rows (len(rows), quasistatic.N_RESULT); read them
         with ``outcome``. max_steps: the budget per sub-step after the ramp (default: each
-        cell's options)."""
-        rows = np.asarray(rows, dtype=np.int64)
+        cell's options), DemCell.solve's max_substep_steps; each cell's whole solve is bounded
+        by its options' solve_budget."""
+        rows = self.rows_of(rows)
+        max_steps = self.substep_limit(max_steps)
         result = np.zeros((self.n_cells, qs.N_RESULT))
         if not len(rows):
             return result[rows]

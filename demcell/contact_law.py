@@ -24,6 +24,7 @@ from dataclasses import dataclass, fields
 import numpy as np
 from numba import njit
 
+from .checks import NON_NEGATIVE, Range
 from .errors import InputError
 
 # positions in the float64 parameter array handed to the kernels
@@ -64,24 +65,21 @@ class ContactLaw:
     rotations: bool = True
     twisting_stiffness: float = 0.0
 
+    #: what each parameter may be: stiffnesses and damping ratios finite, the Coulomb and
+    #: rolling limits and the bond strengths may be inf (no sliding, no limit, unbreakable)
+    RANGES = {"kn": Range(0.0, low_open=True), "ks": NON_NEGATIVE, "friction": Range(0.0, infinite=True),
+              "rolling_stiffness": NON_NEGATIVE, "rolling_friction": Range(0.0, infinite=True),
+              "normal_damping": NON_NEGATIVE, "tangential_damping": NON_NEGATIVE,
+              "cohesion_normal": Range(0.0, infinite=True), "cohesion_shear": Range(0.0, infinite=True),
+              "twisting_stiffness": NON_NEGATIVE}
+
     def __post_init__(self):
-        for f in fields(self):
-            val = getattr(self, f.name)
-            if f.name == "rotations":
-                if not isinstance(val, (bool, np.bool_)):
-                    raise InputError(f"ContactLaw.rotations must be True or False, got {val!r}")
-                continue
-            try:
-                val = float(val)
-            except (TypeError, ValueError):
-                raise InputError(f"ContactLaw.{f.name} must be a number, got {val!r}") from None
-            if math.isnan(val) or val < 0.0:
-                raise InputError(f"ContactLaw.{f.name} must be >= 0 (got {val}); "
-                                 "negative stiffness, friction or damping is unphysical")
-        if self.kn <= 0.0 or not math.isfinite(self.kn):
-            raise InputError(f"ContactLaw.kn must be finite and > 0, got {self.kn}")
-        if not math.isfinite(self.ks) or not math.isfinite(self.rolling_stiffness):
-            raise InputError("ContactLaw stiffnesses must be finite")
+        if not isinstance(self.rotations, (bool, np.bool_)):
+            raise InputError(f"ContactLaw.rotations must be True or False, got {self.rotations!r}")
+        for name, allowed in self.RANGES.items():
+            # frozen: the checked float replaces the given number
+            object.__setattr__(self, name, allowed.check(f"ContactLaw.{name}", getattr(self, name)))
+        object.__setattr__(self, "rotations", bool(self.rotations))
         if self.twisting_stiffness != 0.0:
             raise InputError("twisting resistance does not exist for 2D discs (their only rotation "
                              "axis e3 is perpendicular to every contact normal); use twisting_stiffness=0")

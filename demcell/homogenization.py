@@ -31,7 +31,9 @@ from dataclasses import dataclass
 import numpy as np
 from numba import njit
 
-from .contact_law import KN, KR, KS, MU
+from . import checks
+from .checks import Range
+from .contact_law import KN, KR, KS, MU, N_LAW, ContactLaw
 from .periodic_cell import branch_vector, cauchy_to_pk1, contact_copy, fractional_branch
 
 
@@ -156,7 +158,13 @@ def anisotropy(fabric):
 
 def homogenize(state, law, micropolar=False):
     """All homogenized outputs of ``state`` (its forces must be current); ``micropolar``: the
-    couple stress of a micropolar cell (reference lever positions)."""
+    couple stress of a micropolar cell (reference lever positions). ``law``: a ContactLaw
+    or its kernel array (DemCell.law_array)."""
+    from .state import CellState
+    checks.instance("state", state, CellState)
+    if isinstance(law, ContactLaw):
+        law = law.as_array()
+    law = checks.array("law", law, (N_LAW,), Range(0.0, infinite=True))
     sig, couple, fab, nc, nsl, z = contact_sums(state.h, state.s, state.radius, state.pair_i,
                                                 state.pair_j, state.fn, state.fs, state.mr,
                                                 state.touching, state.n_pairs, float(law[MU]),

@@ -25,11 +25,13 @@ from dataclasses import dataclass, fields
 import numpy as np
 
 from .contact_law import ContactLaw, MU, COH_N, COH_T, ETA_R, ROTATIONS
+from . import checks
 from . import quasistatic as qs
+from .checks import COUNT, MAX_BUDGET, NON_NEGATIVE, POSITIVE, Range
 from .errors import InputError, SolveError
 from .homogenization import homogenize
-from .periodic_cell import deformation_path, reduce_cell
-from .relaxation import (ENERGY_RATIO, FIRE, LOCAL_DAMPING, NO_CONTACTS, ROT_MICROPOLAR,
+from .periodic_cell import path_point, path_setup, reduce_cell, substep_count
+from .relaxation import (ENERGY_RATIO, FIRE, LOCAL_DAMPING, MAX_STEPS, NO_CONTACTS, ROT_MICROPOLAR,
                          UNBALANCED_FORCE, run, stable_time_step)
 from .state import CellState
 from .tangent import (demqo_tangent, dsigma_to_dpk1, kruyt_operator, micropolar_tangent,
@@ -50,7 +52,11 @@ class RelaxationOptions:
         mean contact force <= tol, 001 section 2)
     tol : tolerance of the criterion (000 Table 3: 1e-3)
     damping : local non-viscous damping alpha = beta (000 Table 3: 0.7)
-    max_steps : steps allowed per sub-step before giving up (result flagged not converged)
+    max_steps : steps allowed per sub-step after its loading ramp before giving up (result
+        flagged not converged)
+    max_total_steps : steps allowed for a whole solve, every ramp and relaxation of every
+        sub-step together (result flagged not converged); None: ``solve_budget``'s default,
+        100 x max_steps and at least 1e7
     check_every : steps between convergence tests
     strain_rate : max |dF| per time step during the loading ramp (001 eq. 7 with
         tau_1 = |F_f - F_i| / strain_rate / dt)
@@ -68,6 +74,7 @@ class RelaxationOptions:
     tol: float = 1e-3
     damping: float = 0.7
     max_steps: int = 200_000
+    max_total_steps: int = None
     check_every: int = 50
     strain_rate: float = 1e-5
     max_increment: float = 0.01
@@ -79,30 +86,33 @@ class RelaxationOptions:
     method: str = "local"
     fire_dt_max: float = 2.0
 
+    #: what each numeric option may be (None allowed for dt and max_total_steps: automatic)
+    RANGES = {"tol": POSITIVE, "damping": Range(0.0, 1.0, high_open=True),
+              "max_steps": Range(1, MAX_BUDGET, integer=True), "max_total_steps": Range(1, MAX_BUDGET, integer=True),
+              "check_every": COUNT, "strain_rate": POSITIVE, "max_increment": POSITIVE, "dt": POSITIVE,
+              "dt_safety": Range(0.0, 1.0, low_open=True), "skin_ratio": NON_NEGATIVE, "stress_tol": NON_NEGATIVE,
+              "servo_gain": NON_NEGATIVE, "fire_dt_max": Range(1.0)}
+
     def __post_init__(self):
         if self.method not in ("local", "fire"):
             raise InputError(f"unknown relaxation method {self.method!r}: 'local' or 'fire'")
         if self.criterion not in ("energy", "force"):
             raise InputError(f"unknown convergence criterion {self.criterion!r}: use 'energy' "
                              "(000 eq. 31) or 'force' (unbalanced-force ratio, 001)")
-        for f in fields(self):
-            v = getattr(self, f.name)
-            if f.name in ("criterion", "dt", "method"):
+        for name, allowed in self.RANGES.items():
+            value = getattr(self, name)
+            if value is None and name in ("dt", "max_total_steps"):
                 continue
-            if not (isinstance(v, (int, float)) and v >= 0 and math.isfinite(v)):
-                raise InputError(f"RelaxationOptions.{f.name} must be a finite number >= 0, got {v!r}")
-        if not self.damping < 1.0:
-            raise InputError("local damping must be < 1")
-        if self.strain_rate <= 0 or self.max_increment <= 0 or self.tol <= 0:
-            raise InputError("strain_rate, max_increment and tol must be > 0")
-        if not 0.0 < self.dt_safety <= 1.0:
-            raise InputError(f"dt_safety must be in (0, 1] (1: the stability estimate itself), got {self.dt_safety}")
-        if not (self.check_every >= 1 and self.check_every == int(self.check_every)):
-            raise InputError(f"check_every must be an integer >= 1 (DEM steps), got {self.check_every}")
-        if not self.fire_dt_max >= 1.0:
-            raise InputError(f"fire_dt_max must be >= 1 (a multiple of dt), got {self.fire_dt_max}")
-        if self.dt is not None and not (self.dt > 0 and math.isfinite(self.dt)):
-            raise InputError(f"dt must be > 0, got {self.dt}")
+            # frozen: the checked value (an int for the step counts) replaces the given one
+            object.__setattr__(self, name, allowed.check(f"RelaxationOptions.{name}", value))
+
+    @property
+    def solve_budget(self):
+        """DEM steps a whole solve may take (every sub-step's ramp and relaxation):
+        max_total_steps, or by default 100 x max_steps and at least 1e7."""
+        if self.max_total_steps is not None:
+            return self.max_total_steps
+        return min(max(100 * self.max_steps, 10 ** 7), MAX_BUDGET)
 
     @classmethod
     def from_kwargs(cls, **kw):
@@ -136,7 +146,7 @@ class MicroCell(abc.ABC):
 
     def set_displacement_gradient(self, grad_u):
         """Target (Grad u)_ij = du_i/dX_j; F = I + Grad u."""
-        self.set_deformation(np.eye(2) + np.asarray(grad_u, dtype=float))
+        self.set_deformation(np.eye(2) + checks.array("grad_u", grad_u, (2, 2)))
 
     @abc.abstractmethod
     def solve(self): """Bring the cell to quasi-static equilibrium at the target; -> SolveResult."""
@@ -179,12 +189,12 @@ class DemCell(MicroCell):
     def __init__(self, state, law=None, options=None, reset_reference=True, rotation_mode=None):
         if not isinstance(state, CellState):
             raise InputError("DemCell needs a CellState (e.g. from load_packing or generate_packing)")
+        state.check()
         law = ContactLaw() if law is None else law
         if not isinstance(law, ContactLaw):
             raise InputError("law must be a ContactLaw")
-        options = RelaxationOptions() if options is None else options
-        if isinstance(options, dict):
-            options = RelaxationOptions.from_kwargs(**options)
+        options = relaxation_options(options)
+        checks.instance("reset_reference", reset_reference, (bool, np.bool_), "bool")
         if rotation_mode is None:
             rotation_mode = "free" if law.rotations else "locked"
         if rotation_mode not in ROTATION_MODES:
@@ -296,11 +306,11 @@ class DemCell(MicroCell):
     def set_deformation(self, F, rotation=None, curvature=None):
         """Target F (2x2); for a micropolar cell also the micro-rotation phi [rad] and the
         curvature kappa = grad phi (2,) [1/length of the cell] (None: keep the current target)."""
-        F = np.array(F, dtype=float)
-        if F.shape != (2, 2) or not np.all(np.isfinite(F)):
-            raise InputError(f"F must be a finite 2x2 array, got {F!r}")
-        if np.linalg.det(F) <= 0.0:
-            raise InputError(f"det F = {np.linalg.det(F):.3g} <= 0: not an admissible deformation")
+        F = checks.array("F", F, (2, 2))
+        with np.errstate(over="ignore"):        # (an overflow is refused below as det F = inf)
+            det = float(np.linalg.det(F))
+        if not (det > 0.0 and math.isfinite(det)):
+            raise InputError(f"F must have a finite det F > 0 (an admissible deformation), got det F = {det:.3g}")
         if (rotation is not None or curvature is not None) and not self.micropolar:
             if self.rotation_mode == "locked":
                 raise InputError("rotations are locked in this cell: a micro-rotation or a curvature cannot be "
@@ -308,16 +318,20 @@ class DemCell(MicroCell):
             raise InputError("rotation and curvature need a cell created with rotation_mode='micropolar' "
                              "(this cell's grains rotate freely and its stress is symmetric)")
         if rotation is not None:
-            try:
-                rotation = float(rotation)
-            except (TypeError, ValueError):
-                raise InputError(f"rotation must be a number [rad], got {rotation!r}") from None
+            if checks.real(rotation) is None:       # (a string or a bool is no angle)
+                raise InputError(f"rotation must be a number [rad], got {checks.one_line(repr(rotation))[:80]}")
+            rotation = float(checks.real(rotation))
             if not math.isfinite(rotation):
                 raise InputError(f"rotation must be finite, got {rotation!r}")
         if curvature is not None:
-            curvature = np.array(curvature, dtype=float).reshape(-1)
-            if curvature.shape != (2,) or not np.all(np.isfinite(curvature)):
-                raise InputError(f"curvature must be two finite numbers (kappa31, kappa32), got {curvature!r}")
+            try:
+                kappa = np.array(curvature, dtype=float).reshape(-1)
+            except (TypeError, ValueError):
+                kappa = np.zeros(0)
+            if kappa.shape != (2,) or not np.all(np.isfinite(kappa)):
+                raise InputError("curvature must be two finite numbers (kappa31, kappa32), got "
+                                 f"{checks.one_line(repr(curvature))[:80]}")
+            curvature = kappa
             # a rotation jump kappa . Y across the cell beyond 1 rad is no longer a gradient of a
             # small rotation field: refuse it before the cell is torn
             jump = float(np.abs(curvature @ self.state.h_ref).max())
@@ -333,64 +347,83 @@ class DemCell(MicroCell):
     def deformation_gradient(self):
         return self.state.F
 
-    def solve(self, stress_mask=None, stress_target=None, max_steps=None):
+    def solve(self, stress_mask=None, stress_target=None, max_steps=None, max_substep_steps=None):
         """Move the cell to the target F and relax (000 section 3.2.1, 001 eq. 7).
 
         Mixed control: ``stress_mask`` (2x2 bool) marks components of F that are not imposed
         but adjusted by a servo until the Cauchy stress component equals ``stress_target``
         (2x2, N/m, tension positive); the other components follow the target F.
         Large increments are split in sub-steps of at most ``max_increment``.
+
+        ``max_steps`` bounds the whole solve: the DEM steps of every sub-step, ramps and
+        relaxations together (default: the options' ``solve_budget``). When they are spent the
+        solve stops where it is and reports not converged, with the reason in the message.
+        ``max_substep_steps`` bounds the relaxation of each sub-step after its ramp (default:
+        the options' ``max_steps``).
         """
         o = self.options
         crit = ENERGY_RATIO if o.criterion == "energy" else UNBALANCED_FORCE
         mask = None
-        if max_steps is not None and not (isinstance(max_steps, (int, np.integer)) and max_steps >= 1):
-            raise InputError(f"max_steps must be an integer >= 1, got {max_steps!r}")
+        total = checks.optional("max_steps", max_steps, COUNT)
+        total = o.solve_budget if total is None else min(total, MAX_BUDGET)
+        limit = checks.optional("max_substep_steps", max_substep_steps, COUNT)
+        limit = o.max_steps if limit is None else min(limit, MAX_BUDGET)
         if stress_mask is not None:
             mask = np.asarray(stress_mask)
             if mask.shape != (2, 2) or mask.dtype != bool:
-                raise InputError(f"stress_mask must be a 2x2 array of booleans, got {stress_mask!r}")
+                raise InputError("stress_mask must be a 2x2 array of booleans, got "
+                                 f"{checks.one_line(repr(stress_mask))[:80]}")
             if stress_target is None:
                 raise InputError("stress_mask given without stress_target")
-            target = np.asarray(stress_target, dtype=float)
+            try:
+                target = np.asarray(stress_target, dtype=float)
+            except (TypeError, ValueError):
+                target = np.zeros(0)
             if target.shape != (2, 2) or not np.all(np.isfinite(target[mask])):
                 raise InputError(f"stress_target must be a 2x2 array, finite where stress_mask is set, "
-                                 f"got {stress_target!r}")
+                                 f"got {checks.one_line(repr(stress_target))[:80]}")
             stress_target = target
-        limit = o.max_steps if max_steps is None else int(max_steps)
         if mask is None:
-            converged, no_contacts, message, substeps, steps, max_ovl = self._solve_to_target(limit)
+            converged, no_contacts, message, substeps, steps, max_ovl = self._solve_to_target(limit, total)
             msgs = [] if converged else [message]
         else:
-            converged, no_contacts, msgs, substeps, steps, max_ovl = self._servo_solve(mask, stress_target, limit, crit)
+            converged, no_contacts, msgs, substeps, steps, max_ovl = self._servo_solve(mask, stress_target, limit,
+                                                                                       total, crit)
         no_contacts, msg = qs.final_words(converged, no_contacts, self.contact_count(), msgs, max_ovl)
         self.last_result = SolveResult(converged=converged, no_contacts=no_contacts, steps=steps,
                                        substeps=substeps, message=msg, max_overlap_ratio=max_ovl)
         return self.last_result
 
-    def _servo_solve(self, mask, stress_target, limit, crit):
+    def _servo_solve(self, mask, stress_target, limit, total, crit):
         """Mixed control (stress_mask): sub-steps of the imposed components, each ramped and
-        relaxed by relaxation.run with the servo on the others."""
+        relaxed by relaxation.run with the servo on the others, within `limit` steps after
+        each ramp and `total` steps in all. The sub-step targets are made one at a time: a
+        huge increment has many more sub-steps than the step budget ever reaches."""
         o = self.options
         F0 = self.state.F
-        n = max(1, int(math.ceil(np.abs((self._target - F0)[~mask]).max(initial=0.0) / o.max_increment)))
-        path = [F0 + (k / n) * (self._target - F0) for k in range(1, n + 1)]
+        dF = self._target - F0
+        n = max(1, substep_count(np.abs(dF[~mask]).max(initial=0.0) / o.max_increment))
+
+        def linear(k, n=n):
+            return F0 + (k / n) * dF
+        point = (lambda k: (linear(k), None, None))
+        if self.micropolar:
+            n, point = self._micropolar_path(n, linear)
         steps = 0
         max_ovl = 0.0
         msgs = []
         no_contacts = False
         converged = True
-        rotations = [(None, None)] * len(path)
-        if self.micropolar:
-            path, rotations = self._micropolar_path(path)
-        for Fk, (phi_k, kappa_k) in zip(path, rotations):
+        for k in range(1, n + 1):
+            Fk, phi_k, kappa_k = point(k)
             if not self.micropolar:          # (the curvature's images follow the base cell's lattice)
                 reduce_cell(self.state)      # large shears: keep a compact base cell
             size = np.abs(Fk - self.state.F)[~mask].max(initial=0.0)
             if phi_k is not None:
                 size = max(size, self.rotation_increment(phi_k, kappa_k))
-            n_ramp = int(math.ceil(size / o.strain_rate))
-            rep = run(self.state, self._law_array, self.dt, Fk, n_ramp, n_ramp + limit, criterion=crit,
+            n_ramp = substep_count(size / o.strain_rate)
+            budget = min(n_ramp + limit, max(total - steps, 0))
+            rep = run(self.state, self._law_array, self.dt, Fk, n_ramp, budget, criterion=crit,
                       tol=o.tol, check_every=o.check_every, damping=o.damping,
                       skin=o.skin_ratio * float(self.state.radius.min()), stress_mask=mask,
                       stress_target=stress_target, stress_tol=o.stress_tol, servo_gain=o.servo_gain,
@@ -401,16 +434,19 @@ class DemCell(MicroCell):
                 no_contacts = True
             elif not rep.converged:
                 converged = False
+                if rep.status == MAX_STEPS and steps >= total:
+                    msgs.append(f"sub-step {k} of {n}: " + qs.budget_words(total, rep.steps))
+                    break
                 ratio = rep.kinetic_energy / max(rep.potential_energy, 1e-300)
                 hint = (": the kinetic energy exceeds the elastic energy, the cell is not settling "
                         "(loading too fast for the damping, or an unstable state)") if ratio > 1.0 else ""
-                msgs.append(f"sub-step {len(msgs) + 1}: {rep.message} after {rep.steps} steps "
+                msgs.append(f"sub-step {k} of {n}: {rep.message} after {rep.steps} steps "
                             f"(E_kin/E_pot = {ratio:.2e}, unbalanced ratio {rep.unbalanced_ratio:.2e}){hint}")
                 break
             max_ovl = max(max_ovl, rep.max_overlap_ratio)
-        return converged, no_contacts, msgs, len(path), steps, max_ovl
+        return converged, no_contacts, msgs, n, steps, max_ovl
 
-    def _solve_to_target(self, limit):
+    def _solve_to_target(self, limit, total):
         """The solve without servo: quasistatic.solve_cell (the same compiled function a
         batch.CellBatch runs for many cells) on this cell's arrays."""
         st = self.state
@@ -420,7 +456,7 @@ class DemCell(MicroCell):
         target[qs.T_F:qs.T_F + 4] = self._target.reshape(4)
         target[qs.T_PHI] = self._target_phi if self.micropolar else st.phi
         target[qs.T_KAP:qs.T_KAP + 2] = self._target_kappa if self.micropolar else st.kappa
-        opts = qs.solve_options(self.options, self.options.skin_ratio * float(st.radius.min()), limit)
+        opts = qs.solve_options(self.options, self.options.skin_ratio * float(st.radius.min()), limit, total)
         work, iwork, result = np.zeros(qs.N_WORK), np.zeros(qs.N_IWORK, dtype=np.int64), np.zeros(qs.N_RESULT)
         while qs.solve_cell(st.radius, st.mass, st.inertia, st.s, st.v, st.theta, st.omega, st.dtheta, st.force,
                             st.moment, st.s_build, st.h, st.h_build, st.h_ref, st.pair_i, st.pair_j, st.fn,
@@ -442,25 +478,43 @@ class DemCell(MicroCell):
         dk = np.asarray(kappa) - self.state.kappa
         return max(abs(phi - self.state.phi), float(np.abs(dk @ self.state.h_ref).max()))
 
-    def _micropolar_path(self, path):
-        """Sub-steps of a micropolar solve: the F path, refined until each sub-step also changes
-        (phi, kappa) by at most max_increment, with phi and kappa linear along it."""
-        n_rot = int(math.ceil(self.rotation_increment(self._target_phi, self._target_kappa)
-                              / self.options.max_increment))
-        if n_rot > len(path):
-            path = deformation_path(self.state.F, self._target, self.options.max_increment, steps=n_rot)
-        n = len(path)
+    def _micropolar_path(self, n, linear):
+        """Sub-steps of a micropolar solve: the F path (`n` sub-steps, F of sub-step k:
+        linear(k)), refined until each sub-step also changes (phi, kappa) by at most
+        max_increment (then along the polar path, periodic_cell.path_setup), with phi and
+        kappa linear along it. Returns (number of sub-steps, k -> (F, phi, kappa) of sub-step
+        k = 1..n), one sub-step at a time."""
+        max_inc = self.options.max_increment
+        n_rot = substep_count(self.rotation_increment(self._target_phi, self._target_kappa) / max_inc)
+        F_at = linear
+        if n_rot > n:
+            F1 = np.array(self._target, dtype=float)
+            geo = np.empty(10)
+            n = path_setup(np.ascontiguousarray(self.state.F), F1, float(max_inc), int(n_rot), geo)
+
+            def polar_point(k, n=n):
+                if k == n:
+                    return F1.copy()
+                Fk = np.empty((2, 2))
+                path_point(geo, k / n, Fk)
+                return Fk
+            F_at = polar_point
         phi0, kap0 = self.state.phi, self.state.kappa.copy()
-        rotations = [(phi0 + (k / n) * (self._target_phi - phi0),
-                      kap0 + (k / n) * (self._target_kappa - kap0)) for k in range(1, n + 1)]
-        rotations[-1] = (self._target_phi, self._target_kappa.copy())
-        return path, rotations
+        phi1, kap1 = self._target_phi, self._target_kappa.copy()
+
+        def point(k):
+            if k == n:
+                return F_at(k), phi1, kap1.copy()
+            return F_at(k), phi0 + (k / n) * (phi1 - phi0), kap0 + (k / n) * (kap1 - kap0)
+        return n, point
 
     def run_dynamics(self, n_steps, damping=0.0):
         """Plain explicit dynamics for n_steps at fixed F (no convergence test), e.g. for a
         collision or an energy-conservation check. Returns the RunReport."""
         from .relaxation import NO_CHECK
-        return run(self.state, self._law_array, self.dt, self.state.F, 0, int(n_steps),
+        n_steps = checks.number("n_steps", n_steps, Range(0, MAX_BUDGET, integer=True))
+        damping = checks.number("damping", damping, Range(0.0, 1.0, high_open=True))
+        return run(self.state, self._law_array, self.dt, self.state.F, 0, n_steps,
                    criterion=NO_CHECK, damping=damping,
                    skin=self.options.skin_ratio * float(self.state.radius.min()))
 
@@ -491,8 +545,13 @@ class DemCell(MicroCell):
         eps21, kappa31, kappa32), kinds 'perturbation', 'demqo' (6 perturbations), 'pstlo' (the
         frozen network solved exactly, demcell/network.py) and 'kruyt' (uniform strain and
         rotation field: the assumption of 003 eqs 21-24)."""
-        if measure not in ("dsigma_dF", "dP_dF", "micropolar"):
+        if not isinstance(measure, str) or measure not in ("dsigma_dF", "dP_dF", "micropolar"):
             raise InputError(f"unknown tangent measure {measure!r}: 'dsigma_dF', 'dP_dF' or 'micropolar'")
+        if not isinstance(kind, str):
+            raise InputError(f"tangent kind must be a string ('kruyt', 'demqo', 'pstlo', 'pstlo_sliding' or "
+                             f"'perturbation'), got {kind!r}")
+        # a perturbation beyond 0.1 of F is no derivative any more
+        eps = checks.optional("eps", eps, Range(0.0, 0.1, low_open=True))
         if measure == "micropolar":
             if kind == "pstlo_sliding":
                 raise InputError("tangent 'pstlo_sliding' is for Cauchy cells (measure 'dsigma_dF' or 'dP_dF'); "
@@ -561,8 +620,18 @@ class DemCell(MicroCell):
         return self.state.nbytes() + self._committed.nbytes()
 
 
+def relaxation_options(options):
+    """`options` as RelaxationOptions: None (the defaults), a RelaxationOptions or a dict of
+    them; anything else is refused."""
+    if options is None:
+        return RelaxationOptions()
+    if isinstance(options, dict):
+        return RelaxationOptions.from_kwargs(**options)
+    return checks.instance("options", options, RelaxationOptions, "RelaxationOptions (or a dict of them)")
+
+
 def create_cells(state, count=1, law=None, options=None):
     """``count`` independent DemCells starting from the same packing state."""
-    if not (isinstance(count, (int, np.integer)) and not isinstance(count, bool) and count >= 1):
-        raise InputError(f"count must be an integer >= 1, got {count!r}")
-    return [DemCell(state.copy(), law, options) for _ in range(int(count))]
+    checks.instance("state", state, CellState, "CellState (e.g. from load_packing or generate_packing)")
+    count = checks.number("count", count, COUNT)
+    return [DemCell(state.copy(), law, options) for _ in range(count)]

@@ -15,8 +15,13 @@ import math
 import numpy as np
 from numba import njit
 
+from . import checks
+from .checks import POSITIVE, SEED, Range
 from .contact_law import ContactLaw
 from .errors import InputError, SolveError
+
+#: discs of one cell: at least 2; a million is hours of compaction and about 0.5 GB of state
+PARTICLES = Range(2, 10 ** 6, integer=True)
 
 
 @njit(cache=True)
@@ -62,13 +67,15 @@ def loose_state(n_particles, r_min=0.01, radius_ratio=1.5, solid_fraction=0.5, s
                 density=2.0e3):
     """A non-overlapping random gas of discs in a square periodic cell at ``solid_fraction``."""
     from .state import CellState
-    if int(n_particles) < 2:
-        raise InputError("need at least 2 particles")
-    if not (r_min > 0 and radius_ratio >= 1.0 and 0 < solid_fraction < 0.6 and density > 0):
-        raise InputError("need r_min > 0, radius_ratio >= 1, 0 < solid_fraction < 0.6, density > 0")
-    radius = random_radii(int(n_particles), r_min, radius_ratio, seed)
+    n_particles = checks.number("n_particles", n_particles, PARTICLES)
+    r_min = checks.number("r_min", r_min, POSITIVE)
+    radius_ratio = checks.number("radius_ratio", radius_ratio, Range(1.0))
+    solid_fraction = checks.number("solid_fraction", solid_fraction, Range(0.0, 0.6, low_open=True, high_open=True))
+    seed = checks.number("seed", seed, SEED)
+    density = checks.number("density", density, POSITIVE)
+    radius = random_radii(n_particles, r_min, radius_ratio, seed)
     L = math.sqrt(np.sum(np.pi * radius ** 2) / solid_fraction)
-    s, placed = _random_sequential(radius, L, int(seed) % (2 ** 31), 100000)
+    s, placed = _random_sequential(radius, L, seed % (2 ** 31), 100000)
     if placed < radius.size:
         raise InputError(f"could only place {placed} of {radius.size} discs at solid fraction "
                          f"{solid_fraction}; lower it")
@@ -86,7 +93,7 @@ def compact(cell, pressure, friction=0.0, deviator=0.0, max_steps=400_000):
         mask = np.array([[True, True], [False, True]])
         target = np.diag([-pressure * (1.0 + deviator), -pressure * (1.0 - deviator)])
         cell.set_deformation(cell.deformation_gradient())
-        res = cell.solve(stress_mask=mask, stress_target=target, max_steps=max_steps)
+        res = cell.solve(stress_mask=mask, stress_target=target, max_substep_steps=max_steps)
     finally:
         cell.set_law(law)
     return res
@@ -136,7 +143,7 @@ def compact_to_fraction(cell, solid_fraction, friction=0.0, max_steps=400_000):
     cell.set_law(law.with_(friction=friction))
     try:
         cell.set_deformation(cell.deformation_gradient() * math.sqrt(phi / solid_fraction))
-        res = cell.solve(max_steps=max_steps)
+        res = cell.solve(max_substep_steps=max_steps)
     finally:
         cell.set_law(law)
     return res
@@ -159,17 +166,21 @@ def generate_packing(n_particles=228, pressure=10.0, law=None, r_min=0.01, radiu
     the target is kept. The achieved A0 is in info["anisotropy"], all trials in
     info["anisotropy_trials"].
     """
-    from .interface import DemCell, RelaxationOptions
-    law = ContactLaw() if law is None else law
-    if not pressure > 0:
-        raise InputError(f"compaction pressure must be > 0 N/m, got {pressure}")
+    from .interface import DemCell, RelaxationOptions, relaxation_options
+    n_particles = checks.number("n_particles", n_particles, PARTICLES)
+    pressure = checks.number("pressure", pressure, POSITIVE)
+    law = ContactLaw() if law is None else checks.instance("law", law, ContactLaw)
     check_pressure_ratio(pressure, law.kn)
-    if anisotropy is not None and not (0.0 <= anisotropy < 1.0):
-        raise InputError(f"target anisotropy must be in [0, 1), got {anisotropy}")
-    if solid_fraction is not None and not (0.3 < solid_fraction < 0.95):
-        raise InputError(f"target solid fraction must be in (0.3, 0.95), got {solid_fraction}")
-    opts = options or RelaxationOptions(strain_rate=1e-4, max_increment=1.0, servo_gain=0.1,
-                                        stress_tol=1e-2)
+    r_min = checks.number("r_min", r_min, POSITIVE)
+    radius_ratio = checks.number("radius_ratio", radius_ratio, Range(1.0))
+    seed = checks.number("seed", seed, SEED)
+    density = checks.number("density", density, POSITIVE)
+    prep_friction = checks.number("prep_friction", prep_friction, Range(0.0, infinite=True))
+    anisotropy = checks.optional("anisotropy, the target A0,", anisotropy, Range(0.0, 1.0, high_open=True))
+    solid_fraction = checks.optional("solid_fraction, the target solid fraction,", solid_fraction,
+                                     Range(0.3, 0.95, low_open=True, high_open=True))
+    opts = RelaxationOptions(strain_rate=1e-4, max_increment=1.0, servo_gain=0.1,
+                             stress_tol=1e-2) if options is None else relaxation_options(options)
     base = loose_state(n_particles, r_min, radius_ratio, 0.45, seed, density)
 
     def make(dev):
@@ -229,8 +240,14 @@ def hexagonal_lattice(nx, ny, radius=0.01, overlap=1e-4, density=2.0e3):
     periodic cell; centre spacing 2 R (1 - overlap) so that every contact is pre-compressed
     by the relative overlap ``overlap`` (h = 2 R overlap)."""
     from .state import CellState
-    if ny % 2 or nx < 3 or ny < 4:
-        raise InputError("hexagonal_lattice needs nx >= 3 and an even ny >= 4")
+    nx = checks.number("nx", nx, Range(3, 10 ** 6, integer=True))
+    ny = checks.number("ny", ny, Range(4, 10 ** 6, integer=True))
+    if ny % 2 or nx * ny > PARTICLES.high:
+        raise InputError(f"hexagonal_lattice needs an even ny and nx * ny <= {PARTICLES.high:g}, got nx = {nx}, "
+                         f"ny = {ny}")
+    radius = checks.number("radius", radius, POSITIVE)
+    overlap = checks.number("overlap", overlap, Range(0.0, 1.0, high_open=True))
+    density = checks.number("density", density, POSITIVE)
     a = 2.0 * radius * (1.0 - overlap)
     Lx, Ly = nx * a, ny * a * math.sqrt(3.0) / 2.0
     s = np.array([[(ix + 0.5 * (iy % 2) + 0.25) / nx, (iy + 0.5) / ny]

@@ -103,6 +103,19 @@ def deformation_gradient(h, h_ref):
     return F
 
 
+#: largest count of sub-steps or ramp steps: the step budget of a solve ends it long before,
+#: and the int64 conversion of a larger (or undefined) quotient has no defined value
+MAX_COUNT = 1e15
+
+
+@njit(cache=True)
+def substep_count(x):
+    """ceil(x) as an integer, at most MAX_COUNT (also for x = nan or inf)."""
+    if not x < MAX_COUNT:
+        x = MAX_COUNT
+    return int(math.ceil(x))
+
+
 @njit(cache=True)
 def path_setup(F0, F1, max_increment, steps, geo):
     """Number of sub-steps from F0 to F1 with max|dF| <= max_increment (at least ``steps``),
@@ -125,7 +138,7 @@ def path_setup(F0, F1, max_increment, steps, geo):
         for b in range(2):
             geo[2 + 2 * a + b] = U0[a, b]
             geo[6 + 2 * a + b] = U1[a, b]
-    return max(1, int(math.ceil(size / max_increment)), steps)
+    return max(1, substep_count(size / max_increment), steps)
 
 
 @njit(cache=True)

@@ -9,8 +9,10 @@ macro specimen starts in equilibrium under the confining pressure.
 """
 import numpy as np
 
+from . import checks
 from .errors import SolveError
 from .interface import DemCell
+from .state import CellState
 
 ISOTROPIC_MASK = np.array([[True, True], [False, True]])   # F_21 fixed: no rigid spin
 
@@ -18,6 +20,8 @@ ISOTROPIC_MASK = np.array([[True, True], [False, True]])   # F_21 fixed: no rigi
 def isotropic_stage(cell, pressure):
     """Relax ``cell`` under sigma = -pressure I [N/m] (servo on F_11, F_12, F_22) and
     commit. Returns the SolveResult; raises SolveError naming the cause if it fails."""
+    checks.instance("cell", cell, DemCell)
+    pressure = checks.number("pressure", pressure, checks.POSITIVE)
     result = cell.solve(stress_mask=ISOTROPIC_MASK, stress_target=-float(pressure) * np.eye(2))
     if not result.converged:
         raise SolveError(f"isotropic stage at p = {pressure:g} N/m did not converge: {result.message}")
@@ -28,6 +32,8 @@ def isotropic_stage(cell, pressure):
 def reference_cell(state, law, options, pressure):
     """A DemCell after the isotropic stage at ``pressure``, re-referenced (F = I there) and
     committed: the starting state of a FEM x DEM Gauss point. ``state`` is not modified."""
+    checks.instance("state", state, CellState)
+    pressure = checks.number("pressure", pressure, checks.POSITIVE)
     cell = DemCell(state.copy(), law, options)
     isotropic_stage(cell, pressure)
     prepared = cell.state.copy()

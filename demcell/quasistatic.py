@@ -15,29 +15,29 @@ it resumes where it stopped (as relaxation.run does for one ramp).
 Per-cell scalars live in small arrays: ``cellf`` = (time [s], phi [rad], kappa31, kappa32
 [1/m]), ``celli`` = (n_pairs, forces_current).
 """
-import math
-
 import numpy as np
 from numba import njit
 
 from .relaxation import (C_ALPHA, C_DT, C_DTMAX, C_GAIN, C_KAP, C_KAP_END, C_KAP_START, C_MAXRATE,
                          C_METHOD, C_PHI, C_PHI_END, C_PHI_START, C_SKIN, C_STOL, C_TIME, C_TOL,
                          CELL_TOO_SMALL, CONVERGED, I_CHECK, I_CRIT, I_FCUR, I_MAXSTEPS, I_NPAIRS,
-                         I_NRAMP, N_CTRL, N_OUT, NEED_CAPACITY, NO_CONTACTS, NONFINITE, O_BONDLOST,
-                         O_EKIN, O_EPOT, O_MAXOVL, O_REBUILDS, O_STEPS, O_UNBAL, ROTATIONS, advance)
-from .periodic_cell import deformation_gradient, path_point, path_setup, reduce_lattice
+                         I_NRAMP, MAX_STEPS, N_CTRL, N_OUT, NEED_CAPACITY, NO_CONTACTS, NONFINITE,
+                         O_BONDLOST, O_EKIN, O_EPOT, O_MAXOVL, O_REBUILDS, O_STEPS, O_UNBAL, ROTATIONS,
+                         advance)
+from .periodic_cell import deformation_gradient, path_point, path_setup, reduce_lattice, substep_count
 
 # --- options of a solve (float array, one row per cell in a batch) ----------------------------
+# Q_LIMIT: steps of one sub-step after its ramp; Q_TOTAL: steps of the whole solve, ramps included
 (Q_MAXINC, Q_RATE, Q_TOL, Q_CHECK, Q_DAMP, Q_SKIN, Q_METHOD, Q_FIREDT, Q_CRIT, Q_LIMIT,
- Q_STOL, Q_GAIN) = range(12)
-N_OPTS = 12
+ Q_STOL, Q_GAIN, Q_TOTAL) = range(13)
+N_OPTS = 13
 # --- the target (float array): F (11, 12, 21, 22), phi, kappa31, kappa32 ------------------------
 T_F, T_PHI, T_KAP = 0, 4, 5
 N_TARGET = 7
-# --- results (float array) ---------------------------------------------------------------------
+# --- results (float array); R_BUDGET: the step budget of the solve when it ran out, else 0 ------
 (R_STEPS, R_SUBSTEPS, R_CONVERGED, R_NOCONTACT, R_MAXOVL, R_FAILED_SUB, R_FAILED_STATUS,
- R_FAILED_STEPS, R_EKIN, R_EPOT, R_UNBAL, R_REBUILDS) = range(12)
-N_RESULT = 12
+ R_FAILED_STEPS, R_EKIN, R_EPOT, R_UNBAL, R_REBUILDS, R_BUDGET) = range(13)
+N_RESULT = 13
 # --- progress (float work array and int work array) --------------------------------------------
 W_GEO = 0                       # 10 slots: the F path (periodic_cell.path_setup)
 W_PHI0, W_KAP0 = 10, 11         # phi and kappa at the start of the solve
@@ -87,8 +87,8 @@ def solve_cell(radius, mass, inertia, s, v, theta, omega, dtheta, force, moment,
         F0 = deformation_gradient(h, h_ref)
         n = path_setup(F0, Fe, max_inc, 1, geo)
         if micropolar:
-            n_rot = int(math.ceil(_rotation_increment(cellf[1], cellf[2], cellf[3], target[T_PHI],
-                                                      target[T_KAP], target[T_KAP + 1], h_ref) / max_inc))
+            n_rot = substep_count(_rotation_increment(cellf[1], cellf[2], cellf[3], target[T_PHI],
+                                                      target[T_KAP], target[T_KAP + 1], h_ref) / max_inc)
             if n_rot > n:
                 n = path_setup(F0, Fe, max_inc, n_rot, geo)
         work[W_PHI0] = cellf[1]
@@ -137,7 +137,7 @@ def solve_cell(radius, mass, inertia, s, v, theta, omega, dtheta, force, moment,
                     size = max(size, abs(Fk[a, b] - Fcur[a, b]))
             if micropolar:
                 size = max(size, _rotation_increment(cellf[1], cellf[2], cellf[3], phi_k, kap_k0, kap_k1, h_ref))
-            n_ramp = int(math.ceil(size / opts[Q_RATE]))
+            n_ramp = substep_count(size / opts[Q_RATE])
             ctrl[:] = 0.0
             ctrl[C_DT] = dt
             ctrl[C_ALPHA] = opts[Q_DAMP]
@@ -170,7 +170,12 @@ def solve_cell(radius, mass, inertia, s, v, theta, omega, dtheta, force, moment,
                     work[W_FEND + 2 * a + b] = Fk[a, b]
             out[:] = 0.0
             total[:] = 0.0
-            iwork[IW_REMAIN] = n_ramp + int(opts[Q_LIMIT])
+            # this sub-step's steps: its ramp and its relaxation budget, no more than the solve has left
+            remain = n_ramp + int(opts[Q_LIMIT])
+            left = opts[Q_TOTAL] - result[R_STEPS]
+            if left < remain:
+                remain = max(0, int(left))
+            iwork[IW_REMAIN] = remain
             if celli[0] == 0 and celli[1] == 0:
                 # fresh state: make the rebuild test fire (h_build far from h)
                 for a in range(2):
@@ -216,6 +221,8 @@ def solve_cell(radius, mass, inertia, s, v, theta, omega, dtheta, force, moment,
             result[R_FAILED_SUB] = k
             result[R_FAILED_STATUS] = status
             result[R_FAILED_STEPS] = total[O_STEPS]
+            if status == MAX_STEPS and result[R_STEPS] >= opts[Q_TOTAL]:
+                result[R_BUDGET] = opts[Q_TOTAL]
             result[R_EKIN] = out[O_EKIN]
             result[R_EPOT] = out[O_EPOT]
             result[R_UNBAL] = out[O_UNBAL]
@@ -225,9 +232,10 @@ def solve_cell(radius, mass, inertia, s, v, theta, omega, dtheta, force, moment,
     return DONE
 
 
-def solve_options(options, skin, max_steps):
-    """The option row of solve_cell from a RelaxationOptions, the skin [m] and the step
-    budget per sub-step (after the ramp)."""
+def solve_options(options, skin, max_steps, total_steps=None):
+    """The option row of solve_cell from a RelaxationOptions, the skin [m], the step
+    budget per sub-step (after the ramp) and the step budget of the whole solve (ramps
+    included; None: the options' ``solve_budget``)."""
     from .relaxation import ENERGY_RATIO, FIRE, LOCAL_DAMPING, UNBALANCED_FORCE
     q = np.zeros(N_OPTS)
     q[Q_MAXINC], q[Q_RATE], q[Q_TOL], q[Q_CHECK] = (options.max_increment, options.strain_rate, options.tol,
@@ -238,6 +246,7 @@ def solve_options(options, skin, max_steps):
     q[Q_CRIT] = ENERGY_RATIO if options.criterion == "energy" else UNBALANCED_FORCE
     q[Q_LIMIT] = max_steps
     q[Q_STOL], q[Q_GAIN] = options.stress_tol, options.servo_gain
+    q[Q_TOTAL] = options.solve_budget if total_steps is None else total_steps
     return q
 
 
@@ -254,6 +263,10 @@ def outcome(result, dt):
         return False, False, "", STATUS_TEXT[CELL_TOO_SMALL]
     if result[R_CONVERGED] > 0.5:
         return True, result[R_NOCONTACT] > 0.5, "converged", None
+    if result[R_BUDGET] > 0.0:
+        message = (f"sub-step {int(result[R_FAILED_SUB]) + 1} of {int(result[R_SUBSTEPS])}: "
+                   + budget_words(int(result[R_BUDGET]), int(result[R_FAILED_STEPS])))
+        return False, result[R_NOCONTACT] > 0.5, message, None
     ratio = result[R_EKIN] / max(result[R_EPOT], 1e-300)
     hint = (": the kinetic energy exceeds the elastic energy, the cell is not settling "
             "(loading too fast for the damping, or an unstable state)") if ratio > 1.0 else ""
@@ -263,16 +276,26 @@ def outcome(result, dt):
     return False, result[R_NOCONTACT] > 0.5, message, None
 
 
+def budget_words(budget, steps):
+    """Why a solve stopped when its step budget ran out (DemCell.solve, CellBatch.outcome)."""
+    return (f"step budget of the solve spent (max_steps = {budget} DEM steps over all sub-steps, "
+            f"ramps included; {steps} in this sub-step): not converged")
+
+
 def final_words(converged, no_contacts, contacts, messages, max_overlap):
     """(no_contacts, message) of a finished solve, as DemCell.solve and CellBatch.outcome word
     it: no contacts only if the cell has none left (`contacts`), the failures' messages
-    joined, and a warning when overlaps passed 10 % of a radius."""
-    if no_contacts and contacts == 0:
-        message = "no contact left in the cell: zero stress (flag no_contacts)"
+    joined (a solve that failed says why first, then that no contact is left), and a warning
+    when overlaps passed 10 % of a radius."""
+    empty = "no contact left in the cell: zero stress (flag no_contacts)"
+    if no_contacts and contacts == 0 and converged:
+        message = empty
     elif converged:
         message, no_contacts = "converged", False
     else:
         message = "; ".join(messages)
+        if no_contacts and contacts == 0:
+            message += "; " + empty
     if max_overlap > 0.1:
         message += (f"; warning: overlaps reach {max_overlap:.2f} of a radius (contacts too soft for this "
                     "stress level, the linear contact law is stretched)")

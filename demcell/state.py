@@ -14,9 +14,29 @@ from dataclasses import dataclass, field, fields
 
 import numpy as np
 
+from . import checks
+from .errors import InputError
 from .periodic_cell import deformation_gradient
 
 PAIR_FIELDS = ("pair_i", "pair_j", "fn", "fs", "mr", "bonded", "touching", "d_prev")
+#: arrays of a state by kind of value (CellState.check); kappa is a float array too
+FLOAT_FIELDS = ("radius", "mass", "inertia", "s", "v", "theta", "omega", "dtheta", "force", "moment", "s_build",
+                "h", "h_build", "h_ref", "fn", "fs", "mr", "d_prev")
+INT_FIELDS = ("pair_i", "pair_j")
+FLAG_FIELDS = ("bonded", "touching")
+DTYPES = dict({name: np.float64 for name in FLOAT_FIELDS + ("kappa",)}, pair_i=np.int64, pair_j=np.int64,
+              bonded=np.uint8, touching=np.uint8)
+
+
+def _finite(name, a, positive=False):
+    """InputError naming `name` and the first bad entry unless every value of `a` is finite
+    (and > 0 with `positive`)."""
+    ok = np.isfinite(a)
+    if positive:
+        ok &= a > 0
+    if not ok.all():
+        where = "".join(f"[{int(i)}]" for i in np.argwhere(~ok)[0])
+        raise InputError(f"{name}{where} must be finite{' and > 0' if positive else ''}, got {float(a[~ok][0])!r}")
 
 
 @dataclass
@@ -71,12 +91,16 @@ class CellState:
     def new(cls, radius, s, h, density, capacity=None):
         """Fresh state at rest. density [kg/m^2]: disc mass = density * pi R^2 (000 Table 3),
         inertia = m R^2 / 2 (000 section 3.2.1)."""
-        radius = np.ascontiguousarray(radius, dtype=np.float64)
+        radius = checks.array("radius", radius, (None,), checks.POSITIVE)
         n = radius.size
+        if n < 1:
+            raise InputError("radius must hold at least one disc")
+        s = checks.array("s", s, (n, 2)) % 1.0
+        h = checks.array("h", h, (2, 2))
+        density = checks.number("density", density, checks.POSITIVE)
+        capacity = checks.optional("capacity", capacity, checks.COUNT)
         mass = density * np.pi * radius ** 2
         cap = capacity if capacity is not None else max(64, 3 * n)
-        s = np.ascontiguousarray(s, dtype=np.float64) % 1.0
-        h = np.array(h, dtype=np.float64)
         return cls(radius=radius, mass=mass, inertia=0.5 * mass * radius ** 2, s=s.copy(),
                    v=np.zeros((n, 2)), theta=np.zeros(n), omega=np.zeros(n), dtheta=np.zeros(n),
                    force=np.zeros((n, 2)), moment=np.zeros(n), s_build=s.copy(),
@@ -135,40 +159,68 @@ class CellState:
         return out
 
     def check(self):
-        """Shapes, dtypes and values consistent (a packing read from a file); raises
-        ValueError naming the array."""
+        """Types, shapes, dtypes and values consistent (a state given to DemCell, a packing
+        read from a file): positive finite radii, masses and inertias, finite positions,
+        velocities and forces, cell matrices h and h_ref finite with det > 0, pair indices of
+        existing particles. Raises InputError (a ValueError) naming the array; returns self."""
+        for name in FLOAT_FIELDS + INT_FIELDS + FLAG_FIELDS + ("kappa",):
+            a = getattr(self, name)
+            if not isinstance(a, np.ndarray):
+                raise InputError(f"{name} must be a numpy array, got {type(a).__name__}")
+            if a.dtype != DTYPES[name]:
+                # the compiled kernels take these dtypes only
+                raise InputError(f"{name} must be an array of dtype {np.dtype(DTYPES[name]).name}, got {a.dtype}")
         n = self.radius.shape[0] if self.radius.ndim == 1 else -1
         if n < 1:
-            raise ValueError(f"radius must be a non-empty 1D array, got shape {self.radius.shape}")
+            raise InputError(f"radius must be a non-empty 1D array, got shape {self.radius.shape}")
         per_particle = {"mass": (n,), "inertia": (n,), "s": (n, 2), "v": (n, 2), "theta": (n,), "omega": (n,),
                         "dtheta": (n,), "force": (n, 2), "moment": (n,), "s_build": (n, 2)}
         for name, shape in per_particle.items():
             if getattr(self, name).shape != shape:
-                raise ValueError(f"{name} has shape {getattr(self, name).shape}, expected {shape} for {n} particles")
+                raise InputError(f"{name} has shape {getattr(self, name).shape}, expected {shape} for {n} particles")
         for name in ("h", "h_build", "h_ref"):
             if getattr(self, name).shape != (2, 2):
-                raise ValueError(f"{name} must be 2x2, got shape {getattr(self, name).shape}")
-        m = self.pair_i.shape[0]
+                raise InputError(f"{name} must be 2x2, got shape {getattr(self, name).shape}")
+        m = self.pair_i.shape[0] if self.pair_i.ndim == 1 else -1
         for name in PAIR_FIELDS:
             a = getattr(self, name)
-            if a.shape[0] != m or (name == "d_prev" and a.shape != (m, 2)):
-                raise ValueError(f"pair array {name} has shape {a.shape}, expected ({m},...)")
-        if not 0 <= self.n_pairs <= m:
-            raise ValueError(f"n_pairs = {self.n_pairs} outside [0, {m}]")
-        for name in ("radius", "mass", "inertia"):
-            a = getattr(self, name)
-            if not (np.isfinite(a).all() and (a > 0).all()):
-                raise ValueError(f"{name} must be finite and positive")
+            expected = (m, 2) if name == "d_prev" else (m,)
+            if m < 0 or a.shape != expected:
+                raise InputError(f"pair array {name} has shape {a.shape}, expected {expected} like pair_i")
         if np.shape(self.kappa) != (2,):
-            raise ValueError(f"kappa must have shape (2,), got {np.shape(self.kappa)}")
-        for name in ("s", "h", "h_ref", "kappa", "phi"):
-            if not np.isfinite(getattr(self, name)).all():
-                raise ValueError(f"{name} has non-finite values")
-        if not abs(np.linalg.det(self.h)) > 0 or not abs(np.linalg.det(self.h_ref)) > 0:
-            raise ValueError("the cell matrix h (or h_ref) is singular")
-        if self.n_pairs and (self.pair_i[:self.n_pairs].max() >= n or self.pair_j[:self.n_pairs].max() >= n
-                             or self.pair_i[:self.n_pairs].min() < 0 or self.pair_j[:self.n_pairs].min() < 0):
-            raise ValueError("pair indices outside the particle range")
+            raise InputError(f"kappa must have shape (2,), got {np.shape(self.kappa)}")
+        for name in ("n_pairs", "forces_current"):
+            v = getattr(self, name)
+            if isinstance(v, (bool, np.bool_)) or not isinstance(v, (int, np.integer)):
+                raise InputError(f"{name} must be an integer, got {v!r}")
+        if not 0 <= self.n_pairs <= m:
+            raise InputError(f"n_pairs = {self.n_pairs} outside [0, {m}] (the pair arrays' length)")
+        if self.forces_current not in (0, 1):
+            raise InputError(f"forces_current must be 0 or 1, got {self.forces_current!r}")
+        for name in ("time", "phi"):
+            v = getattr(self, name)
+            if isinstance(v, (bool, np.bool_)) or not isinstance(v, (int, float, np.integer, np.floating)) \
+                    or not np.isfinite(v):
+                raise InputError(f"{name} must be a finite number, got {v!r}")
+        for name in ("radius", "mass", "inertia"):
+            _finite(name, getattr(self, name), positive=True)
+        k = self.n_pairs
+        for name in FLOAT_FIELDS + ("kappa",):
+            if name not in ("radius", "mass", "inertia"):
+                # pair slots beyond n_pairs are free: whatever they hold is never read
+                _finite(name, getattr(self, name)[:k] if name in PAIR_FIELDS else getattr(self, name))
+        for name in ("h", "h_ref"):
+            det = float(np.linalg.det(getattr(self, name)))
+            if not (det > 0.0 and np.isfinite(det)):
+                raise InputError(f"the cell matrix {name} must have a finite det > 0, got det {name} = {det:.3g}")
+        for name in ("pair_i", "pair_j"):
+            a = getattr(self, name)[:k]
+            if k and (a.min() < 0 or a.max() >= n):
+                raise InputError(f"{name} holds particle indices outside [0, {n}) (n_pairs = {k})")
+        for name in FLAG_FIELDS:
+            a = getattr(self, name)[:k]
+            if k and not np.isin(a, (0, 1)).all():
+                raise InputError(f"{name} must hold flags 0 or 1 (n_pairs = {k})")
         return self
 
     @classmethod

@@ -183,7 +183,8 @@ class DeviceCellBatch(CellStore):
     def solve(self, rows, max_steps=None):
         """Solve the cells rows from their current states to their targets (CellBatch.solve):
         the result rows (len(rows), quasistatic.N_RESULT)."""
-        rows = np.asarray(rows, dtype=np.int64)
+        rows = self.rows_of(rows)
+        max_steps = self.substep_limit(max_steps)
         if not len(rows):
             return np.zeros((0, qs.N_RESULT))
         opts = self.opts if max_steps is None else self.opts.copy()

@@ -6,6 +6,7 @@ import math
 
 from numba import cuda
 
+from ..periodic_cell import MAX_COUNT
 from .layout import H, HB, HREF, SBX, SBY, SX, SY
 
 
@@ -105,7 +106,15 @@ def path_setup(F0, F1, max_increment, steps, geo):
     geo[7] = q01
     geo[8] = q10
     geo[9] = q11
-    return max(1, int(math.ceil(size / max_increment)), steps)
+    return max(1, substep_count(size / max_increment), steps)
+
+
+@cuda.jit(device=True)
+def substep_count(x):
+    """periodic_cell.substep_count: ceil(x) as an integer, at most MAX_COUNT (nan and inf too)."""
+    if not x < MAX_COUNT:
+        x = MAX_COUNT
+    return int(math.ceil(x))
 
 
 @cuda.jit(device=True)

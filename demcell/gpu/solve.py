@@ -8,7 +8,6 @@ block, the CPU's operations); the relaxation is the block's. Progress lives in t
 arrays of quasistatic.py (same slots), so that a cell whose pair slots filled up stops with
 NEED_CAPACITY, and continues where it stopped once the host has enlarged them.
 """
-import math
 import os
 
 from numba import config, cuda, float64, int64
@@ -17,16 +16,16 @@ from ..contact_law import ROTATIONS
 from ..lanes import LANES
 from ..quasistatic import (IW_INRUN, IW_IPAR, IW_K, IW_NSUB, IW_REMAIN, IW_STAGE, Q_CHECK, Q_CRIT,
                            Q_DAMP, Q_FIREDT, Q_GAIN, Q_LIMIT, Q_MAXINC, Q_METHOD, Q_RATE, Q_SKIN, Q_STOL,
-                           Q_TOL, R_CONVERGED, R_EKIN, R_EPOT, R_FAILED_STATUS, R_FAILED_STEPS, R_FAILED_SUB,
-                           R_MAXOVL, R_NOCONTACT, R_REBUILDS, R_STEPS, R_SUBSTEPS, R_UNBAL, T_F, T_KAP, T_PHI,
-                           W_CTRL, W_FEND, W_FSTART, W_GEO, W_KAP0, W_OUT, W_PHI0, W_TOTAL)
+                           Q_TOL, Q_TOTAL, R_BUDGET, R_CONVERGED, R_EKIN, R_EPOT, R_FAILED_STATUS, R_FAILED_STEPS,
+                           R_FAILED_SUB, R_MAXOVL, R_NOCONTACT, R_REBUILDS, R_STEPS, R_SUBSTEPS, R_UNBAL, T_F,
+                           T_KAP, T_PHI, W_CTRL, W_FEND, W_FSTART, W_GEO, W_KAP0, W_OUT, W_PHI0, W_TOTAL)
 from ..relaxation import (C_ALPHA, C_DT, C_DTMAX, C_GAIN, C_KAP, C_KAP_END, C_KAP_START, C_MAXRATE, C_METHOD,
                           C_PHI, C_PHI_END, C_PHI_START, C_SKIN, C_STOL, C_TIME, C_TOL, CELL_TOO_SMALL,
-                          CONVERGED, I_CHECK, I_CRIT, I_FCUR, I_MAXSTEPS, I_NPAIRS, I_NRAMP, N_CTRL, N_OUT,
-                          NEED_CAPACITY, NO_CONTACTS, NONFINITE, O_BONDLOST, O_EKIN, O_EPOT, O_MAXOVL,
+                          CONVERGED, I_CHECK, I_CRIT, I_FCUR, I_MAXSTEPS, I_NPAIRS, I_NRAMP, MAX_STEPS, N_CTRL,
+                          N_OUT, NEED_CAPACITY, NO_CONTACTS, NONFINITE, O_BONDLOST, O_EKIN, O_EPOT, O_MAXOVL,
                           O_REBUILDS, O_STEPS, O_UNBAL)
 from .block import MAX_THREADS
-from .kinematics import deformation_gradient, path_point, path_setup, reduce_lattice
+from .kinematics import deformation_gradient, path_point, path_setup, reduce_lattice, substep_count
 from .layout import FCUR, H, HB, HREF, KAP, NPAIRS, PHI, TIME
 from .relaxation import N_SC, N_SI, advance
 
@@ -60,8 +59,8 @@ def start_solve(c, micropolar, cf, target, max_inc, wk, iw, res):
     geo = wk[W_GEO:W_GEO + 10]
     n = path_setup(F0, Fe, max_inc, 1, geo)
     if micropolar:
-        n_rot = int(math.ceil(rotation_increment(cf[c, PHI], cf[c, KAP], cf[c, KAP + 1], target[c, T_PHI],
-                                                 target[c, T_KAP], target[c, T_KAP + 1], cf, c) / max_inc))
+        n_rot = substep_count(rotation_increment(cf[c, PHI], cf[c, KAP], cf[c, KAP + 1], target[c, T_PHI],
+                                                 target[c, T_KAP], target[c, T_KAP + 1], cf, c) / max_inc)
         if n_rot > n:
             n = path_setup(F0, Fe, max_inc, n_rot, geo)
     wk[W_PHI0] = cf[c, PHI]
@@ -79,7 +78,7 @@ def start_solve(c, micropolar, cf, target, max_inc, wk, iw, res):
 
 
 @cuda.jit(device=True)
-def start_substep(c, micropolar, k, n, pf, p0, n_particles, cf, ci, target, dt, opts, wk, iw):
+def start_substep(c, micropolar, k, n, pf, p0, n_particles, cf, ci, target, dt, opts, wk, iw, res):
     """solve_cell's start of sub-step k of n (one thread): its target, the lattice reduction,
     relaxation.run's set-up of the ramp."""
     Fk = cuda.local.array(4, float64)
@@ -112,7 +111,7 @@ def start_substep(c, micropolar, k, n, pf, p0, n_particles, cf, ci, target, dt, 
     if micropolar:
         size = max(size, rotation_increment(cf[c, PHI], cf[c, KAP], cf[c, KAP + 1], phi_k, kap_k0, kap_k1,
                                             cf, c))
-    n_ramp = int(math.ceil(size / opts[c, Q_RATE]))
+    n_ramp = substep_count(size / opts[c, Q_RATE])
     ctrl = wk[W_CTRL:W_CTRL + N_CTRL]
     for m in range(N_CTRL):
         ctrl[m] = 0.0
@@ -152,7 +151,12 @@ def start_substep(c, micropolar, k, n, pf, p0, n_particles, cf, ci, target, dt, 
     for m in range(N_OUT):
         wk[W_OUT + m] = 0.0
         wk[W_TOTAL + m] = 0.0
-    iw[IW_REMAIN] = n_ramp + int(opts[c, Q_LIMIT])
+    # this sub-step's steps: its ramp and its relaxation budget, no more than the solve has left
+    remain = n_ramp + int(opts[c, Q_LIMIT])
+    left = opts[c, Q_TOTAL] - res[R_STEPS]
+    if left < remain:
+        remain = max(0, int(left))
+    iw[IW_REMAIN] = remain
     if ci[c, NPAIRS] == 0 and ci[c, FCUR] == 0:
         # fresh state: make the rebuild test fire (h_build far from h)
         for m in range(4):
@@ -161,7 +165,7 @@ def start_substep(c, micropolar, k, n, pf, p0, n_particles, cf, ci, target, dt, 
 
 
 @cuda.jit(device=True)
-def end_substep(c, k, status, cf, ci, wk, iw, res):
+def end_substep(c, k, status, budget, cf, ci, wk, iw, res):
     """solve_cell's bookkeeping after relaxation.advance (one thread)."""
     ctrl = wk[W_CTRL:W_CTRL + N_CTRL]
     out = wk[W_OUT:W_OUT + N_OUT]
@@ -197,6 +201,8 @@ def end_substep(c, k, status, cf, ci, wk, iw, res):
         res[R_FAILED_SUB] = k
         res[R_FAILED_STATUS] = status
         res[R_FAILED_STEPS] = total[O_STEPS]
+        if status == MAX_STEPS and res[R_STEPS] >= budget:
+            res[R_BUDGET] = budget
         res[R_EKIN] = out[O_EKIN]
         res[R_EPOT] = out[O_EPOT]
         res[R_UNBAL] = out[O_UNBAL]
@@ -244,14 +250,14 @@ def solve_rows(blocks, rows, p_off, q_off, b_off, pf, qf, qi, qb, cf, ci, law, d
             break
         if t == 0:
             if in_run == 0:
-                start_substep(c, micropolar, k, n_sub, pf, p0, n, cf, ci, target, dt, opts, wk, iw)
+                start_substep(c, micropolar, k, n_sub, pf, p0, n, cf, ci, target, dt, opts, wk, iw, res)
             iw[IW_IPAR + I_MAXSTEPS] = iw[IW_REMAIN]
         cuda.syncthreads()
         status = advance(c, p0, n, q0, capacity, pf, qf, qi, qb, cf, law, qs, qn, qt, qtb, pis, bins, b0, weight,
                          wk[W_CTRL:W_CTRL + N_CTRL], iw[IW_IPAR:IW_IPAR + 7], wk[W_OUT:W_OUT + N_OUT],
                          wk[W_FSTART:W_FSTART + 8], part, shr, shi, shf, sc, si)
         if t == 0:
-            end_substep(c, k, status, cf, ci, wk, iw, res)
+            end_substep(c, k, status, opts[c, Q_TOTAL], cf, ci, wk, iw, res)
         cuda.syncthreads()
         if status == NEED_CAPACITY:
             break

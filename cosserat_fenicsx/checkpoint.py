@@ -308,6 +308,7 @@ class Checkpointer:
         error, plan = "", None
         try:
             plan = self._read(path, meta, problem, mine, scale)
+            _check_like(plan[3], self._run_state(scene), os.path.join(path, RUN_STATE))
         except CheckpointError as e:
             error = str(e)
         except (OSError, KeyError, ValueError, TypeError, AttributeError, EOFError, zipfile.BadZipFile) as e:
@@ -329,6 +330,13 @@ class Checkpointer:
         self.saved_fields = meta.get("fields_file")
         self.resumed = StepperPosition(meta["time"], meta["dt"], meta["step"], meta["cuts"])
         return self.resumed
+
+    def _run_state(self, scene):
+        """The run state this run would write now (the shape a restored one must have)."""
+        state = dict(scene.checkpoint_state()[1])
+        if self.extra is not None:
+            state["extra"] = self.extra()
+        return state
 
     def _read(self, path, meta, problem, mine, scale):
         """Everything this rank needs from the checkpoint, matched to its dofs and points
@@ -425,6 +433,32 @@ def read_run_state(path):
     if type(state) is not dict:
         raise CheckpointError(f"cannot read {name}: it holds a {type(state).__name__}, not the run state's dict")
     return state
+
+
+def _check_like(saved, template, name, where=""):
+    """The restored run state has the keys and kinds of values that this run writes
+    (`template`, its state now): a dict the same keys, a list a list (its dict rows all with
+    the keys of the first), a number a number; None matches anything (a value not set yet).
+    CheckpointError naming the file and the key."""
+    if template is None or saved is None:
+        return
+    kinds = ((dict,), (list, tuple), (int, float, np.number), (str,), (np.ndarray,))
+    kind = next((k for k in kinds if isinstance(template, k) and not isinstance(template, bool)), None)
+    if isinstance(template, bool):
+        kind = (bool, np.bool_)
+    if kind is not None and not isinstance(saved, kind):
+        raise CheckpointError(f"{name}: {where or 'the run state'} is a {type(saved).__name__}, "
+                              f"not a {type(template).__name__}")
+    if isinstance(template, dict):
+        if set(saved) != set(template):
+            missing, extra = sorted(map(str, set(template) - set(saved))), sorted(map(str, set(saved) - set(template)))
+            raise CheckpointError(f"{name}: {where or 'the run state'}: " +
+                                  (f"missing {missing}" if missing else f"unknown {extra}"))
+        for key in template:
+            _check_like(saved[key], template[key], name, f"{where}[{key!r}]")
+    elif isinstance(template, (list, tuple)) and saved and isinstance(saved[0], dict):
+        for i, row in enumerate(saved):
+            _check_like(row, saved[0], name, f"{where}[{i}]")
 
 
 def _load_arrays(name):

@@ -310,3 +310,22 @@ def test_infinite_options_are_strict_json_in_meta(tmp_path):
     (path / "meta.json").write_text(json.dumps(meta, allow_nan=False))
     options = read_meta(str(tmp_path))["options"]
     assert options["rolling_friction"] == float("inf") and options["mesh"] == (2, 4)
+
+
+def test_a_restored_run_state_must_have_the_shape_this_run_writes():
+    """The run state read back is compared with the one the fresh scene would write: a
+    missing or unknown key, a value of another kind, a history row without a column of the
+    others are refused naming the file and the key (a deleted 'written' of the demo's own
+    state was a KeyError after the restore)."""
+    from cosserat_fenicsx.checkpoint import _check_like
+    template = {"history": [], "infos": [], "volumetric_phase1": None, "extra": {"written": []}}
+    good = {"history": [{"step": 1, "s": 0.5}, {"step": 2, "s": 0.7}], "infos": [1], "volumetric_phase1": -1e-4,
+            "extra": {"written": [0.0]}}
+    _check_like(good, template, "run.json")
+    for bad, named in ((dict(good, extra={}), "missing ['written']"), (dict(good, extra=[]), "['extra']"),
+                       (dict(good, history={"a": 1}), "['history']"), (dict(good, more=1), "unknown ['more']"),
+                       (dict(good, history=[{"step": 1, "s": 0.5}, {"step": 2}]), "['history'][1]"),
+                       (dict(good, extra={"written": 3}), "['written']")):
+        with pytest.raises(CheckpointError) as error:
+            _check_like(bad, template, "run.json")
+        assert named in str(error.value) and "run.json" in str(error.value), str(error.value)

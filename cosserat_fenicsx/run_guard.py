@@ -139,8 +139,8 @@ class RunGuard:
         """An input found bad after the guard exists (e.g. a checkpoint that does not fit the
         mesh): one line on rank 0, summary.json left as it was, exit status 2 on every rank."""
         reason = " ".join(str(reason).split())
-        if self.rank == 0:
-            print(f"{self.label + ': ' if self.label else ''}refused: {reason}", file=sys.stderr, flush=True)
+        if self.rank == 0:     # the form of the parser's refusals (validation.Parser.error)
+            print(f"{os.path.basename(sys.argv[0]) or self.label}: error: {reason}", file=sys.stderr, flush=True)
         self.release()
         sys.exit(2)
 

@@ -113,7 +113,8 @@ def periodic_bending_estimate(B0, mu_c, G, width):
 
 
 def cosserat_moduli_003(n_contacts, radius, volume, kn, ks, kr=0.0, k_omega=0.0, length=None):
-    """Paper 003 (Li & Wan 2010, Acta Mech Sinica 42(5):889-900, in Chinese) eqs 21-24, literally.
+    """Paper 003 (Li & Wan 2010, Chinese J. Theor. Appl. Mech. 42(5):889-900, in Chinese;
+    docs/references.md) eqs 21-24, literally.
 
         G = N r^2 / (2V) (2 k_N + 3 k_s)                     (21)
         lambda = N r^2 / (2V) (k_N - k_s)                    (22)

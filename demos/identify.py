@@ -99,7 +99,8 @@ def build_parser():
                         "the material-point demo's)")
     m.add_argument("--model-refinements", type=number(Range(0, 6, integer=True)), default=3,
                    help="times every model step may be halved after a fit whose parameters the model's "
-                        "discretisation moves by more than --max-discretisation-shift (default %(default)s)")
+                        "discretisation moves by more than --max-discretisation-shift (default %(default)s; 0 "
+                        "with virtual data, which the model made with its own steps)")
     m.add_argument("--max-discretisation-shift", type=number(POSITIVE), default=0.25,
                    help="largest shift of a parameter by the model's discretisation error, in standard "
                         "deviations, accepted without halving the steps (default %(default)g)")
@@ -206,6 +207,8 @@ def main(argv=None):
         data = load_data(args, config)
         virtual = data is None
         start_values = reference.as_dict()
+        if virtual and "model_refinements" not in parser.given_options(argv):
+            args.model_refinements = 0     # the model made the data with its own steps: halving cannot help
         if virtual:
             all_names = {n for st in stages for n in ParameterSet(st.params, reference).names}
             for n in all_names:

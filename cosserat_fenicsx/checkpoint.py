@@ -356,6 +356,10 @@ class Checkpointer:
             with np.load(os.path.join(path, f"resident_{rank}.npz"), allow_pickle=False) as z:
                 saved = dict(z)
             rows, points = _saved_among(saved.pop("coordinates"), mine, scale)
+            try:
+                problem.material.check_exported(saved, rows)
+            except ValueError as error:
+                raise CheckpointError(f"{os.path.join(path, f'resident_{rank}.npz')}: {error}") from None
             resident.append((rows, points, saved))
             np.add.at(found, points, 1)
         if (found != 1).any():
@@ -470,7 +474,7 @@ def _load_arrays(name):
         raise CheckpointError(f"cannot read {name}: {type(error).__name__}: {' '.join(str(error).split())}") from None
 
 
-def _check_table(name, arrays, n_rows=None, per_point=True):
+def _check_table(name, arrays, n_rows=None, per_point=True, finite=True):
     """A table keyed by coordinates: 'coordinates' (n, 2) finite, every other array with n
     rows (per_point; a material's resident arrays may be flattened over its points) and no
     NaN (an infinite entry may be a material's own, e.g. a frictionless bound)."""
@@ -484,7 +488,7 @@ def _check_table(name, arrays, n_rows=None, per_point=True):
     for key, value in arrays.items():
         if per_point and (value.ndim == 0 or len(value) != n):
             raise CheckpointError(f"{name}: {key!r} has shape {value.shape}, not {n} rows")
-        if np.issubdtype(value.dtype, np.number) and not np.issubdtype(value.dtype, np.integer) and \
+        if finite and np.issubdtype(value.dtype, np.number) and not np.issubdtype(value.dtype, np.integer) and \
                 np.isnan(value).any():
             raise CheckpointError(f"{name}: {key!r} holds NaN: a damaged checkpoint")
     return n
@@ -505,8 +509,11 @@ def verify(directory, meta):
             raise CheckpointError(f"{os.path.join(path, 'fields.npz')}: {c!r} needs {c}_coordinates and {c}_values")
         _check_table(os.path.join(path, "fields.npz") + f" ({c})", table)
     _check_table(os.path.join(path, "points.npz"), _load_arrays(os.path.join(path, "points.npz")), meta["n_points"])
+    # the resident arrays' meaning is the material's (e.g. the unused pair slots of a DEM cell
+    # hold anything): checked by Constitutive.check_exported when the restore reads them
     total = sum(_check_table(os.path.join(path, f"resident_{rank}.npz"),
-                             _load_arrays(os.path.join(path, f"resident_{rank}.npz")), per_point=False)
+                             _load_arrays(os.path.join(path, f"resident_{rank}.npz")), per_point=False,
+                             finite=False)
                 for rank in range(meta["ranks"]))
     if total != meta["n_points"]:
         raise CheckpointError(f"{path}: the resident files hold {total} points, meta.json says {meta['n_points']}")

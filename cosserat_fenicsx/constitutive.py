@@ -113,6 +113,12 @@ class Constitutive(abc.ABC):
         committed and current resident state of `points`; `rows`: which of the exported
         points they are (default: all, in order)."""
 
+    def check_exported(self, arrays, rows=None):
+        """Raise ValueError naming what is wrong if `arrays` (read back from a file, e.g. a
+        checkpoint) are not states that import_points can take: types, shapes, finite values
+        where the state has meaning. Called before any import, so that a refusal can be
+        made on every rank together."""
+
 
 class LinearElasticMaterial(Constitutive):
     """Linear isotropic micropolar elasticity through the callback: the trivial

@@ -304,8 +304,20 @@ def _read(kind, path):
             if isinstance(value, np.ndarray) and value.dtype.kind == "f":
                 assert np.all(np.isfinite(value)), f"non-finite {name} accepted"
     else:
-        from cosserat_fenicsx.checkpoint import read_meta, verify
-        verify(path, read_meta(path, CHECKPOINT_RUNS[kind][0]))
+        from cosserat_fenicsx.checkpoint import CheckpointError, read_meta, verify
+        meta = read_meta(path, CHECKPOINT_RUNS[kind][0])
+        verify(path, meta)
+        if kind == "checkpoint_dem":      # what the restore asks of the material (check_exported)
+            from demcell.state import unpack_states
+            for rank in range(meta["ranks"]):
+                name = os.path.join(path, "checkpoint", f"resident_{rank}.npz")
+                with np.load(name, allow_pickle=False) as z:
+                    arrays = {k: z[k] for k in z.files}
+                try:
+                    for state in unpack_states(arrays):
+                        state.check()
+                except (ValueError, KeyError, IndexError) as error:
+                    raise CheckpointError(f"{name}: {type(error).__name__}: {error}") from None
 
 
 class _Hang(Exception):

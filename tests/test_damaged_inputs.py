@@ -92,3 +92,25 @@ def test_a_restart_from_a_damaged_checkpoint_leaves_the_earlier_run(good, tmp_pa
         if seen == 2:
             break
     assert seen == 2
+
+
+def test_a_nan_in_a_restored_cell_is_refused_before_the_restart(good, tmp_path):
+    """A NaN in a particle position of a checkpointed DEM cell (the unused pair slots may hold
+    anything, so the file alone cannot tell): the material's check_exported refuses it on
+    every rank with one line naming the file and the cell, exit 2, summary.json unchanged
+    (before: the first step failed with 'Factor is exactly singular')."""
+    path = tmp_path / "nan"
+    shutil.copytree(good["checkpoint_dem"], path)
+    name = path / "checkpoint" / "resident_0.npz"
+    with np.load(name, allow_pickle=False) as z:
+        arrays = {k: z[k] for k in z.files}
+    arrays["s"][0, 0] = np.nan
+    np.savez(name, **arrays)
+    before = (path / "summary.json").read_bytes()
+    demo = damage.CHECKPOINT_RUNS["checkpoint_dem"][0]
+    proc = subprocess.run(["mpirun", "-n", "2", sys.executable, os.path.join(damage.ROOT, "demos", demo + ".py"),
+                           "--restart", str(path)], capture_output=True, text=True, env=damage.ENV, cwd=damage.ROOT,
+                          timeout=300)
+    ours = [line for line in proc.stderr.splitlines() if f"{demo}.py: error:" in line]
+    assert proc.returncode == 2 and len(ours) == 1 and "resident_0.npz" in ours[0] and "must be finite" in ours[0]
+    assert (path / "summary.json").read_bytes() == before

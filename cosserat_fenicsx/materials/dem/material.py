@@ -223,6 +223,25 @@ class DemMaterial(Constitutive):
             cell.restore(st)
             self.cells[p] = cell
 
+    def check_exported(self, arrays, rows=None):
+        """Every exported cell state consistent (demcell's CellState.check: finite positions,
+        radii > 0, det h > 0, pair arrays of existing particles) and its zone one of this
+        material's."""
+        from demcell.state import unpack_states
+        if "zone" not in arrays:
+            raise ValueError("the cell states have no 'zone'")
+        zone = np.asarray(arrays["zone"])
+        if rows is not None:
+            zone = zone[np.asarray(rows, dtype=np.int64)]
+        if zone.size and (not np.issubdtype(zone.dtype, np.integer) or zone.min() < 0
+                          or zone.max() >= len(self.reference_cells)):
+            raise ValueError("a cell state's zone is not one of this material's")
+        for k, state in enumerate(unpack_states(arrays, rows)):
+            try:
+                state.check()
+            except ValueError as error:
+                raise ValueError(f"cell state {k}: {error}") from None
+
     def _imported(self, points, arrays, rows):
         """(point, zone, CellState) of exported cells, checked; the zones are set."""
         from demcell.state import unpack_states

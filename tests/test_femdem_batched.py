@@ -34,8 +34,11 @@ def same_outputs(a, b):
     return rows
 
 
-@pytest.mark.parametrize("mode, tangent", [("hybrid", "pstlo"), ("classical", "kruyt"), ("micropolar", "pstlo"),
-                                           ("hybrid", "demqo")])
+# the micropolar and DEMQO cases are slow (21 s and 55 s): their batch paths are checked cell
+# by cell in test_demcell_batch.py (test_batch_equals_cells, test_batch_demqo_equals_the_cells)
+@pytest.mark.parametrize("mode, tangent", [("hybrid", "pstlo"), ("classical", "kruyt"),
+                                           pytest.param("micropolar", "pstlo", marks=pytest.mark.slow),
+                                           pytest.param("hybrid", "demqo", marks=pytest.mark.slow)])
 def test_batched_run_is_the_per_cell_run(demo, tmp_path, mode, tangent):
     args = (*CELL, "--mode", mode, "--tangent", tangent, "--mesh", "2x2", "--axial-strain", 0.006, "--steps", 3,
             "--weak-size", 0.005, "--weak-friction", 0.5)

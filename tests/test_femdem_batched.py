@@ -35,7 +35,7 @@ def same_outputs(a, b):
 
 
 # the micropolar and DEMQO cases are slow (21 s and 55 s): their batch paths are checked cell
-# by cell in test_demcell_batch.py (test_batch_equals_cells, test_batch_demqo_equals_the_cells)
+# by cell in test_demcell_batch.py (test_batch_micropolar_and_capacity, test_batch_demqo_equals_the_cells)
 @pytest.mark.parametrize("mode, tangent", [("hybrid", "pstlo"), ("classical", "kruyt"),
                                            pytest.param("micropolar", "pstlo", marks=pytest.mark.slow),
                                            pytest.param("hybrid", "demqo", marks=pytest.mark.slow)])

@@ -42,8 +42,12 @@ test: deps
 
 # the same suite against dolfinx 0.9 in a Debian 13 chroot (root only; builds it once)
 test-debian13:
-	$(DEBIAN13) --extra-pkgs "$(DEBIAN13_PKGS)" --bind-rw "$(CURDIR)":/srv/project --workdir /srv/project \
-		-- sh tests/run_suite.sh python3
+	@if [ ! -x "$(DEBIAN13)" ]; then \
+		echo "$(DEBIAN13) not found (set DEBIAN13=path/to/debian13-env.sh): Debian 13 pass skipped"; \
+	else \
+		$(DEBIAN13) --extra-pkgs "$(DEBIAN13_PKGS)" --bind-rw "$(CURDIR)":/srv/project --workdir /srv/project \
+			-- sh tests/run_suite.sh python3; \
+	fi
 
 # figures, not tests; YADE is only needed here (DEM speed and cross-check)
 BENCH_PACKAGES = yade python3-escript

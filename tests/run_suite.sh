@@ -9,6 +9,7 @@ export OMPI_ALLOW_RUN_AS_ROOT=1 OMPI_ALLOW_RUN_AS_ROOT_CONFIRM=1 OMPI_MCA_rmaps_
 export OMP_NUM_THREADS=1 PYTHONDONTWRITEBYTECODE=1
 cd "$(dirname "$0")/.."
 echo "== serial pass ($PYTHON)"
-timeout "$TIMEOUT" "$PYTHON" -m pytest -q -p no:cacheprovider --color=no -m "not slow" ${PYTEST_ARGS:-} tests
+# --durations: where the time of the serial pass goes, in every log (the budget is 10 minutes)
+timeout "$TIMEOUT" "$PYTHON" -m pytest -q -p no:cacheprovider --color=no --durations=15 -m "not slow" ${PYTEST_ARGS:-} tests
 echo "== MPI pass: mpirun -n $NP"
 timeout "$TIMEOUT" mpirun -n "$NP" "$PYTHON" -m pytest -q -p no:cacheprovider --color=no -m "not slow and not serial" ${PYTEST_ARGS:-} tests

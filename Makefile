@@ -11,6 +11,8 @@ export OMPI_ALLOW_RUN_AS_ROOT_CONFIRM = 1
 export OMPI_MCA_rmaps_base_oversubscribe = 1
 export OMP_NUM_THREADS = 1
 export PYTHONDONTWRITEBYTECODE = 1
+# the project's packages (cosserat_fenicsx, demcell, benchmarks) for every script and test
+export PYTHONPATH := $(CURDIR)$(if $(PYTHONPATH),:$(PYTHONPATH))
 
 DEB_PACKAGES = python3-dolfinx-real python3-numba python3-scipy python3-pytest \
 	python3-matplotlib python3-gmsh python3-h5py mpi-default-bin openmpi-bin \
@@ -49,47 +51,71 @@ test-debian13:
 			-- sh tests/run_suite.sh python3; \
 	fi
 
-# figures, not tests; YADE is only needed here (DEM speed and cross-check)
+# figures, not tests (benchmarks/README.md: what each script measures, its runtime, its docs page);
+# YADE is only needed here (DEM speed and the FEM x DEM cross-check)
 BENCH_PACKAGES = yade python3-escript
-benchmark: deps
+BENCH = $(OUT)/benchmarks
+BENCHMARK_GROUPS = verification ehlers dem femdem identification robustness slow-tests
+.PHONY: benchmark-deps $(BENCHMARK_GROUPS:%=benchmark-%)
+
+benchmark: $(BENCHMARK_GROUPS:%=benchmark-%)
+
+benchmark-deps: deps
 	@missing=$$(for p in $(BENCH_PACKAGES); do dpkg-query -W -f='$${Status}\n' $$p 2>/dev/null | grep -q "ok installed" || echo $$p; done); \
 	if [ -n "$$missing" ]; then $(SUDO) apt-get update -q && DEBIAN_FRONTEND=noninteractive $(SUDO) apt-get install -y -q --no-install-recommends $$missing; fi
-	$(PYTHON) benchmarks/convergence.py --np $(NP) --out $(OUT)/benchmarks
-	$(PYTHON) benchmarks/ehlers_kernel_throughput.py --json $(OUT)/benchmarks/ehlers_kernel_throughput.json
-	$(PYTHON) benchmarks/dem_speed.py --out $(OUT)/benchmarks/dem_speed
-	$(PYTHON) benchmarks/dem_profile.py --identity --out $(OUT)/benchmarks/dem_profile
-	$(PYTHON) benchmarks/dem_tangent.py --out $(OUT)/benchmarks/dem_tangent
-	$(PYTHON) benchmarks/dem_relaxation.py --out $(OUT)/benchmarks/dem_relaxation
-	$(PYTHON) benchmarks/dem_micropolar_moduli.py --out $(OUT)/benchmarks/dem_micropolar_moduli
-	$(PYTHON) benchmarks/softening_layer.py --out $(OUT)/benchmarks/softening_layer
-	$(PYTHON) benchmarks/biaxial_regularisation.py --out $(OUT)/benchmarks/biaxial_regularisation
-	$(PYTHON) benchmarks/biaxial_convergence.py --out $(OUT)/benchmarks/biaxial_convergence
-	$(PYTHON) benchmarks/biaxial_profile.py --out $(OUT)/benchmarks/biaxial_profile
-	$(MPIRUN) -n $(NP) $(PYTHON) benchmarks/biaxial_profile.py --out $(OUT)/benchmarks/biaxial_profile_np$(NP)
-	$(MPIRUN) -n $(NP) $(PYTHON) benchmarks/femdem_tangents.py --mesh 1x2 --out $(OUT)/benchmarks/femdem_tangents
-	$(MPIRUN) -n $(NP) $(PYTHON) benchmarks/femdem_regularisation.py --out $(OUT)/benchmarks/femdem_regularisation
-	$(MPIRUN) -n $(NP) $(PYTHON) benchmarks/femdem_convergence.py --out $(OUT)/benchmarks/femdem_convergence
-	$(MPIRUN) -n $(NP) $(PYTHON) benchmarks/femdem_rotation.py --out $(OUT)/benchmarks/femdem_rotation
-	$(MPIRUN) -n $(NP) $(PYTHON) benchmarks/femdem_micropolar.py --out $(OUT)/benchmarks/femdem_micropolar
-	$(MPIRUN) -n $(NP) $(PYTHON) benchmarks/femdem_balance.py --out $(OUT)/benchmarks/femdem_balance
-	$(PYTHON) benchmarks/femdem_scaling.py --out $(OUT)/benchmarks/femdem_scaling
-	$(PYTHON) benchmarks/femdem_batched.py --out $(OUT)/benchmarks/femdem_batched
-	$(MPIRUN) -n $(NP) $(PYTHON) benchmarks/femdem_cell_relaxation.py --out $(OUT)/benchmarks/femdem_cell_relaxation
-	$(PYTHON) benchmarks/femdem_yade.py --np $(NP) --out $(OUT)/benchmarks/femdem_yade
-	$(PYTHON) benchmarks/identification_sensitivity.py --out $(OUT)/benchmarks/identification_sensitivity
-	$(PYTHON) benchmarks/identification_cost.py --out $(OUT)/benchmarks/identification_cost
-	$(PYTHON) benchmarks/reidentification.py --draws 100 --out $(OUT)/benchmarks/reidentification
-	$(PYTHON) benchmarks/reidentification.py --steps 4800 --every 80 --model-min-steps 600 --draws 40 --out $(OUT)/benchmarks/reidentification_steps
-	$(PYTHON) benchmarks/skew_stress_cost.py --out $(OUT)/benchmarks/skew_stress_cost
-	$(PYTHON) benchmarks/identify_micropolar.py --out $(OUT)/benchmarks/identify_micropolar
-	$(PYTHON) benchmarks/dem_virtual_tests.py --out $(OUT)/benchmarks/dem_virtual_tests
-	$(PYTHON) benchmarks/dem_calibration.py --dem $(OUT)/benchmarks/dem_virtual_tests --out $(OUT)/benchmarks/dem_calibration
-	$(PYTHON) benchmarks/femdem_vs_ehlers.py --parameters $(OUT)/benchmarks/dem_calibration/identify/identified_parameters.json --out $(OUT)/benchmarks/femdem_vs_ehlers
-	$(PYTHON) benchmarks/robustness_sweep.py --random 2 --out $(OUT)/benchmarks/robustness_sweep
-	$(PYTHON) benchmarks/damaged_inputs.py --per-kind 80 --restarts 20 --out $(OUT)/benchmarks/damaged_inputs
+
+benchmark-verification: benchmark-deps
+	$(PYTHON) benchmarks/verification/convergence.py --np $(NP) --out $(BENCH)
+
+benchmark-ehlers: benchmark-deps
+	$(PYTHON) benchmarks/ehlers/ehlers_kernel_throughput.py --json $(BENCH)/ehlers_kernel_throughput.json
+	$(PYTHON) benchmarks/ehlers/softening_layer.py --out $(BENCH)/softening_layer
+	$(PYTHON) benchmarks/ehlers/biaxial_regularisation.py --out $(BENCH)/biaxial_regularisation
+	$(PYTHON) benchmarks/ehlers/biaxial_convergence.py --out $(BENCH)/biaxial_convergence
+	$(PYTHON) benchmarks/ehlers/biaxial_profile.py --out $(BENCH)/biaxial_profile
+	$(MPIRUN) -n $(NP) $(PYTHON) benchmarks/ehlers/biaxial_profile.py --out $(BENCH)/biaxial_profile_np$(NP)
+	$(PYTHON) benchmarks/ehlers/skew_stress_cost.py --out $(BENCH)/skew_stress_cost
+
+# the calibration chain ends here: virtual tests on the DEM cell, the Ehlers parameters identified
+# from them, then the calibrated Ehlers biaxial against the FEM x DEM one (which reads them)
+benchmark-dem: benchmark-deps
+	$(PYTHON) benchmarks/dem/dem_speed.py --out $(BENCH)/dem_speed
+	$(PYTHON) benchmarks/dem/dem_profile.py --identity --out $(BENCH)/dem_profile
+	$(PYTHON) benchmarks/dem/dem_tangent.py --out $(BENCH)/dem_tangent
+	$(PYTHON) benchmarks/dem/dem_relaxation.py --out $(BENCH)/dem_relaxation
+	$(PYTHON) benchmarks/dem/dem_micropolar_moduli.py --out $(BENCH)/dem_micropolar_moduli
+	$(PYTHON) benchmarks/dem/dem_virtual_tests.py --out $(BENCH)/dem_virtual_tests
+	$(PYTHON) benchmarks/dem/dem_calibration.py --dem $(BENCH)/dem_virtual_tests --out $(BENCH)/dem_calibration
+	$(PYTHON) benchmarks/femdem/femdem_vs_ehlers.py --parameters $(BENCH)/dem_calibration/identify/identified_parameters.json --out $(BENCH)/femdem_vs_ehlers
+
+benchmark-femdem: benchmark-deps
+	$(MPIRUN) -n $(NP) $(PYTHON) benchmarks/femdem/femdem_tangents.py --mesh 1x2 --out $(BENCH)/femdem_tangents
+	$(MPIRUN) -n $(NP) $(PYTHON) benchmarks/femdem/femdem_regularisation.py --out $(BENCH)/femdem_regularisation
+	$(MPIRUN) -n $(NP) $(PYTHON) benchmarks/femdem/femdem_convergence.py --out $(BENCH)/femdem_convergence
+	$(MPIRUN) -n $(NP) $(PYTHON) benchmarks/femdem/femdem_rotation.py --out $(BENCH)/femdem_rotation
+	$(MPIRUN) -n $(NP) $(PYTHON) benchmarks/femdem/femdem_micropolar.py --out $(BENCH)/femdem_micropolar
+	$(MPIRUN) -n $(NP) $(PYTHON) benchmarks/femdem/femdem_balance.py --out $(BENCH)/femdem_balance
+	$(PYTHON) benchmarks/femdem/femdem_scaling.py --out $(BENCH)/femdem_scaling
+	$(PYTHON) benchmarks/femdem/femdem_batched.py --out $(BENCH)/femdem_batched
+	$(MPIRUN) -n $(NP) $(PYTHON) benchmarks/femdem/femdem_cell_relaxation.py --out $(BENCH)/femdem_cell_relaxation
+	$(PYTHON) benchmarks/femdem/femdem_yade.py --np $(NP) --out $(BENCH)/femdem_yade
+
+benchmark-identification: benchmark-deps
+	$(PYTHON) benchmarks/identification/identification_sensitivity.py --out $(BENCH)/identification_sensitivity
+	$(PYTHON) benchmarks/identification/identification_cost.py --out $(BENCH)/identification_cost
+	$(PYTHON) benchmarks/identification/reidentification.py --draws 100 --out $(BENCH)/reidentification
+	$(PYTHON) benchmarks/identification/reidentification.py --steps 4800 --every 80 --model-min-steps 600 --draws 40 --out $(BENCH)/reidentification_steps
+	$(PYTHON) benchmarks/identification/identify_micropolar.py --out $(BENCH)/identify_micropolar
+
+benchmark-robustness: benchmark-deps
+	$(PYTHON) benchmarks/robustness/robustness_sweep.py --random 2 --out $(BENCH)/robustness_sweep
+	$(PYTHON) benchmarks/robustness/damaged_inputs.py --per-kind 80 --restarts 20 --out $(BENCH)/damaged_inputs
 	DAMAGE_EXAMPLES=40 DAMAGE_RANDOM=1 $(PYTHON) -m pytest -q -p no:cacheprovider tests/test_damaged_inputs.py
-	$(PYTHON) benchmarks/interrupt_runs.py --trials 12 --ranks $(NP) --signal INT --out $(OUT)/benchmarks/interrupt_runs
+	$(PYTHON) benchmarks/robustness/interrupt_runs.py --trials 12 --ranks $(NP) --signal INT --out $(BENCH)/interrupt_runs
 	ROBUSTNESS_EXAMPLES=25 ROBUSTNESS_RANDOM=1 $(PYTHON) -m pytest -q -p no:cacheprovider tests/test_robustness_properties.py
+
+# the tests marked slow (too long for make test)
+benchmark-slow-tests: benchmark-deps
 	$(PYTHON) -m pytest -q -p no:cacheprovider -m slow tests
 
 clean:

@@ -1,7 +1,7 @@
 """Damage the files the project reads and judge how each reader takes them.
 
 Shared by the property tests (tests/test_damaged_inputs.py, a few derandomized draws per
-kind) and the sweep (benchmarks/damaged_inputs.py, hundreds, with the counts).
+kind) and the sweep (benchmarks/robustness/damaged_inputs.py, hundreds, with the counts).
 
 The kinds of file (`valid_files` makes a good one of each in a work directory):
 

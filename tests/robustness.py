@@ -1,7 +1,7 @@
 """Run a demo as a user would with numeric options drawn at random, and judge the end.
 
 Shared by the property tests (tests/test_robustness_properties.py, a few draws per demo) and
-the sweep (benchmarks/robustness_sweep.py, many). The demos declare the range of every
+the sweep (benchmarks/robustness/robustness_sweep.py, many). The demos declare the range of every
 numeric option (cosserat_fenicsx.validation); `describe_options(demo)` reads them.
 
 Every draw must end in one of four ways (anything else raises AssertionError):

@@ -5,7 +5,7 @@ checkpoint given to a restart, on 1 and 2 ranks, is refused with exit status 2 a
 the earlier run's outputs as they were.
 
 A few derandomized draws per kind in `make test` (DAMAGE_EXAMPLES, default 4); the sweep
-(`benchmarks/damaged_inputs.py`, hundreds of files and restarts, in `make benchmark`) goes
+(`benchmarks/robustness/damaged_inputs.py`, hundreds of files and restarts, in `make benchmark`) goes
 further and reports the counts."""
 import os
 import shutil

@@ -1,4 +1,4 @@
-"""benchmarks/dem_virtual_tests.py: bad options refused before any work, and a tiny run
+"""benchmarks/dem/dem_virtual_tests.py: bad options refused before any work, and a tiny run
 (40 discs, 2 seeds, 0.6 % axial strain, a few seconds) whose ensemble files are the mean and
 sample std (thesis eq. 4.26) of the seed files, in the material-point driver's columns."""
 import csv
@@ -11,12 +11,14 @@ import numpy as np
 import pytest
 
 pytestmark = pytest.mark.serial          # no MPI content: the serial pass only
-SCRIPT = os.path.join(os.path.dirname(__file__), "..", "benchmarks", "dem_virtual_tests.py")
+ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+SCRIPT = os.path.join(ROOT, "benchmarks", "dem", "dem_virtual_tests.py")
+ENV = dict(os.environ, PYTHONPATH=ROOT)      # the repository root on the path, as the Makefile sets it
 
 
 def run(*args, **kw):
     return subprocess.run([sys.executable, SCRIPT, *map(str, args)], capture_output=True, text=True,
-                          timeout=120, **kw)
+                          timeout=120, env=ENV, **kw)
 
 
 def read(path):

@@ -5,7 +5,7 @@ operator of the CPU batch, for fixed steps and full solves, through sub-steps, n
 rebuilds, the growth of full pair slots, lattice reduction, commit and rollback, in the
 three rotation modes of FEM x DEM cells (free, locked, micropolar), with FIRE and with the
 general contact law (rolling resistance, dashpots, bonds), and for DEMQO's frozen copies.
-On a GPU the same kernels agree to round-off only (fused multiply-adds): benchmarks/gpu_cells.py
+On a GPU the same kernels agree to round-off only (fused multiply-adds): benchmarks/dem/gpu_cells.py
 checks that there."""
 import os
 import subprocess
@@ -22,7 +22,7 @@ from demcell.state import PAIR_FIELDS, PARTICLE_FIELDS
 
 pytestmark = [pytest.mark.serial,
               pytest.mark.skipif(not config.ENABLE_CUDASIM, reason="bit for bit in Numba's CUDA simulator only "
-                                 "(NUMBA_ENABLE_CUDASIM=1); on a GPU run benchmarks/gpu_cells.py")]
+                                 "(NUMBA_ENABLE_CUDASIM=1); on a GPU run benchmarks/dem/gpu_cells.py")]
 
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 THREADS = 4          # threads per cell in the simulator (a GPU runs 128); one test takes 33

@@ -166,7 +166,7 @@ def test_pstlo_sliding_follows_the_consistent_tangent():
     """Against the perturbation tangent (CTO, 001 eq. 6: rolled back and re-solved, the
     derivative the macro Newton needs) on a cell whose contacts slide: PSTLO (every contact
     sticking) is 30-40 % off, PSTLO with the contacts near their Coulomb limit sliding within
-    15 % (benchmarks/dem_tangent_sliding.py: 8 % in the median of 20 states)."""
+    15 % (benchmarks/dem/dem_tangent_sliding.py: 8 % in the median of 20 states)."""
     cell = sliding_cell()
     C_cto = cell.tangent("perturbation", eps=1e-5)
     error = {kind: np.linalg.norm(cell.tangent(kind) - C_cto) / np.linalg.norm(C_cto)

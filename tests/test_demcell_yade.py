@@ -1,20 +1,17 @@
 """Cross-code verification against YADE (written by others): the same packing, linear
 Cundall-Strack law, time step and quasi-static solve give the same stress.
 Slow (runs YADE, about 20 s); skipped when the Debian package ``yade`` is not installed."""
-import os
 import shutil
-import sys
 
 import numpy as np
 import pytest
 
 pytestmark = [pytest.mark.serial, pytest.mark.slow]
-sys.path.insert(0, os.path.join(os.path.dirname(__file__), "..", "benchmarks"))
 
 
 @pytest.mark.skipif(shutil.which("yade") is None, reason="YADE not installed (apt-get install yade)")
 def test_stress_after_quasi_static_solve_matches_yade(tmp_path):
-    import dem_speed
+    from benchmarks.dem import dem_speed
     from demcell.contact_law import ContactLaw
     from demcell.relaxation import stable_time_step
     kn, ks = 3e6, 2.4e6

@@ -5,7 +5,7 @@ Tolerance of the comparison: 1e-5 on the relative L2 error of every column (over
 per measured quantity), with a floor of 1e-3 of the largest column after scaling the columns
 by the parameter scale (identification.sensitivity.column_error), for central differences
 with the default steps and tight solver tolerances (driver 1e-9, local Newton 1e-12).  The
-step study (benchmarks/identification_sensitivity.py) shows what the differences can reach:
+step study (benchmarks/identification/identification_sensitivity.py) shows what the differences can reach:
 truncation ~ rel^2 (4e-6 for n_max at rel 1e-4, hence its 1e-5), below that 1e-8 .. 4e-6 per
 column with tight tolerances; with the model's own tolerances the residuals the iterations
 stop at (up to 1e-7 |S| in the driver) limit it to ~1e-5 (deviatoric tests) and ~1e-2 of the

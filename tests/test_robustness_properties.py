@@ -5,7 +5,7 @@ finite outputs, stopped with a reason, or, when still running after the time lim
 interrupted by SIGTERM with its outputs readable (tests/robustness.py judges).
 
 A few derandomized draws per demo in `make test` (ROBUSTNESS_EXAMPLES, default 3); the
-sweep over every option (`benchmarks/robustness_sweep.py`) and a larger random run of this
+sweep over every option (`benchmarks/robustness/robustness_sweep.py`) and a larger random run of this
 file (`make benchmark`: ROBUSTNESS_EXAMPLES=25, ROBUSTNESS_RANDOM=1) go further."""
 import math
 import os

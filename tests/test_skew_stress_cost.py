@@ -9,18 +9,13 @@ material rotation) on the same surface. The closed form is written here again on
 (not imported from the benchmark), so a slip in either would show.
 """
 import math
-import os
-import sys
 
 import numpy as np
 import pytest
 
-sys.path.insert(0, os.path.join(os.path.dirname(os.path.abspath(__file__)), "..", "benchmarks"))
-
-from skew_stress_cost import shear_path  # noqa: E402
-
-from cosserat_fenicsx.materials.ehlers import EhlersMaterial  # noqa: E402
-from cosserat_fenicsx.materials.ehlers.material_point import consolidate_state  # noqa: E402
+from benchmarks.ehlers.skew_stress_cost import shear_path
+from cosserat_fenicsx.materials.ehlers import EhlersMaterial
+from cosserat_fenicsx.materials.ehlers.material_point import consolidate_state
 
 pytestmark = pytest.mark.serial          # material point only: the serial pass
 

@@ -1,6 +1,6 @@
 """The softening shear layer (cosserat_fenicsx.scenes.softening_layer): assembly checks on
 small layers, and the regularisation property (slow, `make benchmark` runs it with the
-full benchmark in benchmarks/softening_layer.py)."""
+full benchmark in benchmarks/ehlers/softening_layer.py)."""
 import numpy as np
 import pytest
 

@@ -1,0 +1,1 @@
+"""Robustness: option sweeps over every demo, damaged input and restart files, interrupted runs."""

@@ -1,0 +1,1 @@
+"""Verification: manufactured and closed-form solutions, the observed order of convergence."""

@@ -25,6 +25,7 @@ from . import quasistatic as qs
 from .contact_law import KN, KS, MU
 from .errors import InputError
 from .homogenization import contact_sums
+from .interface import DemCell
 from .periodic_cell import deformation_gradient
 from .state import PAIR_FIELDS, PARTICLE_FIELDS, CellState
 from .tangent import kruyt_tensor
@@ -133,12 +134,8 @@ def _bins(rows, cost, n_threads):
 
 def template_of(cell):
     """A DemCell without state arrays: law, options, time step and rotation mode of `cell`
-    (DemCell.holding gives it a state)."""
-    new = type(cell).__new__(type(cell))
-    new.__dict__.update(cell.__dict__)
-    new.state = new._committed = None
-    new._law_array = cell.law_array
-    return new
+    (DemCell.view gives it a state)."""
+    return type(cell).view(cell, None)
 
 
 def homogenized_outputs(cauchy, couple, fabric, counts, particles):
@@ -159,20 +156,20 @@ def homogenized_outputs(cauchy, couple, fabric, counts, particles):
 def demqo(store, rows, eps=1e-6):
     """DEMQO (001 eq. 20) of the cells rows of a store (CellBatch or gpu.DeviceCellBatch), batched: each cell's current state copied and
     frozen (contacts bilateral, no sliding, no new contacts), re-relaxed at its F with the
-    tight options of tangent._perturbation_options, then copies of it perturbed by eps L^mn
+    tight options of tangent.perturbation_options, then copies of it perturbed by eps L^mn
     (and, in a micropolar cell, its curvature by eps / max|Y_k|) and relaxed, all copies of
     all cells in one call. Returns (list of tangents: 4x4 d sigma / d F in demcell's order,
     or the 6x6 micropolar operator in the callback's order, as DemCell.tangent('demqo')
     gives them; DEM steps per cell)."""
     from .network import CALLBACK_ROWS
-    from .tangent import COMPONENTS, _perturbation_options
+    from .tangent import COMPONENTS, perturbation_options
     rows = np.asarray(rows, dtype=np.int64)
     n = len(rows)
     if not n:
         return [], np.zeros(0)
     base = store.subset(rows)
     for j, view in enumerate(store.views(rows)):
-        o = _perturbation_options(view, eps)          # numpy means, as a DemCell computes them
+        o = perturbation_options(view, eps)          # numpy means, as a DemCell computes them
         view.freeze_contacts()
         base.law[j] = view.law_array
         base.opts[j] = qs.solve_options(o, o.skin_ratio * float(view.state.radius.min()), o.max_steps)
@@ -229,7 +226,6 @@ class CellStore:
     def _settings(self, cells):
         """Per-cell settings of DemCells `cells`: law, options as a solve row, time step,
         rotation mode, the target (their current F, phi, kappa)."""
-        from .interface import DemCell
         if not cells:
             raise InputError(f"{type(self).__name__} needs at least one cell")
         if not all(isinstance(c, DemCell) for c in cells):
@@ -328,7 +324,13 @@ class CellBatch(CellStore):
     """The cells of one rank (DemCells: each keeps its law, options and time step) in one
     struct of arrays. Methods take ``rows``, indices of the cells concerned."""
 
-    def __init__(self, cells):
+    def __init__(self, cells, rows=None):
+        """cells: DemCells (their current and committed states are copied in); or a CellBatch
+        whose cells `rows` (rows may repeat) are copied, current states only (current =
+        committed), with their laws, options, time steps and targets (``subset``)."""
+        if rows is not None:
+            self._take_rows(cells, np.asarray(rows, dtype=np.int64))
+            return
         cells = list(cells)
         self._settings(cells)
         np_ = np.array([c.state.n_particles for c in cells], dtype=np.int64)
@@ -343,6 +345,20 @@ class CellBatch(CellStore):
             self._put(self.current, k, c.state)
             self._put(self.committed, k, c.committed_state)
         del self._first_state
+
+    def _take_rows(self, source, rows):
+        """This batch made of copies of the current states of `source`'s cells rows."""
+        self.n_cells = len(rows)
+        self.templates = [source.templates[k] for k in rows]
+        for name in ("micropolar", "law", "dt", "opts", "max_steps", "target", "cost"):
+            setattr(self, name, getattr(source, name)[rows].copy())
+        self.p_off = np.concatenate([[0], np.cumsum(np.diff(source.p_off)[rows])]).astype(np.int64)
+        self._layout(source.capacity[rows])
+        pidx, qidx = _ranges(source.p_off, rows), _ranges(source.q_off, rows)
+        self.current = {name: source.current[name][pidx] for name in PARTICLE_FIELDS}
+        self.current.update({name: source.current[name][qidx] for name in PAIR_FIELDS})
+        self.current.update({name: source.current[name][rows] for name in ("h", "h_build", "h_ref", "cellf", "celli")})
+        self.committed = {name: a.copy() for name, a in self.current.items()}
 
     # --- layout -------------------------------------------------------------------------------
     def _layout(self, capacity):
@@ -502,20 +518,7 @@ class CellBatch(CellStore):
     def subset(self, rows):
         """A new CellBatch of copies of the current states of rows (current = committed),
         with their laws, options, time steps and targets; rows may repeat."""
-        rows = np.asarray(rows, dtype=np.int64)
-        new = CellBatch.__new__(CellBatch)
-        new.n_cells = len(rows)
-        new.templates = [self.templates[k] for k in rows]
-        for name in ("micropolar", "law", "dt", "opts", "max_steps", "target", "cost"):
-            setattr(new, name, getattr(self, name)[rows].copy())
-        new.p_off = np.concatenate([[0], np.cumsum(np.diff(self.p_off)[rows])]).astype(np.int64)
-        new._layout(self.capacity[rows])
-        pidx, qidx = _ranges(self.p_off, rows), _ranges(self.q_off, rows)
-        new.current = {name: self.current[name][pidx] for name in PARTICLE_FIELDS}
-        new.current.update({name: self.current[name][qidx] for name in PAIR_FIELDS})
-        new.current.update({name: self.current[name][rows] for name in ("h", "h_build", "h_ref", "cellf", "celli")})
-        new.committed = {name: a.copy() for name, a in new.current.items()}
-        return new
+        return CellBatch(self, rows)
 
     # --- state ------------------------------------------------------------------------------------
     def _copy(self, rows, src, dst):
@@ -558,9 +561,8 @@ class CellBatch(CellStore):
     def views(self, rows):
         """DemCells of the cells rows whose state arrays are views into the store (read them:
         their tangents, homogenized outputs; solve through the batch, not through a view)."""
-        return [self.templates[int(k)].holding(self._get(self.current, int(k), copy=False),
-                                               self._get(self.committed, int(k), copy=False), self._target_of(k))
-                for k in rows]
+        return [DemCell.view(self.templates[int(k)], self._get(self.current, int(k), copy=False),
+                             self._get(self.committed, int(k), copy=False), self._target_of(k)) for k in rows]
 
     def nbytes(self):
         """Bytes of both stores."""

@@ -236,20 +236,35 @@ class DemCell(MicroCell):
         and a frozen network): a copy."""
         return self._law_array.copy()
 
-    def holding(self, state, committed=None, target=None):
-        """A DemCell with this cell's law, options, time step and rotation mode that holds
-        `state` as its current state (not copied: views into a batch's store, say) and
-        `committed` (default `state`) as its committed one; its targets are `target` = (F,
-        phi, kappa), default those of `state`."""
-        new = DemCell.__new__(DemCell)
-        new.__dict__.update(self.__dict__)
-        new._law_array = self._law_array.copy()
-        new.state = state
-        new._committed = state if committed is None else committed
-        F, phi, kappa = (state.F, state.phi, state.kappa) if target is None else target
-        new._target = np.array(F, dtype=float).reshape(2, 2)
-        new._target_phi = float(phi)
-        new._target_kappa = np.array(kappa, dtype=float).reshape(2)
+    @property
+    def target(self):
+        """The target of the next solve: (F (2x2), phi [rad], kappa (2,) [1/m]), copies. A cell
+        that is not micropolar keeps phi and kappa at those of its state."""
+        return self._target.copy(), self._target_phi, self._target_kappa.copy()
+
+    @target.setter
+    def target(self, value):
+        """Set (F, phi, kappa) as given, without set_deformation's checks: for a store that
+        keeps checked targets of its own (batch.CellStore.set_targets)."""
+        F, phi, kappa = value
+        self._target = np.array(F, dtype=float).reshape(2, 2)
+        self._target_phi = float(phi)
+        self._target_kappa = np.array(kappa, dtype=float).reshape(2)
+
+    @classmethod
+    def view(cls, cell, state, committed=None, target=None):
+        """A DemCell with the law, options, time step and rotation mode of `cell` that holds
+        `state` as its current state, not copied (views into a batch's store, say), and
+        `committed` (default `state`) as its committed one; its target is `target` = (F, phi,
+        kappa), default that of `state`. state None: a template without state arrays, which
+        a later view gives one (batch.template_of)."""
+        new = cls.__new__(cls)
+        new.__dict__.update(cell.__dict__)
+        new.__dict__.update(state=state, _committed=state if committed is None else committed,
+                            _law_array=cell.law_array)
+        if target is None:
+            target = (np.eye(2), 0.0, np.zeros(2)) if state is None else (state.F, state.phi, state.kappa)
+        new.target = target
         return new
 
     # ----- configuration
@@ -585,9 +600,7 @@ class DemCell(MicroCell):
 
     def rollback(self):
         self.state = self._committed.copy()
-        self._target = self.state.F
-        self._target_phi = self.state.phi
-        self._target_kappa = self.state.kappa.copy()
+        self.target = (self.state.F, self.state.phi, self.state.kappa)
 
     @property
     def committed_state(self):
@@ -606,14 +619,7 @@ class DemCell(MicroCell):
         self.rollback()
 
     def copy(self):
-        new = DemCell.__new__(DemCell)
-        new.__dict__.update(self.__dict__)
-        new.state = self.state.copy()
-        new._committed = self._committed.copy()
-        new._law_array = self._law_array.copy()
-        new._target = self._target.copy()
-        new._target_kappa = self._target_kappa.copy()
-        return new
+        return DemCell.view(self, self.state.copy(), self._committed.copy(), self.target)
 
     def memory_bytes(self):
         """Bytes held by the current and the committed state arrays."""

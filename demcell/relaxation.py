@@ -430,7 +430,8 @@ def _plain_pair_forces(radius, s, dtheta, force, moment, h00, h01, h10, h11, pai
 
 
 @njit(cache=True)
-def _inv2(a):
+def inv2(a):
+    """The inverse of a 2x2 matrix (its adjugate over its determinant)."""
     det = a[0, 0] * a[1, 1] - a[0, 1] * a[1, 0]
     r = np.empty((2, 2))
     r[0, 0] = a[1, 1] / det
@@ -442,7 +443,7 @@ def _inv2(a):
 
 @njit(cache=True)
 def _inv2_scalars(a00, a01, a10, a11):
-    """Entries (00, 01, 10, 11) of the inverse of a 2x2 matrix, as _inv2 computes them."""
+    """Entries (00, 01, 10, 11) of the inverse of a 2x2 matrix, as inv2 computes them."""
     det = a00 * a11 - a01 * a10
     return a11 / det, -a01 / det, -a10 / det, a00 / det
 
@@ -593,7 +594,7 @@ def advance(radius, mass, inertia, s, v, theta, omega, dtheta, force, moment, s_
     for i in range(n):
         rmax = max(rmax, radius[i])
     r_cut = 2.0 * rmax + skin
-    href_inv = _inv2(h_ref)
+    href_inv = inv2(h_ref)
     n_ramp = ipar[I_NRAMP]
     check_every = max(1, ipar[I_CHECK])
     crit = ipar[I_CRIT]
@@ -742,7 +743,7 @@ def advance(radius, mass, inertia, s, v, theta, omega, dtheta, force, moment, s_
             for b in range(2):
                 h[a, b] = Fm[a, 0] * h_ref[0, b] + Fm[a, 1] * h_ref[1, b]
         # macroscopic spin increment: skew part of dF F^-1
-        # (scalar inverses: no 2x2 array allocated per step; same arithmetic as _inv2)
+        # (scalar inverses: no 2x2 array allocated per step; same arithmetic as inv2)
         hi00, hi01, hi10, hi11 = _inv2_scalars(h_old[0, 0], h_old[0, 1], h_old[1, 0], h_old[1, 1])
         g01 = (h[0, 0] - h_old[0, 0]) * hi01 + (h[0, 1] - h_old[0, 1]) * hi11
         g10 = (h[1, 0] - h_old[1, 0]) * hi00 + (h[1, 1] - h_old[1, 1]) * hi10

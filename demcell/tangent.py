@@ -33,7 +33,7 @@ from .contact_law import KN, KR, KS, MU
 from .errors import InputError
 from .homogenization import contact_sums
 from .periodic_cell import branch_vector, contact_frame, deformation_gradient
-from .relaxation import _inv2
+from .relaxation import inv2
 
 COMPONENTS = ((0, 0), (0, 1), (1, 0), (1, 1))   # order 11, 12, 21, 22 (001 eq. 11)
 
@@ -116,7 +116,7 @@ def _kruyt_sum(h, s, pair_i, pair_j, touching, n_pairs, kn, kt, Fi):
 def kruyt_tensor(h, h_ref, s, pair_i, pair_j, touching, n_pairs, kn, kt):
     """The Kruyt sum divided by the cell area, T[i, j, k, m] [N/m], with F^-1 from the scalar
     F of periodic_cell.deformation_gradient (one formula for a DemCell and a batch)."""
-    Fi = _inv2(deformation_gradient(h, h_ref))
+    Fi = inv2(deformation_gradient(h, h_ref))
     area = abs(h[0, 0] * h[1, 1] - h[0, 1] * h[1, 0])
     return _kruyt_sum(h, s, pair_i, pair_j, touching, n_pairs, kn, kt, Fi) / area
 
@@ -129,7 +129,7 @@ def kruyt_operator(state, law):
     return T.reshape(4, 4).copy()
 
 
-def _perturbation_options(cell, eps, rel=1e-5):
+def perturbation_options(cell, eps, rel=1e-5):
     """Relaxation options for a perturbation of size eps: the unbalanced-force criterion
     (001 section 2) with a tolerance scaled to the force increment the perturbation causes
     (rel x eps x kn x mean branch length / mean contact force, rel = 1e-5). The energy ratio
@@ -194,7 +194,7 @@ def perturbation_tangent(cell, eps=1e-5):
         return trial
 
     return _stress_differences(rolled_back_copy(None), rolled_back_copy, cell.deformation_gradient(),
-                               eps, _perturbation_options(cell, eps))
+                               eps, perturbation_options(cell, eps))
 
 
 def demqo_tangent(cell, eps=1e-6):
@@ -203,7 +203,7 @@ def demqo_tangent(cell, eps=1e-6):
     base = cell.copy()
     base.freeze_contacts()
     return _stress_differences(base, lambda b: b.copy(), cell.deformation_gradient(), eps,
-                               _perturbation_options(cell, eps))
+                               perturbation_options(cell, eps))
 
 
 def micropolar_tangent(cell, kind, eps=None):
@@ -212,26 +212,28 @@ def micropolar_tangent(cell, kind, eps=None):
     eps / max|Y_k| (a rotation jump of eps across the cell). Returns (C, solve results)."""
     from .network import CALLBACK_ROWS, affine_operator, micropolar_network_operator
     if kind == "pstlo":
-        return micropolar_network_operator(cell.state, cell._law_array)[0], []
+        return micropolar_network_operator(cell.state, cell.law_array)[0], []
     if kind == "kruyt":
-        return affine_operator(cell.state, cell._law_array), []
+        return affine_operator(cell.state, cell.law_array), []
     if kind not in ("perturbation", "demqo"):
         raise InputError(f"unknown tangent kind {kind!r}: 'kruyt', 'demqo', 'pstlo' or 'perturbation'")
     eps = (1e-5 if kind == "perturbation" else 1e-6) if eps is None else eps
     k_eps = eps / float(np.abs(cell.state.h_ref).sum(axis=0).max())
     F = cell.deformation_gradient()
     if kind == "perturbation":
+        _, phi, kappa = cell.target
+
         def rolled_back_copy(_):
             trial = cell.copy()
             trial.rollback()
-            trial.set_deformation(F, rotation=cell._target_phi, curvature=cell._target_kappa)
+            trial.target = (F, phi, kappa)
             return trial
         C, results = _stress_differences(rolled_back_copy(None), rolled_back_copy, F, eps,
-                                         _perturbation_options(cell, eps), curvature_eps=k_eps)
+                                         perturbation_options(cell, eps), curvature_eps=k_eps)
     else:
         base = cell.copy()
         base.freeze_contacts()
-        C, results = _stress_differences(base, lambda b: b.copy(), F, eps, _perturbation_options(cell, eps),
+        C, results = _stress_differences(base, lambda b: b.copy(), F, eps, perturbation_options(cell, eps),
                                          curvature_eps=k_eps)
     # demcell's order (11, 12, 21, 22, then kappa / m 1, 2) -> the FE callback order, the same
     # permutation for the rows (fluxes) and the columns (gradients)

@@ -211,7 +211,7 @@ def test_demcell_refuses_bad_arguments(packing30):
 def test_set_deformation_refuses_bad_F(packing30, F, words):
     cell = dc.DemCell(packing30[0].copy())
     refused(lambda: cell.set_deformation(F), *words)
-    assert np.array_equal(cell._target, np.eye(2))           # the target is unchanged
+    assert np.array_equal(cell.target[0], np.eye(2))           # the target is unchanged
 
 
 def test_the_other_methods_refuse_bad_arguments(packing30):

@@ -532,7 +532,7 @@ def test_dem_cell_increments_equal_the_network_solution_in_the_sticking_regime(s
     weakest contact, overlap 7e-8 m, and moved m by 20 %)."""
     cell = sticking_cell
     base = cell.state
-    la = cell._law_array
+    la = cell.law_array
     h0 = cell.homogenized()
     th0 = base.theta.copy()
     s_tol, m_tol, th_tol = error_scales(base, DEM_TOL)
@@ -576,20 +576,20 @@ def test_dem_cell_increments_equal_the_network_solution_in_the_sticking_regime(s
 def test_demqo_micropolar_tangent_equals_the_network_tangent(sticking_cell):
     """cell.tangent('demqo', 'micropolar') (6 frozen-contact DEM perturbations, eps on F,
     eps / max|Y_k| on kappa, one-sided) vs 'pstlo' (the network solve). Each of the two states
-    of a difference is relaxed to the DEMQO tolerance tol_q (tangent._perturbation_options,
+    of a difference is relaxed to the DEMQO tolerance tol_q (tangent.perturbation_options,
     proportional to eps), so entry (r, c) may be off by 2 tol_q S_r / eps_c (S_r = p for sigma
     rows, p R_mean for m rows, see error_scales): a bound independent of eps, while the
     one-sided O(eps) geometric term is not covered by it and shrinks with eps, hence eps = 1e-7
     (measured at the default eps = 1e-6: <= 0.04 of the bound with contact-count weights, up to
     0.35 with force weights, concentrated in the F12, F21 columns and 20x smaller at 1e-7).
     The network without pre-stress misses the sigma-F block by > 10 bounds."""
-    from demcell.tangent import _perturbation_options
+    from demcell.tangent import perturbation_options
     cell = sticking_cell
     st = cell.state
     eps = 1e-7
     Cd = cell.tangent("demqo", measure="micropolar", eps=eps)
     Cp = cell.tangent("pstlo", measure="micropolar")
-    tol_q = _perturbation_options(cell, eps).tol
+    tol_q = perturbation_options(cell, eps).tol
     k_eps = eps / float(np.abs(st.h_ref).sum(axis=0).max())
     s_tol, m_tol, _ = error_scales(st, tol_q)
     bound = 2.0 * np.array([s_tol] * 4 + [m_tol] * 2)[:, None] / np.array([eps] * 4 + [k_eps] * 2)[None, :]
@@ -599,7 +599,7 @@ def test_demqo_micropolar_tangent_equals_the_network_tangent(sticking_cell):
     print("\n demqo vs pstlo: max |dC| / bound %.3f; relative per block (s-F, s-k, m-F, m-k) %s"
           % (ratio.max(), " ".join("%.1e" % b for b in blocks)))
     assert ratio.max() < 1.0, ratio
-    C0, _ = micropolar_network_operator(st, cell._law_array, prestress=False)
+    C0, _ = micropolar_network_operator(st, cell.law_array, prestress=False)
     assert (np.abs(Cd - C0) / bound)[:4, :4].max() > 10.0
 
 
@@ -623,6 +623,6 @@ def test_demqo_equals_the_network_at_a_loaded_state_with_skew_stress(packing):
     Cp = cell.tangent("pstlo", measure="micropolar")
     scale = np.abs(Cd).max(axis=1, keepdims=True)
     assert (np.abs(Cp - Cd) / scale).max() < 1e-4
-    fixed, _ = micropolar_network_operator(cell.state, cell._law_array,
+    fixed, _ = micropolar_network_operator(cell.state, cell.law_array,
                                            rotation_weights=contact_weights(cell.state))
     assert (np.abs(fixed - Cd) / scale).max() > 1e-3

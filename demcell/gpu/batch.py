@@ -20,6 +20,7 @@ from numba import cuda
 from .. import quasistatic as qs
 from ..batch import CellStore, gradients_of, homogenized_outputs
 from ..errors import InputError
+from ..interface import DemCell
 from . import cells as kernels
 from . import simulator
 from .block import MAX_THREADS
@@ -60,7 +61,14 @@ class DeviceCellBatch(CellStore):
     the current CUDA device, with the methods of demcell.batch.CellBatch (see module doc).
     threads: threads per cell (one block per cell, at most 256)."""
 
-    def __init__(self, cells, threads=DEFAULT_THREADS):
+    def __init__(self, cells, threads=DEFAULT_THREADS, rows=None):
+        """cells: DemCells (their current and committed states are uploaded); or a
+        DeviceCellBatch whose cells `rows` (rows may repeat) are copied on the device, current
+        states only (current = committed), with their laws, options, time steps and targets
+        (``subset``)."""
+        if rows is not None:
+            self._take_rows(cells, np.asarray(rows, dtype=np.int64))
+            return
         cells = list(cells)
         if not (isinstance(threads, (int, np.integer)) and 1 <= threads <= MAX_THREADS):
             raise InputError(f"threads per cell must be an integer in [1, {MAX_THREADS}], got {threads!r}")
@@ -77,6 +85,33 @@ class DeviceCellBatch(CellStore):
         self._mirror = {}
         for name, states in (("current", [c.state for c in cells]), ("committed", [c.committed_state for c in cells])):
             self._upload(name, _host_store(states, self.p_off, self.q_off))
+        self._particle_scratch()
+        self._pair_scratch()
+
+    def _take_rows(self, source, rows):
+        """This batch made of copies of the current states of `source`'s cells rows."""
+        self.threads = source.threads
+        self.n_cells = len(rows)
+        self.templates = [source.templates[k] for k in rows]
+        for name in ("micropolar", "law", "dt", "opts", "max_steps", "target", "cost"):
+            setattr(self, name, getattr(source, name)[rows].copy())
+        particles = np.diff(source.p_off)[rows]
+        self.p_off = np.concatenate([[0], np.cumsum(particles)]).astype(np.int64)
+        self.b_off = np.concatenate([[0], np.cumsum([bins_per_cell(m) for m in particles])]).astype(np.int64)
+        self._layout(source.capacity[rows])
+        P, Q = int(self.p_off[-1]), int(self.q_off[-1])
+        self._stores, self._mirror = {}, {}
+        d_src, d_dst = cuda.to_device(rows), cuda.to_device(np.arange(len(rows), dtype=np.int64))
+        for name in ("current", "committed"):
+            self._stores[name] = {"pf": cuda.device_array((NPF, P)), "qf": cuda.device_array((NQF, Q)),
+                                  "qi": cuda.device_array((2, Q), dtype=np.int64),
+                                  "qb": cuda.device_array((2, Q), dtype=np.uint8),
+                                  "cf": cuda.device_array((len(rows), NCF)),
+                                  "ci": cuda.device_array((len(rows), 2), dtype=np.int64)}
+            if len(rows):
+                kernels.copy_cells[len(rows), min(source.threads, 128)](d_src, d_dst, *source.store_args("current"),
+                                                                        *self.store_args(name))
+            self._refresh_mirror(name)
         self._particle_scratch()
         self._pair_scratch()
 
@@ -105,7 +140,9 @@ class DeviceCellBatch(CellStore):
         self._qt = cuda.device_array((NQT, Q), dtype=np.float64)
         self._qtb = cuda.device_array((2, Q), dtype=np.uint8)
 
-    def _store_args(self, name, offsets=None):
+    def store_args(self, name, offsets=None):
+        """The device arrays of store `name` ('current', 'committed') as the kernels of
+        gpu/cells.py take them: offsets (default this batch's), particle, pair and cell arrays."""
         st = self._stores[name]
         p_off, q_off = offsets if offsets is not None else (self._d_poff, self._d_qoff)
         return (p_off, q_off, st["pf"], st["qf"], st["qi"], st["qb"], st["cf"], st["ci"])
@@ -116,8 +153,8 @@ class DeviceCellBatch(CellStore):
         if not len(src_rows):
             return
         d_src, d_dst = cuda.to_device(src_rows), cuda.to_device(np.asarray(dst_rows, dtype=np.int64))
-        target = self._store_args(dst, dst_offsets) if dst_store is None else dst_store
-        kernels.copy_cells[len(src_rows), min(self.threads, 128)](d_src, d_dst, *self._store_args(src), *target)
+        target = self.store_args(dst, dst_offsets) if dst_store is None else dst_store
+        kernels.copy_cells[len(src_rows), min(self.threads, 128)](d_src, d_dst, *self.store_args(src), *target)
 
     def _grow(self, cells, capacity):
         """Pair slots of `cells` enlarged to `capacity` (arrays) in both stores, on the device."""
@@ -249,30 +286,7 @@ class DeviceCellBatch(CellStore):
     def subset(self, rows):
         """A new DeviceCellBatch of copies of the current states of rows (current = committed),
         with their laws, options, time steps and targets; rows may repeat."""
-        rows = np.asarray(rows, dtype=np.int64)
-        new = DeviceCellBatch.__new__(DeviceCellBatch)
-        new.threads = self.threads
-        new.n_cells = len(rows)
-        new.templates = [self.templates[k] for k in rows]
-        for name in ("micropolar", "law", "dt", "opts", "max_steps", "target", "cost"):
-            setattr(new, name, getattr(self, name)[rows].copy())
-        particles = np.diff(self.p_off)[rows]
-        new.p_off = np.concatenate([[0], np.cumsum(particles)]).astype(np.int64)
-        new.b_off = np.concatenate([[0], np.cumsum([bins_per_cell(m) for m in particles])]).astype(np.int64)
-        new._layout(self.capacity[rows])
-        P, Q = int(new.p_off[-1]), int(new.q_off[-1])
-        new._stores, new._mirror = {}, {}
-        for name in ("current", "committed"):
-            new._stores[name] = {"pf": cuda.device_array((NPF, P)), "qf": cuda.device_array((NQF, Q)),
-                                 "qi": cuda.device_array((2, Q), dtype=np.int64),
-                                 "qb": cuda.device_array((2, Q), dtype=np.uint8),
-                                 "cf": cuda.device_array((len(rows), NCF)),
-                                 "ci": cuda.device_array((len(rows), 2), dtype=np.int64)}
-            self._copy(rows, np.arange(len(rows)), "current", None, dst_store=new._store_args(name))
-            new._refresh_mirror(name)
-        new._particle_scratch()
-        new._pair_scratch()
-        return new
+        return DeviceCellBatch(self, self.threads, rows)
 
     # --- state ------------------------------------------------------------------------------------
     def commit(self, rows):
@@ -321,7 +335,8 @@ class DeviceCellBatch(CellStore):
     def views(self, rows):
         """view(k) of every k in rows, downloaded together."""
         current, committed = self._download("current", rows), self._download("committed", rows)
-        return [self.templates[int(k)].holding(a, b, self._target_of(k)) for k, a, b in zip(rows, current, committed)]
+        return [DemCell.view(self.templates[int(k)], a, b, self._target_of(k))
+                for k, a, b in zip(rows, current, committed)]
 
     def restore(self, k, state):
         """Cell k continues from `state` (a CellState): committed and current."""
@@ -337,7 +352,7 @@ class DeviceCellBatch(CellStore):
         src = (cuda.to_device(one_p), cuda.to_device(one_q)) + tuple(cuda.to_device(host[key]) for key in STORE)
         for name in ("committed", "current"):
             kernels.copy_cells[1, 128](cuda.to_device(np.zeros(1, dtype=np.int64)),
-                                       cuda.to_device(np.array([k], dtype=np.int64)), *src, *self._store_args(name))
+                                       cuda.to_device(np.array([k], dtype=np.int64)), *src, *self.store_args(name))
             self._mirror[name]["cf"][k], self._mirror[name]["ci"][k] = host["cf"][0], host["ci"][0]
         self.rollback([k])
 

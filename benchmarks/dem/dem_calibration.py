@@ -1,5 +1,5 @@
 #!/usr/bin/python3
-"""A continuum calibrated from the grains (issue 11 item 7): Ehlers parameters of a disc packing.
+"""A continuum calibrated from the grains: Ehlers parameters of a disc packing.
 
 1. Data: the virtual tests of benchmarks/dem/dem_virtual_tests.py on the periodic DEM cell
    (228 discs, 000 Table 3 contact law, several seeds): a plane-strain isotropic

@@ -1,5 +1,5 @@
 #!/usr/bin/python3
-"""Micropolar moduli of isotropic disordered packings: cell size and paper 003 (issue 10).
+"""Micropolar moduli of isotropic disordered packings: cell size and paper 003.
 
 For each cell size N (discs) and seed: a packing at 10 N/m (000 Table 3 law: kn 1e4 N/m,
 ks 2e3 N/m; compacted frictionless), its reference cell with friction 0.4 (isotropic stage,
@@ -17,7 +17,7 @@ Isotropic moduli (lambda, G, mu_c [N/m], B [N m]) are read off both with
 estimates.uniform_strain_moduli (least squares, with its anisotropy residual) and compared
 with paper 003 eqs 21-24 (estimates.cosserat_moduli_003: N = touching contacts, r = mean
 radius, V = cell area, L = half the cell width, k_omega = kr), with the 2D isotropic
-uniform-strain averages of the measured fabric (docs/micropolar_cell.md, "Origin of the
+uniform-strain averages of the measured fabric (docs/reference/micropolar_cell.md, "Origin of the
 factors", with <|D|^2> for l^2) and, for B, with the continuum cell estimate
 estimates.periodic_bending_estimate(B0, mu_c, G, L) (B0 = (kr/|Y|) sum |D|^2 / 2, the rolling
 part). The B-vs-L slope (log-log least squares over all cells) answers the RVE question:

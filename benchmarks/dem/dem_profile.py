@@ -1,5 +1,5 @@
 #!/usr/bin/python3
-"""Profile of the demcell DEM step (issue 9, item 7): where the time of a step goes.
+"""Profile of the demcell DEM step: where the time of a step goes.
 
 For each size (default 228, 400, 4000 discs) a packing is made with demcell's own generator
 (``generate_packing``, p0 = 10 N/m, kn = 1e4 N/m: p0/kn = 1e-3, cached as

@@ -13,7 +13,7 @@ the FEM x DEM reference cell (CellOptions, unbalanced-force ratio 1e-3) committe
 pre-strains of 0-4 %, then asked an increment of 1e-4 or 1e-3 (the target F, no servo), with
 the default relaxation, dt_safety 0.5, FIRE, and a tolerance of 1e-4: DEM steps and
 |sigma - sigma_ref| / |sigma_ref| against the same solve relaxed to 1e-5 (what
-`--cell-option` trades in docs/femdem.md).
+`--cell-option` trades in docs/results/femdem.md).
 """
 import argparse
 import json

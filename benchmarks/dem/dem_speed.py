@@ -1,5 +1,5 @@
 #!/usr/bin/python3
-"""demcell vs YADE speed, side by side in one run (issue 4, item 12).
+"""demcell vs YADE speed, side by side in one run.
 
 For each size (default 228, 400, 4000 requested discs; YADE's makeCloud places slightly
 fewer, e.g. 383 and 3801):

@@ -1,6 +1,6 @@
 #!/usr/bin/python3
-"""Virtual laboratory tests on the periodic DEM cell: the data of an Ehlers identification
-(issue 11 item 7): an isotropic compression test and plane-strain biaxial tests at three
+"""Virtual laboratory tests on the periodic DEM cell: the data of an Ehlers identification:
+an isotropic compression test and plane-strain biaxial tests at three
 confining pressures, for several packing seeds, with the seed-to-seed scatter.
 
 What is run (per seed k = --first-seed, ..., --first-seed + --seeds - 1)

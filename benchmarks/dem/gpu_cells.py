@@ -4,7 +4,7 @@ memory, and the cell side of a FEM x DEM run replayed on the device.
 Two parts, because a GPU machine may have no dolfinx:
 
     # here (dolfinx): record the cell side of a small FEM x DEM biaxial run, and the cost of the
-    # finite-element side of the 10,092-point mesh of docs/scaling.md per Newton iteration
+    # finite-element side of the 10,092-point mesh of docs/results/scaling.md per Newton iteration
     /usr/bin/python3 benchmarks/dem/gpu_cells.py record --out results/benchmarks/gpu_trace
 
     # on the GPU machine (numba-cuda; demcell and cosserat_fenicsx.materials, no dolfinx)

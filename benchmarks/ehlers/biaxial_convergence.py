@@ -1,10 +1,10 @@
 #!/usr/bin/env python3
-"""Error against wall time for the biaxial test (issue 3 item 7): peak vertical stress
+"""Error against wall time for the biaxial test: peak vertical stress
 and band thickness H (section 4.4 fit, standard deviation of the bell) across meshes and
 numbers of load steps, against the finest run of the set as the reference.
 
 Half-size specimen (25 mm x 50 mm, imperfection 5 mm x 0.8, as benchmarks/ehlers/biaxial_regularisation.py),
-the regularising micropolar set of docs/regularisation.md (k_sigma = 0, l_c = 0.2 mm,
+the regularising micropolar set of docs/results/regularisation.md (k_sigma = 0, l_c = 0.2 mm,
 mu_c = mu), compression to 8 %. (With the spec's k_sigma = 10 the band thickness has no
 limit under refinement, so its "error" would only measure the mesh dependence:
 `--k-sigma 10 --l-c 3e-3` reproduces that study.) The compression lasts --loading-time

@@ -1,5 +1,5 @@
 #!/usr/bin/env python3
-"""Where the wall time of a plastic step of the biaxial test goes (issue 3 item 9):
+"""Where the wall time of a plastic step of the biaxial test goes:
 Gauss-point kernel (EhlersMaterial.update), strain evaluation at the Gauss points,
 residual assembly, Jacobian assembly and the linear solve (MUMPS LU: PETSc events
 PCSetUp, the factorisation SNES triggers before KSPSolve, plus KSPSolve),

@@ -1,12 +1,12 @@
 #!/usr/bin/env python3
-"""Regularisation by the micropolar terms (issue 3 item 6): shear-band thickness and the
+"""Regularisation by the micropolar terms: shear-band thickness and the
 post-peak curve of the biaxial test on several meshes, micropolar against classical, and
 the thickness against l_c.
 
 Runs cosserat_fenicsx.scenes.biaxial (the scene of demos/biaxial.py) on a half-size
 specimen (W x H = 25 mm x 50 mm, imperfection 5 mm as in the demo) so that h <= l_c / 2 is affordable;
 the band thickness is H of the section 4.4 fit (standard deviation of the bell, eq 4.22)
-at the final state. Expected (spec 10 item 10): micropolar H converges under refinement,
+at the final state. Expected: micropolar H converges under refinement,
 classical H follows the element size h; H grows with l_c.
 
 Writes --out/regularisation.csv (one row per run, appended as runs finish, so a partial
@@ -66,7 +66,7 @@ def run_case(comm, args, micropolar, l_c, h, step_time=1.0):
 
 def add_specimen_arguments(p):
     """Options shared with biaxial_convergence.py: half-size specimen, imperfection, loading,
-    viscosity and the regularising micropolar set (docs/regularisation.md)."""
+    viscosity and the regularising micropolar set (docs/results/regularisation.md)."""
     p.add_argument("--width", type=float, default=0.025)
     p.add_argument("--height", type=float, default=0.05)
     p.add_argument("--weak-size", type=float, default=5e-3)
@@ -75,7 +75,7 @@ def add_specimen_arguments(p):
     p.add_argument("--axial-strain", type=float, default=0.08)
     p.add_argument("--eta", type=float, default=0.1, help="Perzyna time [s] (default 0.1, as the demo)")
     p.add_argument("--k-sigma", type=float, default=0.0,
-                   help="skew-stress weight in F, G (default 0: the regularising choice, docs/regularisation.md; "
+                   help="skew-stress weight in F, G (default 0: the regularising choice, docs/results/regularisation.md; "
                         "the spec's reference set is 10)")
     p.add_argument("--k-mu", type=float, default=0.0, help="couple-stress weight in F, G [1/m^2] (default 0)")
 

@@ -1,5 +1,5 @@
 #!/usr/bin/env python3
-"""Throughput of the Ehlers Gauss-point kernel (issue 3 item 9): updates per second per core.
+"""Throughput of the Ehlers Gauss-point kernel: updates per second per core.
 
 Measures EhlersMaterial.update (the FE callback: one compiled batch kernel over all points,
 serial) after a warm-up call, for

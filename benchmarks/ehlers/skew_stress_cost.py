@@ -1,7 +1,7 @@
 #!/usr/bin/env python3
-"""What the skew stress costs a shear band: one material point in simple shear (issue 11 item 6).
+"""What the skew stress costs a shear band: one material point in simple shear.
 
-docs/regularisation.md, section "Why a large k_sigma does not regularise", derives for a band
+docs/results/regularisation.md, section "Why a large k_sigma does not regularise", derives for a band
 normal to x2 (u1,2 = gamma, u2,1 = 0) with the yield function (2.76) and the potential (2.78)
 of Scholz (2007), k_mu = alpha = kappa = 0:
 
@@ -27,7 +27,7 @@ FE) along both paths from a point consolidated to 100 kPa, for k_sigma = 0.5, 1,
              differ) and shows how far f carries; and a partial path r = 1/psi1, where f
              has its maximum sqrt(1 + 1/k_sigma).
   layer      eps11 = eps33 = 0, sig22 = -p: the kinematics of the softening layer of
-             docs/regularisation.md (normal deviators, Gamma about 1.2, dilatancy). Peak
+             docs/results/regularisation.md (normal deviators, Gamma about 1.2, dilatancy). Peak
              tractions of both paths and the softening of the traction after the peak (what a
              band can gain), for the band-level discussion in the doc.
 

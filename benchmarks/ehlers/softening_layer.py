@@ -1,5 +1,5 @@
 #!/usr/bin/env python3
-"""Regularisation in the softening shear layer (issue 3 item 6, the one-dimensional check).
+"""Regularisation in the softening shear layer (the one-dimensional check).
 
 The infinitely long layer of cosserat_fenicsx.scenes.softening_layer (de Borst's
 localisation benchmark) with the Ehlers model, sheared under the confining pressure. Three
@@ -8,7 +8,7 @@ models on the same meshes:
 * micropolar, k_sigma = 0: skew strain and curvature elastic, plastic flow only in the
   symmetric strain -> the band thickness H should converge under refinement;
 * micropolar, k_sigma = 10 (the spec's reference set): plastic skew strain relaxes the
-  coupling of phi to the displacement -> H is expected to follow h (docs/biaxial.md);
+  coupling of phi to the displacement -> H is expected to follow h (docs/results/ehlers_biaxial.md);
 * classical (micropolar terms off): H follows h.
 
 The layer is cheap enough to refine to h = l_c / 2 and below, which the biaxial specimen

@@ -1,5 +1,5 @@
 #!/usr/bin/env python3
-"""FEM x DEM load balancing: the biaxial test with a band, balance off and on (docs/balancing.md).
+"""FEM x DEM load balancing: the biaxial test with a band, balance off and on (docs/results/balancing.md).
 
 The scene of demos/femdem_biaxial.py with a weak corner (a square of --weak-size at the lower
 left, its cells at --weak-friction x the friction) so that a band forms from it: the cells of
@@ -24,7 +24,7 @@ on. Besides the wall seconds, the imbalance in DEM steps (the cells' reported wo
 machine's load does not change) is recorded.
 
 Defaults (2x4 mesh, 60-disc cells, 2 % in 8 steps, weak corner 5 mm at 0.7 x the friction)
-take about a minute on the 2-core machine; the figures of docs/balancing.md (4x8 mesh, a
+take about a minute on the 2-core machine; the figures of docs/results/balancing.md (4x8 mesh, a
 weaker and larger corner, 2.1 % in 7 steps) about 6 minutes per order:
 
     mpirun -n 2 python3 benchmarks/femdem/femdem_balance.py --out results/femdem_balance

@@ -1,5 +1,5 @@
 #!/usr/bin/env python3
-"""Batched cells against per-cell DemCells, and ranks x threads (issue 9 item 1).
+"""Batched cells against per-cell DemCells, and ranks x threads.
 
     /usr/bin/python3 benchmarks/femdem/femdem_batched.py --out results/benchmarks/femdem_batched
 

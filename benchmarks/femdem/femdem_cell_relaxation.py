@@ -3,7 +3,7 @@
 
     mpirun -n 2 python3 benchmarks/femdem/femdem_cell_relaxation.py --out results/benchmarks/femdem_cell_relaxation
 
-Almost all of a FEM x DEM run is the cells relaxing to equilibrium (docs/scaling.md), and
+Almost all of a FEM x DEM run is the cells relaxing to equilibrium (docs/results/scaling.md), and
 how many DEM steps that takes is set by the cell's relaxation options, which
 demos/femdem_biaxial.py forwards with --cell-option KEY=VALUE. This runs the biaxial test
 with a band (the scene of benchmarks/femdem/femdem_scaling.py: --mesh of 228-disc cells, weak

@@ -1,5 +1,5 @@
 #!/usr/bin/env python3
-"""Error against run time of the FEM x DEM biaxial demo (issue item 8): the peak stress ratio
+"""Error against run time of the FEM x DEM biaxial demo: the peak stress ratio
 against the wall time, varying one setting at a time from the hybrid runs of
 benchmarks/femdem/femdem_regularisation.py (228 discs, PSTLO, l_c = 1 mm, unbalanced-force ratio
 1e-3, 5 mm weak corner at friction x 0.5, steps of 0.2 % axial strain) up to 3 %, past the

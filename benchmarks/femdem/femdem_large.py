@@ -1,5 +1,5 @@
 #!/usr/bin/env python3
-"""A large FEM x DEM run: at least 10,000 Gauss points with 228-disc cells (issue 9 item 6).
+"""A large FEM x DEM run: at least 10,000 Gauss points with 228-disc cells.
 
     /usr/bin/python3 benchmarks/femdem/femdem_large.py --out results/benchmarks/femdem_large [--stop-after K]
     /usr/bin/python3 benchmarks/femdem/femdem_large.py --out results/benchmarks/femdem_large --restart
@@ -8,7 +8,7 @@ runs demos/femdem_biaxial.py under mpirun (--np ranks, --cell-threads threads ea
 biaxial with a weak corner, mesh --mesh (default 29x58 rectangles: 10,092 Gauss points), cells
 batched and balanced between the ranks, a checkpoint after every load step. A queue's time
 limit is --stop-after K load steps; --restart continues from the last checkpoint (bit for bit,
-docs/restart.md), so the run can be carried through the peak in pieces. After each piece it
+docs/reference/restart.md), so the run can be carried through the peak in pieces. After each piece it
 writes femdem_large.json: Gauss points, wall and CPU seconds, wall seconds and DEM steps per
 load step (from history.csv; a step's own seconds, the pieces' clocks joined), the cell memory (summary.json: per cell x points) and the peak
 resident memory of a rank, the imbalance before and after each balancing (slowest rank / mean
@@ -42,7 +42,7 @@ def main():
                    help="forwarded to the demo (cells' relaxation; benchmarks/femdem/femdem_cell_relaxation.py)")
     p.add_argument("--accept-rtol", type=float, default=None,
                    help="the demo's --accept-rtol; with --restart it changes the rule from the checkpoint on "
-                        "(docs/restart.md)")
+                        "(docs/reference/restart.md)")
     p.add_argument("--force-rtol", type=float, default=None, help="the demo's --force-rtol (the same)")
     p.add_argument("--stop-after", type=int, default=None, help="stop after this load step (a queue's limit)")
     p.add_argument("--restart", action="store_true", help="continue the run in --out from its last checkpoint")

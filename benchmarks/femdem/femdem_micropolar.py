@@ -1,5 +1,5 @@
 #!/usr/bin/env python3
-"""FEM x DEM biaxial test in micropolar mode against hybrid mode (issue 10 item 4).
+"""FEM x DEM biaxial test in micropolar mode against hybrid mode.
 
 micropolar: every flux and tangent block from a micropolar cell (the grains carry the point's
 rotation and curvature; skew stress and couple stress are the cell's). hybrid: the cell's
@@ -20,7 +20,7 @@ Budget: each case gets --case-minutes of wall time (by mesh); at the end of it t
 sent SIGTERM, ends after its current step and its record keeps what it reached
 (femdem_cases.Interrupted). Reruns resume from the records (delete one to rerun it).
 The defaults (60-disc cells, grain diameter 0.5 mm, 2 % in 10 steps, pstlo) are chosen to
-finish in about 20 minutes on 2 processes of the 2-core machine (18 min measured, docs/femdem.md).
+finish in about 20 minutes on 2 processes of the 2-core machine (18 min measured, docs/results/femdem.md).
 
     mpirun -n 2 python3 benchmarks/femdem/femdem_micropolar.py --out results/femdem_micropolar
 """
@@ -167,7 +167,7 @@ def main():
     p.add_argument("--weak-friction", type=float, default=0.5)
     p.add_argument("--tangent", default="pstlo",
                    help="cell operator for both modes (pstlo: the frozen network solved exactly; demqo gives the "
-                        "same operator at several times the cost; see docs/femdem.md)")
+                        "same operator at several times the cost; see docs/results/femdem.md)")
     p.add_argument("--case-minutes", default="2x4=7,4x8=22",
                    help="wall budget per case by mesh, e.g. '2x4=5,4x8=14' (then SIGTERM: partial record)")
     p.add_argument("--report-only", action="store_true", help="tabulate the records, run nothing")

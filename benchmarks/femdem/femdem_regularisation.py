@@ -1,5 +1,5 @@
 #!/usr/bin/env python3
-"""Does the micropolar macro scale regularise the FEM x DEM shear band? (issue item 7)
+"""Does the micropolar macro scale regularise the FEM x DEM shear band?
 
 The classical FEM x DEM continuum (000, 001) and the hybrid mode (the cell's symmetric
 stress, elastic skew stress 2 mu_c skw(eps) and couple stress 2 mu_c l_c^2 kappa) on the same
@@ -11,7 +11,7 @@ should follow the mesh (000 Fig. 4); the hybrid one should converge, with a widt
 with l_c (--lc-factors x l_c on --lc-mesh).
 
 Cost with the defaults: about 5 CPU hours on one core (the 6x12 runs most of it;
-docs/femdem.md has the cost of every run). Writes --out/regularisation.txt (table with the cost of every run), regularisation.png
+docs/results/femdem.md has the cost of every run). Writes --out/regularisation.txt (table with the cost of every run), regularisation.png
 (curves, H against h and l_c, band profiles) and one JSON record per run (reruns resume).
 
     mpirun -n 2 python3 benchmarks/femdem/femdem_regularisation.py --out results/femdem_regularisation
@@ -56,12 +56,12 @@ def main():
     p.add_argument("--meshes", nargs="*", default=["2x4", "4x8", "6x12"],
                    help="h = 5, 2.5, 1.67 mm: each puts whole elements in the 5 mm weak corner")
     p.add_argument("--particles", type=int, default=100,
-                   help="discs per cell (100: peak at 1 %% strain, so the post-peak range is affordable; docs/femdem.md)")
-    p.add_argument("--l-c", type=float, default=5e-4, help="internal length of the hybrid runs [m] (docs/femdem.md: why 0.5 mm)")
+                   help="discs per cell (100: peak at 1 %% strain, so the post-peak range is affordable; docs/results/femdem.md)")
+    p.add_argument("--l-c", type=float, default=5e-4, help="internal length of the hybrid runs [m] (docs/results/femdem.md: why 0.5 mm)")
     p.add_argument("--lc-factors", type=float, nargs="*", default=[0.5, 2.0])
     p.add_argument("--lc-mesh", default="4x8")
     p.add_argument("--axial-strain", type=float, default=0.026,
-                   help="1.6 %% past the 100-disc peak (docs/femdem.md; 0.04 --steps 20 goes further at twice the cost)")
+                   help="1.6 %% past the 100-disc peak (docs/results/femdem.md; 0.04 --steps 20 goes further at twice the cost)")
     p.add_argument("--steps", type=int, default=13)
     p.add_argument("--weak-size", type=float, default=5e-3)
     p.add_argument("--weak-friction", type=float, default=0.5)

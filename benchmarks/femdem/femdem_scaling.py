@@ -1,5 +1,5 @@
 #!/usr/bin/env python3
-"""FEM x DEM scaling on this machine's ranks and a measured cost model (issue 9 item 5).
+"""FEM x DEM scaling on this machine's ranks and a measured cost model.
 
     /usr/bin/python3 benchmarks/femdem/femdem_scaling.py --out results/benchmarks/femdem_scaling
 
@@ -44,7 +44,7 @@ occupies the same fraction of the specimen. Writes femdem_scaling.json and femde
 
 Defaults (4x8 mesh = 192 cells of 228 discs, a weak corner of 5 mm at half the friction, 2 % in
 8 steps; weak scaling 2x4 / 2x8) took 38 minutes on the 2-core machine otherwise idle
-(docs/scaling.md), 60 minutes with the strong_2_passes case on a slower day.
+(docs/results/scaling.md), 60 minutes with the strong_2_passes case on a slower day.
 """
 import argparse
 import json

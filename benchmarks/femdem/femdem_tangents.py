@@ -40,7 +40,7 @@ def main():
     p.add_argument("--steps", type=int, default=20)
     p.add_argument("--tangents", nargs="+", default=["pstlo", "demqo", "kruyt", "cto"], choices=list(INTEGRATIONS))
     p.add_argument("--mode", default="classical", choices=("classical", "hybrid"))
-    p.add_argument("--batched", action="store_true", help="the cells batched (docs/femdem.md)")
+    p.add_argument("--batched", action="store_true", help="the cells batched (docs/reference/femdem.md)")
     p.add_argument("--cell-option", type=key_value, action="append", default=[], metavar="KEY=VALUE",
                    help="the cells' demcell.RelaxationOptions (e.g. method=fire)")
     p.add_argument("--weak-size", type=float, default=5e-3, help="weak lower left corner [m] (000 has none)")

@@ -1,5 +1,5 @@
 #!/usr/bin/python3
-"""The Ehlers continuum calibrated from the grains next to the grains themselves (issue 11 item 7).
+"""The Ehlers continuum calibrated from the grains next to the grains themselves.
 
 Two boundary-value problems on the same specimen and mesh, run as a user would
 (subprocesses of the demos):

@@ -1,5 +1,5 @@
 #!/usr/bin/python3
-"""FEM x DEM side by side with YADE's FEMxDEM example biaxialSmooth.py, in one run (docs/femdem_yade.md).
+"""FEM x DEM side by side with YADE's FEMxDEM example biaxialSmooth.py, in one run (docs/results/femdem_yade.md).
 
 The problem is YADE's example (Guo & Zhao, /usr/share/doc/yade/examples/FEMxDEM): a
 50 mm x 100 mm specimen, 8x16 quadrilaterals with 4 Gauss points each (512 periodic cells of
@@ -58,7 +58,7 @@ every 0.2 s): YADE's master and its pool workers, ours mpirun and its ranks.
 
 About 15 minutes for the default 5 increments on a 2-core machine at load 1.5-5 (YADE 9 min,
 50-160 s per increment; ours 3-4 min per tangent; the scatter estimate 20 s). Measured figures
-and what they mean: docs/femdem_yade.md.
+and what they mean: docs/results/femdem_yade.md.
 """
 import argparse
 import csv

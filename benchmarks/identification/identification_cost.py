@@ -1,5 +1,5 @@
 #!/usr/bin/python3
-"""Cost of the identification's building blocks (issue 11 item 9), ratios in one run.
+"""Cost of the identification's building blocks, ratios in one run.
 
 The five virtual tests of thesis 6.1 (hydrostatic to 1 MPa, triaxial 100/300/600 kPa,
 biaxial 100 kPa; --steps load steps each), 14 parameters (6.2):

@@ -1,6 +1,6 @@
 #!/usr/bin/env python3
 """Re-identification of the micropolar parameters from a biaxial FE run (thesis 004, section
-6.2.3; issue 11 item 6, first half).
+6.2.3).
 
 Forward model phi(s): the FE biaxial test of cosserat_fenicsx.scenes.biaxial (the scene of
 demos/biaxial.py, P2/P1, serial, one run at a time) with the micropolar parameters s (any of
@@ -29,7 +29,7 @@ the differences are smooth (l_c -2, 0, +1, +2, +4 %: H = 4.415, 4.475, 4.506, 4.
 and the 1 % differences scatter by 20-30 %.
 
 Reference set, and why not the thesis' Table 6.6 (l_c = 3 mm, k_sigma = 10): in this
-project's reading (docs/regularisation.md) a band of l_c-controlled thickness forms only for
+project's reading (docs/results/regularisation.md) a band of l_c-controlled thickness forms only for
 k_sigma <= ~1; with k_sigma = 10 the band collapses to the mesh, and H would measure the
 element size, not l_c. The reference here is the regularised set of the biaxial
 regularisation study (25 mm x 50 mm specimen, 5 mm weak corner x 0.8, eta = 0.1 s, 8 % axial

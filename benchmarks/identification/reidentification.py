@@ -1,5 +1,5 @@
 #!/usr/bin/python3
-"""Re-identification of the Ehlers parameters at the material point (issue 11 item 5).
+"""Re-identification of the Ehlers parameters at the material point.
 
 The check nobody can fake (thesis 6.2.3's method, applied to the homogeneous tests of 6.1):
 

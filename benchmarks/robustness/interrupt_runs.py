@@ -1,4 +1,4 @@
-"""Interrupt real runs at random moments and count how they end (docs/robustness.md).
+"""Interrupt real runs at random moments and count how they end (docs/reference/robustness.md).
 
 Each trial starts `demos/biaxial.py` (serial or under mpirun), sends SIGINT (to mpirun: what
 Ctrl-C in a terminal does) or SIGTERM after a random delay, then reads back what a user

@@ -29,7 +29,7 @@ import time
 import numpy as np
 
 import demcell as dc
-from demcell.tangent import _perturbation_options, perturbation_tangent, pstlo_operator
+from demcell.tangent import perturbation_options, perturbation_tangent, pstlo_operator
 
 LOADING = np.array([0.5, 0.0, 0.0, -1.0])     # 001 order 11, 12, 21, 22
 SECANT = 1e-4
@@ -42,7 +42,7 @@ def biaxial(e):
 def secant(cell, F):
     """(sigma(F + SECANT D) - sigma(F)) / SECANT, both solved from the committed state with
     the tolerance of a perturbation of this size."""
-    opts = _perturbation_options(cell, SECANT)
+    opts = perturbation_options(cell, SECANT)
     out = []
     for dF in (0.0, SECANT):
         c = cell.copy()
@@ -93,7 +93,7 @@ def main(argv=None):
                            near_limit={str(r): int(np.sum((fn > 0) & (fs >= r * mu * fn))) for r in ratios[1:]},
                            cto_loading_error=float(np.linalg.norm(C_cto @ LOADING - s) / np.linalg.norm(s)), errors={})
                 for r in ratios:
-                    C = pstlo_operator(st, cell._law_array, slip_ratio=r)
+                    C = pstlo_operator(st, cell.law_array, slip_ratio=r)
                     row["errors"][str(r)] = dict(
                         full=float(np.linalg.norm(C - C_cto) / np.linalg.norm(C_cto)),
                         loading=float(np.linalg.norm(C @ LOADING - s) / np.linalg.norm(s)))

@@ -93,7 +93,7 @@ def cells_part(a, log):
                     cell.set_deformation(F[k])
                     steps += cell.solve().steps
                     sig.append(cell.homogenized().cauchy)
-                    kruyt_operator(cell.state, cell._law_array)
+                    kruyt_operator(cell.state, cell.law_array)
                 sig = np.array(sig)
             else:
                 threads = 1 if case == "batch_1_thread" else min(2, numba.config.NUMBA_NUM_THREADS)

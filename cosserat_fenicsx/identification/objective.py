@@ -145,7 +145,7 @@ def check_homogeneous(names):
     if polar:
         raise InputError(f"identification: {polar} have no effect in homogeneous tests (thesis 6.1.1: the "
                          "stress stays symmetric, the couple stress zero); identify them from a biaxial FE run "
-                         "with a band (benchmarks/identify_micropolar.py)")
+                         "with a band (benchmarks/identification/identify_micropolar.py)")
 
 
 def _quiet_worker():

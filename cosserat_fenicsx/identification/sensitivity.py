@@ -11,7 +11,7 @@ prescribed in a deviatoric test and so has zero sensitivity), two ways:
                      driver (dS/ds = 0 on the stress-controlled components);
 ``numerical``        central differences (5.5) (or forward, 5.3) of whole test runs with the step
                      h_k = rel_k max(|s_k|, typical_k) (rel_k: DEFAULT_REL_STEP, from the step
-                     study :func:`step_study`, benchmarks/identification_sensitivity.py), the
+                     study :func:`step_study`, benchmarks/identification/identification_sensitivity.py), the
                      perturbed runs checked to take the same discrete path.
 
 Units SI: d q / d s_k per SI unit of s_k (e.g. Pa/Pa for d axial_stress / d mu).
@@ -60,11 +60,11 @@ PLASTICITY_14 = ("C_beta_D", "C_beta_V", "beta_star", "C_delta_D", "C_delta_V", 
 #: the quantities differentiated (records of the driver's history)
 QUANTITIES = ("axial_stress", "volumetric_strain", "pressure", "axial_strain")
 METHODS = ("numerical", "semi-analytical")
-#: the faster of the two (benchmarks/identification_sensitivity.py: ~20x for a triaxial test
+#: the faster of the two (benchmarks/identification/identification_sensitivity.py: ~20x for a triaxial test
 #: with 150 steps and 14 parameters; it costs ~1.5 runs against 2 m + 1)
 DEFAULT_METHOD = "semi-analytical"
 #: relative step of the central differences per parameter, chosen from the step study
-#: (benchmarks/identification_sensitivity.py): 1e-4 on the plateau between truncation and the
+#: (benchmarks/identification/identification_sensitivity.py): 1e-4 on the plateau between truncation and the
 #: solver noise; n_max (the compression point, eq. 2.70, makes the elastic law strongly
 #: nonlinear in it) needs 1e-5
 DEFAULT_REL_STEP = dict({name: 1e-4 for name in PARAMETERS}, n_max=1e-5)

@@ -9,7 +9,7 @@ keeps their float history, fluxes and tangents), and each home point has one *wo
 whose inner material holds its resident state (the DEM cell) in a *slot*. Initially every
 point is worked on at home; the float history never moves, only the resident state does.
 
-Per call (every rank, every time: `collective = True`, quadrature.GaussPointCallback then
+Per call (every rank, every time: `collective = True`, quadrature.QuadratureMap then
 calls even a rank with nothing to update):
 
     update   home -> worker: point index, gradients, committed history row   (Alltoallv)

@@ -5,7 +5,7 @@ After a converged step (every `every` steps, and at `stop_after`) a run writes D
     meta.json         format, label, step, pseudo-time, next increment, cut-backs, ranks,
                       dolfinx version, the run's options
     fields.npz        the FE solution per component (u1, u2, phi) at its dof coordinates
-    points.npz        the committed Gauss-point arrays (quadrature.committed_arrays) and the
+    points.npz        the committed Gauss-point arrays (QuadratureMap.committed_arrays) and the
                       scene's own per-point arrays, at the Gauss-point coordinates
     resident_R.npz    the material's resident state of rank R's points
                       (Constitutive.export_points: every DEM cell) with their coordinates
@@ -26,8 +26,9 @@ Nothing in a checkpoint is code: every file is JSON or an array file read withou
 a checkpoint received from someone else cannot run anything when read. Format 1 kept the run
 state as a pickle (run.pkl) and is refused rather than read.
 
-A scene that checkpoints provides `problem`, `points` (the (x, y) of its Gauss points in the
-callback's order), `checkpoint_state()` -> (per-point arrays, run-state dict) and
+A scene that checkpoints provides `problem` (a CosseratProblem with a Gauss-point material:
+its `gauss_points` store holds the per-point arrays and their coordinates),
+`checkpoint_state()` -> (per-point arrays, run-state dict) and
 `restore_state(per_point, run_state)`.
 """
 import json
@@ -232,14 +233,14 @@ class Checkpointer:
         start = time.perf_counter()
         comm, scene = self.comm, self.scene
         problem = scene.problem
-        cb = problem.callback
+        cb = problem.gauss_points
         final = checkpoint_path(self.directory)
         tmp = final + ".tmp"
         per_point, run_state = scene.checkpoint_state()
         if self.extra is not None:
             run_state = dict(run_state, extra=self.extra())
         arrays = dict(cb.committed_arrays(), **{"scene_" + k: v for k, v in per_point.items()})
-        points = np.asarray(scene.points, dtype=np.float64)
+        points = np.asarray(cb.coordinates, dtype=np.float64)
         resident = problem.material.export_points(np.arange(cb.n_points))
         fields = _gather_fields(comm, problem)
         gathered = comm.gather((points, arrays), root=0)
@@ -295,9 +296,8 @@ class Checkpointer:
         meta = read_meta(self.directory, self.label)
         path = checkpoint_path(self.directory)
         problem = scene.problem
-        problem._ensure_callback()
-        cb = problem.callback
-        mine = np.asarray(scene.points, dtype=np.float64)
+        cb = problem.gauss_points
+        mine = np.asarray(cb.coordinates, dtype=np.float64)
         n_points = self.comm.allreduce(len(mine))
         if n_points != meta["n_points"]:
             raise CheckpointError(f"the checkpoint holds {meta['n_points']} Gauss points, this run has {n_points}: "

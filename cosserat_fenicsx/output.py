@@ -161,16 +161,16 @@ class FieldWriter:
             self.outputs["displacement"].interpolate(u_sub)
         if "rotation" in self.outputs:
             self.outputs["rotation"].interpolate(phi_sub)
-        callback = problem.callback
+        store = problem.gauss_points
         if "stress" in self.outputs:
-            if callback is not None:
-                flux = callback.cell_average(callback.flux_values)
+            if store is not None:
+                flux = store.cell_average(store.flux_values)
                 self._set_cell_values(self.outputs["stress"], flux[:, [0, 2, 3, 1]])
             else:
                 self._interpolate_dg0("stress", problem.stress())
         if "couple_stress" in self.outputs:
-            if callback is not None:
-                flux = callback.cell_average(callback.flux_values)
+            if store is not None:
+                flux = store.cell_average(store.flux_values)
                 self._set_cell_values(self.outputs["couple_stress"], flux[:, 4:6])
             else:
                 self._interpolate_dg0("couple_stress", problem.couple_stress())

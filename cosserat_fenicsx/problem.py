@@ -6,9 +6,9 @@ one weak form (eq 5.6) with test functions (v, w):
     int sigma : strain(v, w) + m . grad(w) dA = int f.v + c w dA + int t.v + m_n w ds
 
 Taylor-Hood P2 displacement / P1 rotation by default (eq 3.6). The material enters
-either as pure UFL (`MicropolarElasticity`) or through the Gauss-point callback
+either as pure UFL (`MicropolarElasticity`) or as a Gauss-point material
 (`Constitutive`), in which case stress, couple stress and tangent are quadrature
-Functions. A Cauchy scene (`micropolar=False`) has no rotation field at all.
+Functions of its store, `gauss_points` (a quadrature.QuadratureMap). A Cauchy scene (`micropolar=False`) has no rotation field at all.
 
 Loads (Dirichlet values, tractions, surface couples, body force and couple) are given
 at full magnitude and scaled by `scale(t)` (default: the load factor t itself) over the
@@ -112,7 +112,7 @@ class CosseratProblem:
     mesh, facet_tags   dolfinx mesh and facet MeshTags
     boundaries         {name: tag} of the facet tags, e.g. {"bottom": 1, "top": 2}
     elasticity         MicropolarElasticity for the pure-UFL path, or
-    material           a Constitutive for the Gauss-point callback path (exactly one)
+    material           a Constitutive evaluated at the Gauss points (exactly one)
     micropolar         False: Cauchy continuum, no rotation field
     degree_u, degree_phi   Lagrange degrees (default Taylor-Hood 2 / 1)
     """
@@ -120,7 +120,7 @@ class CosseratProblem:
     def __init__(self, mesh, facet_tags, boundaries, elasticity=None, material=None,
                  micropolar=True, degree_u=2, degree_phi=1, quadrature_degree=None):
         if (elasticity is None) == (material is None):
-            raise ValueError("give exactly one of elasticity= (pure UFL) or material= (callback)")
+            raise ValueError("give exactly one of elasticity= (pure UFL) or material= (Gauss-point material)")
         if elasticity is not None and not isinstance(elasticity, MicropolarElasticity):
             raise TypeError("elasticity must be a MicropolarElasticity")
         if material is not None and not isinstance(material, Constitutive):
@@ -161,7 +161,7 @@ class CosseratProblem:
         self._surface_loads = []
         self._body_force = self._body_couple = None
         self._collapsed = {}
-        self.callback = None
+        self._gauss_points = None
         self._compiled = None
         self._internal_form = None
         self.time = 0.0
@@ -280,8 +280,8 @@ class CosseratProblem:
     # --- constitutive response --------------------------------------------------------
     def stress(self):
         """Force stress (2x2, non-symmetric) as UFL [Pa]."""
-        if self.callback is not None:
-            return self.callback.stress()
+        if self.material is not None:
+            return self.gauss_points.stress()
         u, phi = self.split(self.w)
         return self.elasticity.stress(strain(u, phi))
 
@@ -289,8 +289,8 @@ class CosseratProblem:
         """Couple stress (m31, m32) as UFL [N/m]."""
         if not self.micropolar:
             return None
-        if self.callback is not None:
-            return self.callback.couple_stress()
+        if self.material is not None:
+            return self.gauss_points.couple_stress()
         return self.elasticity.couple_stress(curvature(self.rotation))
 
     # --- forms ---------------------------------------------------------------------
@@ -325,8 +325,7 @@ class CosseratProblem:
     def internal_work(self):
         v, w_test = self.split(self.v)
         if self.material is not None:
-            self._ensure_callback()
-            flux = self.callback.flux
+            flux = self.gauss_points.flux
             return ufl.dot(flux, gradient_vector(v, w_test)) * self.dx
         work = ufl.inner(self.stress(), strain(v, w_test)) * self.dx
         if self.micropolar:
@@ -339,44 +338,48 @@ class CosseratProblem:
 
     def jacobian_ufl(self):
         if self.material is not None:
-            self._ensure_callback()
             v, w_test = self.split(self.v)
             du, dphi = self.split(self.dw)
-            C = self.callback.tangent_matrix()
+            C = self.gauss_points.tangent_matrix()
             return ufl.dot(ufl.dot(C, gradient_vector(du, dphi)), gradient_vector(v, w_test)) * self.dx
         return ufl.derivative(self.residual_ufl(), self.w, self.dw)
 
-    def _ensure_callback(self):
-        if self.callback is None:
-            from .quadrature import GaussPointCallback
+    @property
+    def gauss_points(self):
+        """The material's Gauss-point store (quadrature.QuadratureMap), built on first
+        access: the material's history is allocated then, so zones and point coordinates are
+        given to the material before. None for a pure-UFL problem."""
+        if self._gauss_points is None and self.material is not None:
+            from .quadrature import QuadratureMap
             u, phi = self.split(self.w)
-            self.callback = GaussPointCallback(self.mesh, self.material, gradient_vector(u, phi),
+            self._gauss_points = QuadratureMap(self.mesh, self.material, gradient_vector(u, phi),
                                                self.quadrature_degree)
+        return self._gauss_points
 
     # --- state management used by the load stepping ------------------------------------
     def before_residual(self):
         """Called by the solver whenever the fields changed (material update)."""
-        if self.callback is not None:
-            self.callback.update()
+        if self._gauss_points is not None:
+            self._gauss_points.update()
 
     def before_jacobian(self):
         """Called by the solver before the Jacobian is assembled (material tangents)."""
-        if self.callback is not None:
-            self.callback.update_tangent()
+        if self._gauss_points is not None:
+            self._gauss_points.update_tangent()
 
     def commit(self, dt):
         self.w_committed.x.array[:] = self.w.x.array
-        if self.callback is not None:
-            self.callback.commit()
+        if self._gauss_points is not None:
+            self._gauss_points.commit()
 
     def rollback(self):
         self.w.x.array[:] = self.w_committed.x.array
-        if self.callback is not None:
-            self.callback.rollback()
+        if self._gauss_points is not None:
+            self._gauss_points.rollback()
 
     def set_time_step(self, dt):
-        if self.callback is not None:
-            self.callback.time_step = dt
+        if self._gauss_points is not None:
+            self._gauss_points.time_step = dt
 
     # --- post-processing ---------------------------------------------------------------
     def reaction(self, boundary, component):

@@ -1,4 +1,4 @@
-"""Gauss-point plumbing of the constitutive callback.
+"""The Gauss-point data store and evaluator of a material (`QuadratureMap`).
 
 Strain and curvature are evaluated at the quadrature points of the cells this rank owns
 (dolfinx 0.5 cannot interpolate an Expression into a quadrature space, so the Expression
@@ -7,7 +7,7 @@ couple stress and tangent are written into quadrature Functions that the residua
 Jacobian forms use. The quadrature degree of these spaces is the degree of the forms'
 measure, so the forms read exactly the values the material produced.
 
-Which points are updated when (docs/callback.md):
+Which points are updated when (docs/quadrature_map.md):
 
 * residual: every point, or, for a `rate_independent` material, the points whose
   gradients differ from those of their last update (bitwise);
@@ -31,11 +31,27 @@ from .constitutive import ConstitutiveError, STATUS_OK
 from .kinematics import stress_tensor, couple_stress_vector
 
 
-class GaussPointCallback:
-    """Owns the quadrature fields, the committed/trial history of one material and the
-    per-point status and cost arrays.
+def gauss_point_coordinates(mesh, degree):
+    """(x, y) [m] of the quadrature points of degree `degree` of the cells this rank owns,
+    in the row order of a QuadratureMap (point p of owned cell c is row c * n_qp + p).
+    Needs no store: a scene that places zones by position calls it before the store is
+    built."""
+    points, _ = compat.quadrature_points(mesh, degree)
+    expr = dolfinx.fem.Expression(ufl.SpatialCoordinate(mesh), points)
+    cells = np.arange(compat.num_owned_cells(mesh), dtype=np.int32)
+    return compat.eval_expression(expr, mesh, cells).reshape(-1, mesh.geometry.dim)[:, :2]
 
+
+class QuadratureMap:
+    """The Gauss-point data store of one material and its evaluator: the quadrature fields
+    the forms read, the committed/trial history, the per-point status and cost arrays.
+    Rows: the Gauss points of the cells this rank owns (`coordinates` gives their x, y).
+
+    gradients (n, 6)  gradients of the last evaluation (kinematics.GRADIENT_NAMES)
+    flux_values (n, 6), tangent_values (n, 6, 6)  current fluxes and tangents
+    state_old, state_new (n, state_size)  committed and trial float history
     status  (n,) int  status of the last update of each point (0 ok, > 0 flagged)
+     (n,) int  status of the last update of each point (0 ok, > 0 flagged)
     cost    (n,)      work spent on each point since the last commit (material's unit)
     step_cost (n,)    the same for the last converged step (what a load balancer reads)
     timers  wall seconds in gradient evaluation, material update, material tangent
@@ -80,9 +96,26 @@ class GaussPointCallback:
         self._stale_committed = self._tangent_stale.copy()
         self._status_committed = self.status.copy()
 
+        self._coordinates = None
+
     @property
     def n_points(self):
         return len(self.cells) * self.n_qp
+
+    @property
+    def coordinates(self):
+        """(n_points, 2) x, y [m] of the rows (gauss_point_coordinates), computed once."""
+        if self._coordinates is None:
+            self._coordinates = gauss_point_coordinates(self.mesh, self.degree)
+        return self._coordinates
+
+    def set_initial_fluxes(self, values):
+        """Current and committed fluxes (n_points, flux_size) before the first solve, e.g.
+        the stress of a pre-stressed reference state; the flux Function follows."""
+        self.flux_values[:] = values
+        self._flux_committed[:] = self.flux_values
+        nf = self.material.flux_size
+        self.flux.x.array.reshape(-1, nf)[self.dofs] = self.flux_values
 
     # --- UFL views used by the forms -----------------------------------------------
     def stress(self):

@@ -280,8 +280,8 @@ class NewtonSolver:
         self.problem.w.x.scatter_forward()
         reason = self.snes.getConvergedReason()
         history = list(self.snes.getConvergenceHistory()[0])
-        callback = self.problem.callback
-        flag = callback.flag_message if callback is not None else ""
+        store = self.problem.gauss_points
+        flag = store.flag_message if store is not None else ""
         flags = next((f for f in self.problem.mesh.comm.allgather(flag) if f), "")
         converged = reason > 0 and not self._failure
         accepted = False

@@ -225,7 +225,7 @@ if checkpoint.start(test, guard, extra=lambda: {"per_point": per_point, "written
     per_point, written = checkpoint.restored_extra["per_point"], checkpoint.restored_extra["written"]
 
 # --- outputs written as the run goes ---------------------------------------------------
-cb = test.callback
+cb = test.gauss_points
 idx = test.material.state_index
 writer = FieldWriter(test.problem, checkpoint.fields_path("fields.xdmf"), args.fields,
                      resume_time=checkpoint.resume_time)

@@ -84,7 +84,7 @@ def test_cut_back_recovers_and_commits_history():
     assert stepper.records[-1].time == pytest.approx(1.0)
     assert np.allclose(problem.w.x.array, reference.w.x.array, rtol=1e-7, atol=1e-12)
     # the committed history is the converged state, not a failed trial
-    assert np.allclose(problem.callback.state_old, problem.callback.gradients)
+    assert np.allclose(problem.gauss_points.state_old, problem.gauss_points.gradients)
 
 
 class FailsOnRankZero(LinearElasticMaterial):

@@ -71,7 +71,7 @@ def assert_everywhere(ok, what):
 
 def max_strain(problem, local=False):
     """Largest strain component of the converged fields (on this rank if local)."""
-    value = float(np.abs(problem.callback.gradients[:, :4]).max(initial=0.0))
+    value = float(np.abs(problem.gauss_points.gradients[:, :4]).max(initial=0.0))
     return value if local else COMM.allreduce(value, op=MPI.MAX)
 
 
@@ -93,7 +93,7 @@ class ProbeElastic(LinearElasticMaterial):
         super().__init__(elasticity)
         self.status_rule, self.tangent_rule = status_rule, tangent_rule
         self.events = []       # shared with Recorder: ordered log of the calls
-        self.callback = None   # set by Recorder: lets commit/rollback look at the float history
+        self.gauss_points = None   # set by Recorder: lets commit/rollback look at the float history
         self.dt = None
 
     def initial_state(self, n_points):
@@ -164,8 +164,8 @@ class ProbeElastic(LinearElasticMaterial):
     def commit(self):
         self.events.append(("commit",))
         self.commits += 1
-        if self.callback is not None:   # called after the float history was committed
-            self.commit_after_history.append(np.array_equal(self.callback.state_old, self.callback.state_new))
+        if self.gauss_points is not None:   # called after the float history was committed
+            self.commit_after_history.append(np.array_equal(self.gauss_points.state_old, self.gauss_points.state_new))
         self.at_committed = self.at.copy()
         self.base = np.where(np.isnan(self.at), self.base, self.at)
         self.step_cost = self.cost_acc.copy()
@@ -174,11 +174,11 @@ class ProbeElastic(LinearElasticMaterial):
     def rollback(self):
         self.events.append(("rollback",))
         self.rollbacks += 1
-        if self.callback is not None:   # called after the float history was restored
-            self.rollback_after_history.append(np.array_equal(self.callback.state_new, self.callback.state_old))
+        if self.gauss_points is not None:   # called after the float history was restored
+            self.rollback_after_history.append(np.array_equal(self.gauss_points.state_new, self.gauss_points.state_old))
         self.at = self.at_committed.copy()
         self.stale[:] = True   # the cells are back at the committed state: tangents must follow
-        # work done stays counted until the next commit (GaussPointCallback.cost)
+        # work done stays counted until the next commit (QuadratureMap.cost)
 
 
 class RateIndependent(ProbeElastic):
@@ -208,11 +208,11 @@ class Recorder:
 
     def __init__(self, problem, solver, material):
         self.problem, self.material = problem, material
-        self.callback = problem.callback
-        material.callback = problem.callback
+        self.gauss_points = problem.gauss_points
+        material.gauss_points = problem.gauss_points
         self.events = material.events
         self.infos = []
-        self.committed_flux = self.callback.flux_values.copy()
+        self.committed_flux = self.gauss_points.flux_values.copy()
         self.check_solve_start = self.check_solve_end = self.check_commit = None
         residual, jacobian = problem.before_residual, problem.before_jacobian
         commit, solve = problem.commit, solver.solve
@@ -227,7 +227,7 @@ class Recorder:
 
         def on_commit(dt):
             commit(dt)
-            self.committed_flux = self.callback.flux_values.copy()
+            self.committed_flux = self.gauss_points.flux_values.copy()
             if self.check_commit:
                 self.check_commit()
 
@@ -299,7 +299,7 @@ def test_rate_independent_skips_unchanged_points(kind):
     problem = scene(material, mesh_data)
     stepper, rec = run(problem, material, dt=0.25)
     stepper.run()
-    n = problem.callback.n_points
+    n = problem.gauss_points.n_points
     assert len(stepper.records) == 4 and stepper.records[-1].cuts == 0
 
     assert relative_difference(ref.w.x.array, problem.w.x.array) <= 1e-9
@@ -318,7 +318,7 @@ def test_rate_independent_skips_unchanged_points(kind):
     plain_total = n * len(ref_residuals)
     assert_everywhere(total < plain_total, f"{total} point updates, plain material {plain_total}")
     assert_everywhere(total <= plain_total - 3 * n, "the first residuals of steps 2-4 were not skipped")
-    counters = problem.callback.counters
+    counters = problem.gauss_points.counters
     residuals = sum(len(s) for s in solves)
     assert_everywhere(counters["point_updates"] == total, f"counters {counters} vs material {total}")
     assert_everywhere(counters["points_unchanged"] == residuals * n - total, f"counters {counters}")
@@ -331,7 +331,7 @@ def test_rate_independent_points_are_the_changed_ones():
     material = RateIndependentOnDemand(ELASTIC)
     problem = scene(material, plate())
     NewtonSolver(problem)      # builds the forms and the callback
-    cb = problem.callback
+    cb = problem.gauss_points
     n = cb.n_points
     problem.before_residual()                      # never updated: every point
     phi_space, phi_map = problem.W.sub(1).collapse()
@@ -364,9 +364,9 @@ def test_rate_independent_same_fields_update_nothing(kind):
     problem.before_residual()
     problem.before_residual()
     problem.before_jacobian()
-    assert_everywhere(material.update_points == [problem.callback.n_points], f"{material.update_points}")
-    assert_everywhere(problem.callback.counters["points_unchanged"] == problem.callback.n_points,
-                      f"counters {problem.callback.counters}")
+    assert_everywhere(material.update_points == [problem.gauss_points.n_points], f"{material.update_points}")
+    assert_everywhere(problem.gauss_points.counters["points_unchanged"] == problem.gauss_points.n_points,
+                      f"counters {problem.gauss_points.counters}")
 
 
 # --- 2. tangents on demand --------------------------------------------------------------------
@@ -402,7 +402,7 @@ def test_tangent_on_demand_from_jacobian_path_only(kind):
                       f"{material.tangent_not_stale} tangents of points not updated since their last one")
     assert_everywhere(material.tangent_missed == 0,
                       f"{material.tangent_missed} points updated but left out of the tangent call")
-    counted = problem.callback.counters["point_tangents"]
+    counted = problem.gauss_points.counters["point_tangents"]
     assert_everywhere(counted == sum(material.tangent_points), f"point_tangents {counted}")
 
 
@@ -433,7 +433,7 @@ def test_commit_and_rollback_follow_the_stepper(kind):
     material = kind(ELASTIC, status_rule=increment_limit(0.5 * max_strain(ref)))
     problem = scene(material, mesh_data)
     stepper, rec = run(problem, material, dt=0.25, dt_max=1.0, grow=4.0)
-    cb = problem.callback
+    cb = problem.gauss_points
     trial_differs, start_ok, function_ok = [], [], []
 
     def solve_start():
@@ -540,7 +540,7 @@ def test_status_cost_and_collective_flags(kind):
     material = kind(ELASTIC, status_rule=flag_on_rank_zero)
     problem = scene(material, mesh_data)
     stepper, rec = run(problem, material, dt=0.25)
-    cb = problem.callback
+    cb = problem.gauss_points
     cost_ok, step_cost_ok, status_ok, flag_local = [], [], [], []
 
     def solve_end(info):
@@ -589,7 +589,7 @@ def test_flags_reported_in_a_step_without_load_change(kind):
     stepper.run()
     assert len(rec.infos) == 2 and all(info.converged for info in rec.infos)
     assert rec.infos[1].iterations == 0
-    flagged = COMM.allreduce(int(np.count_nonzero(problem.callback.status > 0)))
+    flagged = COMM.allreduce(int(np.count_nonzero(problem.gauss_points.status > 0)))
     assert flagged > 0                              # still flagged at the last iterate
     assert_everywhere(all(info.flags == FLAG for info in rec.infos), f"flags {[i.flags for i in rec.infos]}")
 

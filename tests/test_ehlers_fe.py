@@ -58,7 +58,7 @@ def test_elastic_limit_equals_elastic_solution():
         material = EhlersMaterial.hostun(mu=MU, lmbda=LMBDA, l_c=L_C, beta0=0.4, beta_star=0.4)
         pe = _inclined_load_problem(p, material=material)
         w_ehlers = _solve(pe)
-        state = pe.callback.state_old
+        state = pe.gauss_points.state_old
         idx = EhlersMaterial.state_index
         assert COMM.allreduce(float(state[:, idx["yield_function"]].max()), op=MPI.MAX) < 0.0  # elastic
         assert COMM.allreduce(float(np.abs(state[:, idx["Lambda"]]).max()), op=MPI.MAX) == 0.0

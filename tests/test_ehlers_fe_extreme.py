@@ -71,7 +71,7 @@ def test_near_the_compression_point():
     lambda there), and the FE still converges. Beyond (8 MN/m^2) the material point of
     the consolidation stops with a ConstitutiveError naming the local failure."""
     test, rows = run(confining=5e6, consolidation_steps=20, axial_strain=0.002, steps=2, weak_size=0.0)
-    st, idx = test.callback.state_old, test.material.state_index
+    st, idx = test.gauss_points.state_old, test.material.state_index
     eps_p_vol = st[:, idx["eps_p11"]] + st[:, idx["eps_p22"]] + st[:, idx["eps_p33"]]
     x = st[:, idx["eps11"]] + st[:, idx["eps22"]] - eps_p_vol
     p = test.material.parameters

@@ -73,7 +73,7 @@ def macro_jacobians(test, h=1e-9):
     import dolfinx.fem.petsc
     from petsc4py import PETSc
     from cosserat_fenicsx.materials.dem import TANGENTS
-    p, cb = test.problem, test.callback
+    p, cb = test.problem, test.gauss_points
     residual_form, jacobian_form = p.forms()
     bc_rows = np.unique(np.concatenate([bc.dof_indices()[0] for bc in p.bcs]))
     free = np.setdiff1d(np.arange(p.w.x.array.size), bc_rows)
@@ -215,7 +215,7 @@ def test_band_is_fitted_outside_the_imperfection():
     assert np.array_equal(test.in_imperfection, weak) and weak.sum() == 8 * 3   # whole elements
     d = (y - 4e-3) * np.cos(np.pi / 4) - x * np.sin(np.pi / 4)
     e = 0.01 + 0.04 * np.exp(-d ** 2 / (2 * 2e-3 ** 2)) + np.where(weak, 0.5, 0.0)
-    grads = test.callback.gradients
+    grads = test.gauss_points.gradients
     grads[:] = 0.0
     grads[:, 0] = e                                # |sym(eps)| = eps_11
     fit = test.band()

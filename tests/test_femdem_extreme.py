@@ -23,7 +23,8 @@ from cosserat_fenicsx import meshes
 from cosserat_fenicsx.materials.dem import CellOptions, DemMaterial, make_mode, reference_cells
 from cosserat_fenicsx.materials.dem.material import STATUS_BAD_F, STATUS_NO_CONTACTS
 from cosserat_fenicsx.problem import CosseratProblem
-from cosserat_fenicsx.scenes.biaxial import RecordingSolver, gauss_point_coordinates
+from cosserat_fenicsx.quadrature import gauss_point_coordinates
+from cosserat_fenicsx.scenes.biaxial import RecordingSolver
 from cosserat_fenicsx.scenes.femdem_biaxial import FemDemBiaxial, FemDemSettings
 from cosserat_fenicsx.snes import NewtonSolver
 from cosserat_fenicsx.stepping import LoadStepper, LoadSteppingError
@@ -56,7 +57,7 @@ def history_is_finite(history):
 
 def assert_finite(test):
     """No NaN / inf in the fluxes, the committed history, the fields or the history rows."""
-    cb = test.callback
+    cb = test.gauss_points
     assert everywhere(np.isfinite(cb.flux_values).all() and np.isfinite(cb.state_old).all()
                       and np.isfinite(test.problem.w.x.array).all()), "non-finite flux, state or field"
     assert everywhere(history_is_finite(test.history)), test.history
@@ -148,10 +149,8 @@ def pulled_apart_scene(reference, steps):
     problem.add_dirichlet("top", "u2", 1.0, scale=lambda t: 0.02 * H * t)
     problem.add_point_dirichlet((0.5 * W, 0.0), "u1", 0.0)
     solver = RecordingSolver(NewtonSolver(problem, options={"snes_linesearch_type": "basic"}, force_rtol=1e-2))
-    problem._ensure_callback()
-    cb = problem.callback
-    cb.flux_values[:] = material.initial_fluxes()        # sigma = -p0 I, as FemDemBiaxial
-    cb._flux_committed[:] = cb.flux_values
+    cb = problem.gauss_points
+    cb.set_initial_fluxes(material.initial_fluxes())     # sigma = -p0 I, as FemDemBiaxial
     stepper = LoadStepper(problem, solver, t_end=float(steps), dt=1.0, dt_min=2.0 ** -3, verbose=False)
     message = ""
     try:

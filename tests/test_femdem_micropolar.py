@@ -196,7 +196,7 @@ def test_tiny_micropolar_run_in_process():
     f0 = test.material.initial_fluxes().copy()
     history = test.run()
     assert len(history) == 3 and 0 < test.n_weak_cells < 4          # a non-uniform specimen
-    cb = test.callback
+    cb = test.gauss_points
     assert np.all(np.isfinite(cb.flux_values)) and np.all(np.isfinite(cb.gradients))
     kappa, m = cb.gradients[:, 4:], cb.flux_values[:, 4:]
     curved = np.linalg.norm(kappa, axis=1) > 0

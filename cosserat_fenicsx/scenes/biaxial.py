@@ -52,6 +52,7 @@ from ..checkpoint import stepper_keywords
 from ..constitutive import Constitutive
 from ..output import print0
 from ..problem import CosseratProblem
+from ..quadrature import gauss_point_coordinates
 from ..shear_band import fit_band_collective, strain_norm
 from ..snes import NewtonSolver
 from ..stepping import LoadStepper
@@ -110,7 +111,7 @@ class ZonedMaterial(Constitutive):
     """Several materials with the same state layout, each on its own set of Gauss points.
 
     `zone` (n_points,) gives the index of the material of each point; it must be set (by
-    set_zones) before the callback allocates the history. The update of each zone is the
+    set_zones) before the Gauss-point store allocates the history. The update of each zone is the
     update of its material on the zone's rows, so the partition of the work follows the
     mesh partition as for a single material. `kernel_time` accumulates the wall time of
     the material updates (the profile benchmark reads it)."""
@@ -191,14 +192,6 @@ def convergence_orders(residuals, floor=None):
     return q
 
 
-def gauss_point_coordinates(mesh, degree):
-    """(x, y) of the quadrature points of the owned cells, in the callback's row order."""
-    points, _ = compat.quadrature_points(mesh, degree)
-    expr = dolfinx.fem.Expression(ufl.SpatialCoordinate(mesh), points)
-    cells = np.arange(compat.num_owned_cells(mesh), dtype=np.int32)
-    return compat.eval_expression(expr, mesh, cells).reshape(-1, mesh.geometry.dim)[:, :2]
-
-
 class BiaxialTest:
     """Build and run one biaxial test; see the module docstring for the set-up."""
 
@@ -262,11 +255,11 @@ class BiaxialTest:
 
     # --- measurements -----------------------------------------------------------------
     @property
-    def callback(self):
-        return self.problem.callback
+    def gauss_points(self):
+        return self.problem.gauss_points
 
     def state(self, name):
-        return self.callback.state_old[:, self.material.state_index[name]]
+        return self.gauss_points.state_old[:, self.material.state_index[name]]
 
     def vertical_stress(self):
         """Platen reaction / width (section 6.2.3) [Pa], negative in compression."""
@@ -279,7 +272,7 @@ class BiaxialTest:
 
     def strain_norm(self):
         """|eps| of the total (non-symmetric) strain at every owned Gauss point (section 4.4)."""
-        g = self.callback.evaluate_gradients()
+        g = self.gauss_points.evaluate_gradients()
         return strain_norm(g)
 
     def band(self):
@@ -290,7 +283,7 @@ class BiaxialTest:
         """(name, shape, values_fn) of the DG0 fields written next to the FE fields; the
         plastic strain is a 2x2 tensor (row-major eps_p11, eps_p12, eps_p21, eps_p22) like
         the stress, so that XDMF stores it as cell data."""
-        cb = lambda: self.callback  # noqa: E731
+        cb = lambda: self.gauss_points  # noqa: E731
         idx = self.material.state_index
 
         def avg(columns):

@@ -43,12 +43,13 @@ from mpi4py import MPI
 
 from .. import compat, meshes
 from ..problem import CosseratProblem
+from ..quadrature import gauss_point_coordinates
 from ..checkpoint import stepper_keywords
 from ..shear_band import fit_band_collective
 from ..snes import NewtonSolver
 from ..stepping import LoadStepper
 from ..validation import check
-from .biaxial import RecordingSolver, gauss_point_coordinates
+from .biaxial import RecordingSolver
 
 DEFAULT_SOLVER_OPTIONS = {"snes_linesearch_type": "basic"}   # full Newton steps, as 001 and YADE
 
@@ -307,10 +308,8 @@ class FemDemBiaxial:
                                    stagnation_its=s.stagnation_its if s.accept_rtol is not None else None)
         self.solver = RecordingSolver(self.newton)
         self._volume_form = dolfinx.fem.form(ufl.div(problem.displacement) * problem.dx)
-        problem._ensure_callback()
-        cb = self.callback
-        cb.flux_values[:] = self.material.initial_fluxes()       # sigma = -p0 I before any solve
-        cb._flux_committed[:] = cb.flux_values
+        cb = problem.gauss_points
+        cb.set_initial_fluxes(self.material.initial_fluxes())    # sigma = -p0 I before any solve
         self.gradients_start = np.zeros_like(cb.gradients)       # phase 2 starts at u = 0
         self.gradients_previous = np.zeros_like(cb.gradients)
         self.history = []
@@ -322,13 +321,13 @@ class FemDemBiaxial:
         return -s.height * s.axial_strain * max(t - 1.0, 0.0) / s.steps
 
     @property
-    def callback(self):
-        return self.problem.callback
+    def gauss_points(self):
+        return self.problem.gauss_points
 
     # --- measurements ---------------------------------------------------------------------
     def state(self, name):
         """Committed output `name` of every owned Gauss point (DemMaterial.state_names)."""
-        return self.callback.state_old[:, self.material.state_index[name]]
+        return self.gauss_points.state_old[:, self.material.state_index[name]]
 
     def mean(self, values):
         """Mean over all Gauss points of all ranks (000 averages over the integration points)."""
@@ -336,14 +335,14 @@ class FemDemBiaxial:
 
     def gauss_point_ratios(self):
         """Stress ratio (000 eq. 40) of every owned Gauss point from the committed fluxes."""
-        f = self.callback.flux_values
+        f = self.gauss_points.flux_values
         den = np.abs(f[:, 0] + f[:, 1])
         return np.where(den > 0, np.abs(f[:, 0] - f[:, 1]) / np.where(den > 0, den, 1.0), 0.0)
 
     def equivalent_strain(self, since):
         """|sym(eps - eps_since)| (Frobenius) per owned Gauss point: 000 Fig. 7's equivalent
         strain since the gradients `since` (the start of phase 2, or the last step)."""
-        d = self.callback.gradients[:, :4] - since[:, :4]
+        d = self.gauss_points.gradients[:, :4] - since[:, :4]
         sym = 0.5 * (d[:, 2] + d[:, 3])
         return np.sqrt(d[:, 0] ** 2 + d[:, 1] ** 2 + 2.0 * sym ** 2)
 
@@ -372,7 +371,7 @@ class FemDemBiaxial:
     def row(self, record):
         """One history row at a converged step."""
         s, comm = self.s, self.comm
-        cb = self.callback
+        cb = self.gauss_points
         info = self.solver.infos[-1]
         phase = 1 if record.time <= 1.0 + 1e-9 else 2
         reaction = self.problem.reaction("top", "u2")
@@ -415,7 +414,7 @@ class FemDemBiaxial:
             self.history.append(row)
             if on_step is not None:
                 on_step(row)
-            self.gradients_previous[:] = self.callback.gradients
+            self.gradients_previous[:] = self.gauss_points.gradients
 
         self.stepper = LoadStepper(self.problem, self.solver, t_end=self.t_end, dt=1.0,
                                    dt_min=self.s.dt_min_fraction, dt_max=1.0, on_step=record,
@@ -428,7 +427,7 @@ class FemDemBiaxial:
         the rest of the Newton solves (linear solve, SNES) and everything."""
         t = self.newton.timers
         m = self.material.timers
-        cb = self.callback.timers
+        cb = self.gauss_points.timers
         other = t["solve_total"] - t["material"] - t["residual_assembly"] - t["jacobian_assembly"]
         return {"cell_solves": m["solve"], "cell_homogenisation": m["homogenize"], "cell_tangents": m["tangent"],
                 "cell_commits": m["commit"], "gradient_evaluation": cb["gradients"],

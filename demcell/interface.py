@@ -34,8 +34,8 @@ from .periodic_cell import path_point, path_setup, reduce_cell, substep_count
 from .relaxation import (ENERGY_RATIO, FIRE, LOCAL_DAMPING, MAX_STEPS, NO_CONTACTS, ROT_MICROPOLAR,
                          UNBALANCED_FORCE, run, stable_time_step)
 from .state import CellState
-from .tangent import (demqo_tangent, dsigma_to_dpk1, kruyt_operator, micropolar_tangent,
-                      perturbation_tangent, pstlo_operator, floor_stiffness, SLIP_RATIO)
+from .tangent import (SLIP_RATIO, TANGENT_KINDS, demqo_tangent, dsigma_to_dpk1, floor_stiffness, kruyt_operator,
+                      micropolar_tangent, perturbation_tangent, pstlo_operator, tangent_kind)
 
 #: how the grains of a cell rotate: 'free' (rotations follow the contact moments, the macro spin
 #: is added: symmetric stress at equilibrium), 'locked' (no grain rotation, 000 section 4.3.2),
@@ -549,7 +549,8 @@ class DemCell(MicroCell):
 
     def tangent(self, kind="kruyt", measure="dsigma_dF", eps=None):
         """Tangent operator, 4x4 in the order of 001 eq. 11.
-        kind: 'kruyt' (001 eq. 13, closed form), 'demqo' (001 eq. 20, 4 frozen-contact
+        kind: a name of tangent.TANGENT_KINDS, whose entries say what each computes and for
+        which cells: 'kruyt' (001 eq. 13, closed form), 'demqo' (001 eq. 20, 4 frozen-contact
         relaxations), 'pstlo' (001 appendix B, one sparse solve of the same linearized
         problem), 'pstlo_sliding' (the same with the contacts near their Coulomb limit sliding:
         tangent.SLIP_RATIO; floored: tangent.floor_stiffness), 'perturbation' (CTO, 001 eq. 6,
@@ -562,34 +563,27 @@ class DemCell(MicroCell):
         rotation field: the assumption of 003 eqs 21-24)."""
         if not isinstance(measure, str) or measure not in ("dsigma_dF", "dP_dF", "micropolar"):
             raise InputError(f"unknown tangent measure {measure!r}: 'dsigma_dF', 'dP_dF' or 'micropolar'")
-        if not isinstance(kind, str):
-            raise InputError(f"tangent kind must be a string ('kruyt', 'demqo', 'pstlo', 'pstlo_sliding' or "
-                             f"'perturbation'), got {kind!r}")
+        kind = tangent_kind(kind, micropolar=measure == "micropolar").name
         # a perturbation beyond 0.1 of F is no derivative any more
         eps = checks.optional("eps", eps, Range(0.0, 0.1, low_open=True))
         if measure == "micropolar":
-            if kind == "pstlo_sliding":
-                raise InputError("tangent 'pstlo_sliding' is for Cauchy cells (measure 'dsigma_dF' or 'dP_dF'); "
-                                 "a micropolar cell has 'pstlo', 'demqo', 'kruyt' and 'perturbation'")
             if not self.micropolar:
                 raise InputError("measure='micropolar' needs a cell created with rotation_mode='micropolar'")
             C, results = micropolar_tangent(self, kind, eps)
             self.last_tangent_steps = sum(r.steps for r in results)
             return C
         results = []
+        eps = TANGENT_KINDS[kind].default_eps if eps is None else eps
         if kind == "kruyt":
             C = kruyt_operator(self.state, self._law_array)
         elif kind == "demqo":
-            C, results = demqo_tangent(self, 1e-6 if eps is None else eps)
+            C, results = demqo_tangent(self, eps)
         elif kind == "perturbation":
-            C, results = perturbation_tangent(self, 1e-5 if eps is None else eps)
+            C, results = perturbation_tangent(self, eps)
         elif kind == "pstlo":
             C = pstlo_operator(self.state, self._law_array)
-        elif kind == "pstlo_sliding":
-            C = floor_stiffness(pstlo_operator(self.state, self._law_array, slip_ratio=SLIP_RATIO))
         else:
-            raise InputError(f"unknown tangent kind {kind!r}: 'kruyt', 'demqo', 'pstlo', 'pstlo_sliding' or "
-                             "'perturbation'")
+            C = floor_stiffness(pstlo_operator(self.state, self._law_array, slip_ratio=SLIP_RATIO))
         self.last_tangent_steps = sum(r.steps for r in results)   # DEM steps of its relaxations
         if measure == "dP_dF":
             C = dsigma_to_dpk1(C, self.state.F, self.cauchy_stress())

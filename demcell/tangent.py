@@ -22,9 +22,14 @@ total-Lagrangian FE code needs.
   eigenvalue (floor_stiffness), so that a cell at its peak is not a mechanism. Not in 001;
   its elastic operators miss the sliding, which is what makes the macro Newton converge
   linearly where cells slide (docs/femdem.md, "Newton operators").
+
+``TANGENT_KINDS`` declares each kind once (``TangentKind``: what it computes, whether a
+micropolar cell has it, whether a cell store batches it, whether its work releases the GIL);
+``tangent_kind(name)`` looks one up and refuses any other name in one line.
 """
 import dataclasses
 import math
+from dataclasses import dataclass
 
 import numpy as np
 from numba import njit
@@ -57,6 +62,74 @@ SLIP_RATIO = 0.95
 #: every pre-peak state measured there untouched (0.05-0.21).
 STIFFNESS_FLOOR = 0.05
 
+
+
+@dataclass(frozen=True)
+class TangentKind:
+    """One tangent operator of a DemCell (``DemCell.tangent(name)``): what it computes and what
+    a caller may count on.
+
+    name : the kind's one name (``TANGENT_KINDS``)
+    computes : what the operator is, in words, with its source
+    micropolar : a micropolar cell also has it as the 6x6 d(sigma, m)/d(F, kappa)
+        (measure 'micropolar'); False: for Cauchy cells only (``cauchy_only``)
+    batched : a cell store (batch.CellBatch, gpu.DeviceCellBatch) computes it for many
+        Cauchy cells in one call (``CellStore.kruyt``, ``CellStore.demqo``)
+    batched_micropolar : the same for micropolar cells
+    releases_gil : its per-cell work (scipy's sparse LU) releases the GIL, so that threads of
+        one process can share the cells
+    relaxes : it runs DEM relaxations; their steps are ``DemCell.last_tangent_steps``
+    default_eps : the perturbation size of a kind that perturbs (relative, of F), else None
+    """
+    name: str
+    computes: str
+    micropolar: bool
+    batched: bool
+    batched_micropolar: bool
+    releases_gil: bool
+    relaxes: bool
+    default_eps: float = None
+
+    @property
+    def cauchy_only(self):
+        """For Cauchy cells only: no 6x6 micropolar operator."""
+        return not self.micropolar
+
+
+#: every tangent kind, by its name
+TANGENT_KINDS = {k.name: k for k in (
+    TangentKind("kruyt", "uniform-strain (Kruyt) operator of the contact springs, closed form (001 eq. 13; "
+                "micropolar: uniform strain and rotation field, 003 eqs 21-24)",
+                micropolar=True, batched=True, batched_micropolar=False, releases_gil=False, relaxes=False),
+    TangentKind("demqo", "frozen-contact quasi-static operator: perturbations eps L^mn of the current equilibrium "
+                "with bilateral, non-sliding contacts, each relaxed (DEMQO, 001 eq. 20)",
+                micropolar=True, batched=True, batched_micropolar=True, releases_gil=False, relaxes=True,
+                default_eps=1e-6),
+    TangentKind("pstlo", "the frozen-contact problem linearized with its pre-stress and solved by one sparse "
+                "LU (PSTLO, 001 appendix B; micropolar: network.py); DEMQO as eps -> 0",
+                micropolar=True, batched=False, batched_micropolar=False, releases_gil=True, relaxes=False),
+    TangentKind("pstlo_sliding", "PSTLO with the contacts near their Coulomb limit sliding on (SLIP_RATIO), "
+                "its stiffness floored (floor_stiffness): the consistent tangent of the friction law",
+                micropolar=False, batched=False, batched_micropolar=False, releases_gil=True, relaxes=False),
+    TangentKind("perturbation", "consistent tangent by perturbation (CTO, 001 eq. 6): full solves from the last "
+                "commit to F + eps L^mn", micropolar=True, batched=False, batched_micropolar=False,
+                releases_gil=False, relaxes=True, default_eps=1e-5),
+)}
+
+
+def tangent_kind(name, micropolar=False):
+    """The TangentKind called `name`; micropolar: for a micropolar operator. Anything else is
+    refused in one line naming the kinds there are."""
+    kinds = [k for k in TANGENT_KINDS.values() if k.micropolar or not micropolar]
+    if not isinstance(name, str):
+        raise InputError(f"tangent kind must be a string (one of {', '.join(k.name for k in kinds)}), got {name!r}")
+    kind = TANGENT_KINDS.get(name)
+    if kind is None:
+        raise InputError(f"unknown tangent kind {name!r}: one of {', '.join(k.name for k in kinds)}")
+    if micropolar and kind.cauchy_only:
+        raise InputError(f"tangent {name!r} is for Cauchy cells (measure 'dsigma_dF' or 'dP_dF'); a micropolar "
+                         f"cell has {', '.join(k.name for k in kinds)}")
+    return kind
 
 def to_tensor4(C):
     """4x4 (001 eq. 11 order) -> C[i, j, k, l]."""
@@ -215,9 +288,7 @@ def micropolar_tangent(cell, kind, eps=None):
         return micropolar_network_operator(cell.state, cell.law_array)[0], []
     if kind == "kruyt":
         return affine_operator(cell.state, cell.law_array), []
-    if kind not in ("perturbation", "demqo"):
-        raise InputError(f"unknown tangent kind {kind!r}: 'kruyt', 'demqo', 'pstlo' or 'perturbation'")
-    eps = (1e-5 if kind == "perturbation" else 1e-6) if eps is None else eps
+    eps = tangent_kind(kind, micropolar=True).default_eps if eps is None else eps
     k_eps = eps / float(np.abs(cell.state.h_ref).sum(axis=0).max())
     F = cell.deformation_gradient()
     if kind == "perturbation":

@@ -133,3 +133,28 @@ def test_packing_to_target_solid_fraction():
     assert info["pressure_achieved"] == pytest.approx(h.pressure) and h.pressure > 10.0
     with pytest.raises(dc.InputError, match="solid fraction"):
         dc.generate_packing(60, solid_fraction=1.2)
+
+
+def test_tangent_kinds_are_declared_once(packing):
+    """Every kind DemCell.tangent answers is an entry of tangent.TANGENT_KINDS, one name per
+    operator; a micropolar cell refuses exactly the kinds declared Cauchy-only, and any other
+    name is refused in one line that lists the kinds."""
+    from demcell.tangent import TANGENT_KINDS, tangent_kind
+    assert list(TANGENT_KINDS) == ["kruyt", "demqo", "pstlo", "pstlo_sliding", "perturbation"]
+    assert [k for k, v in TANGENT_KINDS.items() if v.cauchy_only] == ["pstlo_sliding"]
+    assert [k for k, v in TANGENT_KINDS.items() if v.releases_gil] == ["pstlo", "pstlo_sliding"]
+    assert all(v.relaxes == (v.default_eps is not None) for v in TANGENT_KINDS.values())
+    for name in ("cto", "CTO", ""):
+        with pytest.raises(dc.InputError, match="unknown tangent kind") as err:
+            tangent_kind(name)
+        assert "\n" not in str(err.value) and all(k in str(err.value) for k in TANGENT_KINDS)
+    st = packing[0].copy()
+    st.phi, st.kappa = 0.0, np.zeros(2)
+    cell = dc.DemCell(st, rotation_mode="micropolar")
+    for name, kind in TANGENT_KINDS.items():
+        if kind.cauchy_only:
+            with pytest.raises(dc.InputError, match="is for Cauchy cells"):
+                cell.tangent(name, measure="micropolar")
+    for name in ("kruyt", "pstlo"):
+        assert cell.tangent(name, measure="micropolar").shape == (6, 6)
+        assert dc.DemCell(packing[0].copy()).tangent(name).shape == (4, 4)

@@ -89,6 +89,8 @@ import demcell as dc  # noqa: E402
 from demcell.interface import RelaxationOptions  # noqa: E402
 from demcell.io import CsvLog  # noqa: E402
 from demcell.packing import PRESSURE_RATIO_RANGE, check_pressure_ratio  # noqa: E402
+from demcell.strain_path import strain_path_step  # noqa: E402
+from cosserat_fenicsx.figures import pyplot  # noqa: E402
 from cosserat_fenicsx.validation import AXIAL_STRAIN, DISCS, FRICTION  # noqa: E402
 
 
@@ -195,38 +197,8 @@ def echoed_options(a):
     return {k: v for k, v in vars(a).items() if k not in other}
 
 
-def strain_path_step(cell, F, lat, lateral_stress, rtol=1e-4, max_iterations=30):
-    """One increment under full strain control, as a FEM x DEM Gauss point sees it: every trial
-    goes straight from the committed state to F (001 eq. 7), and the lateral component
-    F[lat, lat] is found by a secant iteration until sigma_lat = lateral_stress (to rtol).
-    Returns the last SolveResult with the DEM steps of all trials."""
-    def residual(f):
-        cell.rollback()
-        trial = F.copy()
-        trial[lat, lat] = f
-        cell.set_deformation(trial)
-        result = cell.solve()
-        return cell.cauchy_stress()[lat, lat] - lateral_stress, result
-
-    steps = 0
-    f0 = cell.deformation_gradient()[lat, lat]
-    f1 = f0 + 0.3 * abs(F[1 - lat, 1 - lat] - cell.deformation_gradient()[1 - lat, 1 - lat]) + 1e-12
-    (r0, res), (r1, res) = residual(f0), residual(f1)
-    steps += res.steps
-    for _ in range(max_iterations):
-        if abs(r1) <= rtol * abs(lateral_stress) or r1 == r0:
-            break
-        f0, f1, r0 = f1, f1 - r1 * (f1 - f0) / (r1 - r0), r1
-        r1, res = residual(f1)
-        steps += res.steps
-    res.steps = steps
-    return res
-
-
 def plot(history, path):
-    import matplotlib
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+    plt = pyplot()
     h = np.atleast_2d(np.array(history))
     x = -h[:, 0] * 100.0
     fig, ax = plt.subplots(2, 2, figsize=(9, 7), sharex=True)
@@ -300,9 +272,7 @@ def skew_stress_increment(C, dF, dphi):
 
 def two_panels():
     """(pyplot, figure, two axes side by side) for the micropolar tests' plots."""
-    import matplotlib
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+    plt = pyplot()
     fig, ax = plt.subplots(1, 2, figsize=(10, 4.2), sharex=True)
     return plt, fig, ax
 

@@ -27,9 +27,10 @@ import numpy as np
 from mpi4py import MPI
 
 from cosserat_fenicsx import CosseratProblem, NewtonSolver, LoadStepper, LoadSteppingError, analytic, cli, meshes
+from cosserat_fenicsx.figures import pyplot
 from cosserat_fenicsx.output import FieldWriter, CsvLog, print0
 from cosserat_fenicsx.run_guard import RunGuard
-from cosserat_fenicsx.probes import sample_line, stress_component_at
+from cosserat_fenicsx.probes import stress_component_at
 from cosserat_fenicsx.validation import POSITIVE, InputError, number
 
 parser = cli.make_parser(__doc__)
@@ -137,9 +138,7 @@ guard.finish({
     "sweep": results[1:]})
 
 if comm.rank == 0:
-    import matplotlib
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+    plt = pyplot()
     fig, ax = plt.subplots(figsize=(6, 4))
     ratio = np.logspace(-1.5, 2, 200)
     if micropolar and e.l_c > 0:

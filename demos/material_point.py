@@ -32,6 +32,7 @@ import numpy as np
 
 sys.path.insert(0, os.path.join(os.path.dirname(os.path.abspath(__file__)), ".."))
 from cosserat_fenicsx.identification.data import TABLE_6_2  # noqa: E402  (no Numba, no dolfinx)
+from cosserat_fenicsx.figures import pyplot  # noqa: E402
 from cosserat_fenicsx.run_guard import strict_json  # noqa: E402
 
 #: reference values of the spec, section 4.6 (reading H1; a reconstruction, not thesis data)
@@ -121,9 +122,7 @@ def run_test(material, test, confining, args, out, guard):
 
 def plot(h, out, title):
     """material_point.png (history.csv is written as the test goes, summary.json by the RunGuard)."""
-    import matplotlib
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+    plt = pyplot()
     fig, ax = plt.subplots(2, 1, figsize=(6, 7), sharex=True)
     ax[0].plot(h["axial_strain"], h["axial_stress"] / 1e3)
     ax[0].set_ylabel("axial stress sig11 [kPa] (tension +)")

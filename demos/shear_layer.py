@@ -22,6 +22,7 @@ import numpy as np
 from mpi4py import MPI
 
 from cosserat_fenicsx import CosseratProblem, NewtonSolver, LoadStepper, LoadSteppingError, analytic, cli, meshes
+from cosserat_fenicsx.figures import pyplot
 from cosserat_fenicsx.output import FieldWriter, CsvLog, print0
 from cosserat_fenicsx.probes import sample_line
 from cosserat_fenicsx.run_guard import RunGuard
@@ -99,9 +100,7 @@ if comm.rank == 0:
     np.savetxt(os.path.join(args.out, "profile.csv"),
                np.column_stack([x2, u1, phi, u1_ex, phi_ex]), delimiter=",",
                header="x2,u1,phi,u1_exact,phi_exact", comments="")
-    import matplotlib
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+    plt = pyplot()
     fig, ax = plt.subplots(1, 2, figsize=(9, 4), sharey=True)
     ax[0].plot(u1_ex * 1e3, x2, "k-", label="closed form")
     ax[0].plot(u1[::8] * 1e3, x2[::8], "o", mfc="none", label="FE")

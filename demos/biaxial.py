@@ -46,17 +46,16 @@ import sys, os  # noqa: E401
 sys.path.insert(0, os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
 
 import math
-import time
 
 import numpy as np
 from mpi4py import MPI
 
 from cosserat_fenicsx import cli
-from cosserat_fenicsx.output import FieldWriter, CsvLog, print0
-from cosserat_fenicsx.run_guard import RunGuard
+from cosserat_fenicsx.demo_run import DemoRun
+from cosserat_fenicsx.figures import pyplot
+from cosserat_fenicsx.output import print0
 from cosserat_fenicsx.scenes.biaxial import BiaxialSettings, BiaxialTest, convergence_orders
 from cosserat_fenicsx.shear_band import assess_band, bell
-from cosserat_fenicsx.stepping import LoadSteppingError
 from cosserat_fenicsx.validation import AXIAL_STRAIN, COUNT, FRACTION, NON_NEGATIVE, POSITIVE, STEPS, number
 
 parser = cli.make_parser(__doc__)
@@ -111,54 +110,23 @@ def biaxial_settings(args):
 
 args = cli.parse(parser, check=lambda args: biaxial_settings(args).check())
 comm = MPI.COMM_WORLD
-guard = RunGuard(comm, os.path.join(args.out, "summary.json"), label="biaxial", write_now=args.restart is None)
+run = DemoRun(comm, args, "biaxial")
 classical = args.cauchy
-try:
-    test = BiaxialTest(comm, biaxial_settings(args))
-except RuntimeError as error:      # e.g. the consolidation of the material point (MaterialPointError)
-    guard.stop(f"consolidation: {error}")
+# the consolidation of the material point may fail (MaterialPointError)
+test = run.build(lambda: BiaxialTest(comm, biaxial_settings(args)), "consolidation")
 used = test.material.parameters     # what runs (defaults, --parameters FILE, typed options)
-written = []                        # pseudo-times written to fields.xdmf
-checkpoint = cli.checkpointer(comm, args)
-if checkpoint.start(test, guard, extra=lambda: {"written": written}):    # --restart: continue from it
-    written = checkpoint.restored_extra["written"]
+run.start(test)                     # --restart: continue from the checkpoint
 print0(comm, f"biaxial: {'classical' if classical else 'micropolar'} {test.material!r}, "
              f"{comm.allreduce(len(test.points))} Gauss points, {test.n_weak_cells} weakened cells, "
              f"{comm.size} rank(s)")
 
-writer = FieldWriter(test.problem, checkpoint.fields_path("fields.xdmf"), args.fields,
-                     resume_time=checkpoint.resume_time)
-for name, shape, values in test.cell_fields():
-    writer.add_cell_field(name, shape, values)
-columns = ["step", "time", "phase", "axial_strain", "vertical_stress", "volumetric_strain", "top_displacement",
-           "plastic_fraction", "max_yield_function", "newton_iterations", "residual", "cuts", "wall_time"]
-history = CsvLog(comm, os.path.join(args.out, "history.csv"), columns, resume_step=checkpoint.resume_step)
-
-
-def record(row):
-    history.write(row)
-    if row["step"] % args.write_every == 0:
-        writer.write(row["time"])
-        written.append(row["time"])
-
-
-start = time.perf_counter()
-stopped = ""
-try:
-    test.run(guard.protect(record, lambda row: {"final_axial_strain": row["axial_strain"],
-                                                "final_vertical_stress": row["vertical_stress"]}),
-             checkpoint=checkpoint)
-    stopped = checkpoint.stop_note(test.stepper)
-except LoadSteppingError as error:
-    stopped = str(error)   # keep what was computed: summary and plot of the part before
-    print0(comm, f"biaxial: stopped early: {stopped}")
-    if not test.history:
-        guard.stop(stopped)     # not one step converged: nothing to summarise
-if test.history and test.history[-1]["time"] not in written:
-    writer.write(test.history[-1]["time"])   # the last converged state (once)
-writer.close()
-history.close()
-wall = time.perf_counter() - start
+run.fields(test.cell_fields())
+history = run.log("history.csv", ["step", "time", "phase", "axial_strain", "vertical_stress", "volumetric_strain",
+                                  "top_displacement", "plastic_fraction", "max_yield_function", "newton_iterations",
+                                  "residual", "cuts", "wall_time"])
+run.run(history.write, lambda row: {"final_axial_strain": row["axial_strain"],
+                                    "final_vertical_stress": row["vertical_stress"]},
+        write_every=args.write_every)
 
 # --- summary: peak, band (section 4.4), Newton convergence --------------------------------
 rows = test.history
@@ -186,22 +154,18 @@ summary = {
     "newton_orders_longest_plastic_step": convergence_orders(longest[1].residual_history) if longest[1] else [],
     "newton_longest_plastic_step": longest[0],
     "steps": len(rows), "cut_backs": int(rows[-1]["cuts"]) if rows else 0,
-    "completed": not stopped, "stopped": stopped, "reason": stopped,
-    **checkpoint.summary_entries(),
-    "wall_time": wall, "kernel_time_rank0": test.zoned.kernel_time, "ranks": comm.size,
+    "kernel_time_rank0": test.zoned.kernel_time, "ranks": comm.size,
     "classical": classical, "l_c": used.l_c, "mu_c": used.mu_c if not classical else 0.0,
     "k_sigma": used.k_sigma, "k_mu": used.k_mu, "parameters_file": args.parameters, "eta": args.eta, "cell_size": args.cell_size, "width": args.width,
     "height": args.height, "confining": args.confining, "weak_size": args.weak_size,
     "weak_factor": args.weak_factor}
-guard.finish(summary)
+run.finish(summary)
 
 # --- figure: load-displacement and the band profile --------------------------------------
 values = np.concatenate(comm.allgather(test.strain_norm()))
 points = np.concatenate(comm.allgather(test.points))
 if comm.rank == 0:
-    import matplotlib
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+    plt = pyplot()
     fig, ax = plt.subplots(1, 3 if band else 2, figsize=(14 if band else 9, 4))
     phase2 = np.array([r["phase"] == 2 for r in rows])
     phase2[int(np.flatnonzero(~phase2)[-1])] = True   # start the curves at the consolidated state
@@ -225,6 +189,5 @@ if comm.rank == 0:
 print0(comm, f"peak vertical stress {summary['peak_vertical_stress'] / 1e3:.1f} kPa at axial strain "
              f"{summary['axial_strain_at_peak']:.4f}; band H = "
              + (f"{band.thickness * 1e3:.2f} mm, inclination {band.inclination_deg:.1f} deg" if band else "none")
-             + f"; {wall:.0f} s")
-if stopped and not test.stepper.stopped_early:
-    sys.exit(1)
+             + f"; {run.wall_time:.0f} s")
+run.exit()

@@ -22,13 +22,14 @@ from numba import get_num_threads, njit, prange
 
 from . import checks
 from . import quasistatic as qs
-from .contact_law import KN, KS, MU
+from .slots import KN, KS, MU
 from .errors import InputError
 from .homogenization import contact_sums
 from .interface import DemCell
 from .periodic_cell import deformation_gradient
 from .state import PAIR_FIELDS, PARTICLE_FIELDS, CellState
 from .tangent import kruyt_tensor
+from . import slots
 
 #: per-cell float and int scalars of a state (quasistatic's cellf / celli)
 CELLF = ("time", "phi", "kappa0", "kappa1")
@@ -175,8 +176,8 @@ def demqo(store, rows, eps=1e-6):
         base.opts[j] = qs.solve_options(o, o.skin_ratio * float(view.state.radius.min()), o.max_steps)
     all_ = np.arange(n)
     F = base.deformation_gradients(all_)
-    base.set_targets(all_, F, store.target[rows, qs.T_PHI], store.target[rows, qs.T_KAP:qs.T_KAP + 2])
-    steps = base.solve(all_)[:, qs.R_STEPS].copy()
+    base.set_targets(all_, F, store.target[rows, slots.T_PHI], store.target[rows, slots.T_KAP:slots.T_KAP + 2])
+    steps = base.solve(all_)[:, slots.R_STEPS].copy()
     h0 = base.homogenize(all_)
     micro = store.micropolar[rows]
     ncol = np.where(micro, 6, 4)
@@ -193,11 +194,11 @@ def demqo(store, rows, eps=1e-6):
         else:
             kappa[t, c - 4] += k_eps[j]
             size[t] = k_eps[j]
-    phi = base.target[owner, qs.T_PHI]
-    kap_target = np.where(column[:, None] >= 4, kappa, base.target[owner, qs.T_KAP:qs.T_KAP + 2])
+    phi = base.target[owner, slots.T_PHI]
+    kap_target = np.where(column[:, None] >= 4, kappa, base.target[owner, slots.T_KAP:slots.T_KAP + 2])
     trials.set_targets(np.arange(len(owner)), Fp, phi, kap_target)
     res = trials.solve(np.arange(len(owner)))
-    np.add.at(steps, owner, res[:, qs.R_STEPS])
+    np.add.at(steps, owner, res[:, slots.R_STEPS])
     h = trials.homogenize(np.arange(len(owner)))
 
     def flux(hom, i, micropolar):
@@ -240,12 +241,12 @@ class CellStore:
         self.opts = np.array([qs.solve_options(c.options, c.options.skin_ratio * float(c.state.radius.min()),
                                                c.options.max_steps) for c in cells])
         self.max_steps = np.array([c.options.max_steps for c in cells], dtype=np.int64)
-        self.target = np.zeros((n, qs.N_TARGET))
+        self.target = np.zeros((n, slots.N_TARGET))
         self.cost = np.full(n, np.nan)    # DEM steps of each cell's last solve (nan: none yet)
         for k, c in enumerate(cells):
-            self.target[k, qs.T_F:qs.T_F + 4] = c.state.F.reshape(4)
-            self.target[k, qs.T_PHI] = c.state.phi
-            self.target[k, qs.T_KAP:qs.T_KAP + 2] = c.state.kappa
+            self.target[k, slots.T_F:slots.T_F + 4] = c.state.F.reshape(4)
+            self.target[k, slots.T_PHI] = c.state.phi
+            self.target[k, slots.T_KAP:slots.T_KAP + 2] = c.state.kappa
 
     def rows_of(self, rows):
         """`rows` as an int64 array of cell indices in [0, n_cells), else InputError."""
@@ -269,10 +270,10 @@ class CellStore:
                              f"{det[k]:.3g}")
         phi = None if phi is None else checks.array("phi", phi, (n,))
         kappa = None if kappa is None else checks.array("kappa", kappa, (n, 2))
-        self.target[rows, qs.T_F:qs.T_F + 4] = F.reshape(n, 4)
+        self.target[rows, slots.T_F:slots.T_F + 4] = F.reshape(n, 4)
         phi_now, kappa_now = self.rotations(rows)
-        self.target[rows, qs.T_PHI] = phi_now if phi is None else phi
-        self.target[rows, qs.T_KAP:qs.T_KAP + 2] = kappa_now if kappa is None else kappa
+        self.target[rows, slots.T_PHI] = phi_now if phi is None else phi
+        self.target[rows, slots.T_KAP:slots.T_KAP + 2] = kappa_now if kappa is None else kappa
 
     @staticmethod
     def substep_limit(max_steps):
@@ -285,7 +286,7 @@ class CellStore:
         error: the text of a broken-down solve)."""
         converged, no_contacts, message, error = qs.outcome(result_row, self.dt[k])
         no_contacts, message = qs.final_words(converged, no_contacts, self.contact_count(k) if no_contacts else -1,
-                                              [message], result_row[qs.R_MAXOVL])
+                                              [message], result_row[slots.R_MAXOVL])
         return converged, no_contacts, message, error
 
     def contact_count(self, k):
@@ -317,7 +318,7 @@ class CellStore:
     def _target_of(self, k):
         """(F, phi, kappa) of cell k's target."""
         t = self.target[int(k)]
-        return t[qs.T_F:qs.T_F + 4].reshape(2, 2), t[qs.T_PHI], t[qs.T_KAP:qs.T_KAP + 2]
+        return t[slots.T_F:slots.T_F + 4].reshape(2, 2), t[slots.T_PHI], t[slots.T_KAP:slots.T_KAP + 2]
 
 
 class CellBatch(CellStore):
@@ -445,14 +446,14 @@ class CellBatch(CellStore):
         by its options' solve_budget."""
         rows = self.rows_of(rows)
         max_steps = self.substep_limit(max_steps)
-        result = np.zeros((self.n_cells, qs.N_RESULT))
+        result = np.zeros((self.n_cells, slots.N_RESULT))
         if not len(rows):
             return result[rows]
         opts = self.opts if max_steps is None else self.opts.copy()
         if max_steps is not None:
-            opts[:, qs.Q_LIMIT] = max_steps
-        work = np.zeros((self.n_cells, qs.N_WORK))
-        iwork = np.zeros((self.n_cells, qs.N_IWORK), dtype=np.int64)
+            opts[:, slots.Q_LIMIT] = max_steps
+        work = np.zeros((self.n_cells, slots.N_WORK))
+        iwork = np.zeros((self.n_cells, slots.N_IWORK), dtype=np.int64)
         code = np.ones(self.n_cells, dtype=np.int64)
         code[rows] = 0
         order, bins = _bins(rows, self.cost, get_num_threads())
@@ -472,7 +473,7 @@ class CellBatch(CellStore):
             code[:] = 1
             code[full] = 0
             order, bins = _bins(full, self.cost, get_num_threads())
-        self.cost[rows] = np.maximum(result[rows, qs.R_STEPS], 1.0)
+        self.cost[rows] = np.maximum(result[rows, slots.R_STEPS], 1.0)
         return result[rows]
 
     def homogenize(self, rows):

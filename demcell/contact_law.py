@@ -26,10 +26,8 @@ from numba import njit
 
 from .checks import NON_NEGATIVE, Range
 from .errors import InputError
+from .slots import COH_N, COH_T, ETA_R, FROZEN, KN, KR, KS, MU, N_LAW, ROTATIONS, XI_N, XI_T
 
-# positions in the float64 parameter array handed to the kernels
-KN, KS, MU, KR, ETA_R, XI_N, XI_T, COH_N, COH_T, ROTATIONS, FROZEN = range(11)
-N_LAW = 11
 
 
 @dataclass(frozen=True)

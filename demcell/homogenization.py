@@ -33,7 +33,8 @@ from numba import njit
 
 from . import checks
 from .checks import Range
-from .contact_law import KN, KR, KS, MU, N_LAW, ContactLaw
+from .contact_law import ContactLaw
+from .slots import KN, KR, KS, MU, N_LAW
 from .periodic_cell import branch_vector, cauchy_to_pk1, contact_copy, fractional_branch
 
 

@@ -24,18 +24,20 @@ from dataclasses import dataclass, fields
 
 import numpy as np
 
-from .contact_law import ContactLaw, MU, COH_N, COH_T, ETA_R, ROTATIONS
+from .contact_law import ContactLaw
+from .slots import (COH_N, COH_T, ENERGY_RATIO, ETA_R, FIRE, LOCAL_DAMPING, MU, ROTATIONS, ROT_MICROPOLAR,
+                    UNBALANCED_FORCE)
 from . import checks
 from . import quasistatic as qs
 from .checks import COUNT, MAX_BUDGET, NON_NEGATIVE, POSITIVE, Range
 from .errors import InputError, SolveError
 from .homogenization import homogenize
 from .periodic_cell import path_point, path_setup, reduce_cell, substep_count
-from .relaxation import (ENERGY_RATIO, FIRE, LOCAL_DAMPING, MAX_STEPS, NO_CONTACTS, ROT_MICROPOLAR,
-                         UNBALANCED_FORCE, run, stable_time_step)
+from .relaxation import MAX_STEPS, NO_CONTACTS, run, stable_time_step
 from .state import CellState
 from .tangent import (SLIP_RATIO, TANGENT_KINDS, demqo_tangent, dsigma_to_dpk1, floor_stiffness, kruyt_operator,
                       micropolar_tangent, perturbation_tangent, pstlo_operator, tangent_kind)
+from . import slots
 
 #: how the grains of a cell rotate: 'free' (rotations follow the contact moments, the macro spin
 #: is added: symmetric stress at equilibrium), 'locked' (no grain rotation, 000 section 4.3.2),
@@ -467,12 +469,12 @@ class DemCell(MicroCell):
         st = self.state
         cellf = np.array([st.time, st.phi, st.kappa[0], st.kappa[1]])
         celli = np.array([st.n_pairs, st.forces_current], dtype=np.int64)
-        target = np.empty(qs.N_TARGET)
-        target[qs.T_F:qs.T_F + 4] = self._target.reshape(4)
-        target[qs.T_PHI] = self._target_phi if self.micropolar else st.phi
-        target[qs.T_KAP:qs.T_KAP + 2] = self._target_kappa if self.micropolar else st.kappa
+        target = np.empty(slots.N_TARGET)
+        target[slots.T_F:slots.T_F + 4] = self._target.reshape(4)
+        target[slots.T_PHI] = self._target_phi if self.micropolar else st.phi
+        target[slots.T_KAP:slots.T_KAP + 2] = self._target_kappa if self.micropolar else st.kappa
         opts = qs.solve_options(self.options, self.options.skin_ratio * float(st.radius.min()), limit, total)
-        work, iwork, result = np.zeros(qs.N_WORK), np.zeros(qs.N_IWORK, dtype=np.int64), np.zeros(qs.N_RESULT)
+        work, iwork, result = np.zeros(slots.N_WORK), np.zeros(slots.N_IWORK, dtype=np.int64), np.zeros(slots.N_RESULT)
         while qs.solve_cell(st.radius, st.mass, st.inertia, st.s, st.v, st.theta, st.omega, st.dtheta, st.force,
                             st.moment, st.s_build, st.h, st.h_build, st.h_ref, st.pair_i, st.pair_j, st.fn,
                             st.fs, st.mr, st.bonded, st.touching, st.d_prev, cellf, celli, self._law_array,
@@ -483,8 +485,8 @@ class DemCell(MicroCell):
         converged, no_contacts, message, error = qs.outcome(result, self.dt)
         if error is not None:
             raise SolveError(error)
-        return (converged, no_contacts, message, int(result[qs.R_SUBSTEPS]), int(result[qs.R_STEPS]),
-                float(result[qs.R_MAXOVL]))
+        return (converged, no_contacts, message, int(result[slots.R_SUBSTEPS]), int(result[slots.R_STEPS]),
+                float(result[slots.R_MAXOVL]))
 
     def rotation_increment(self, phi, kappa):
         """Size of a change from the current (phi, kappa) to the given ones, measured like a
@@ -526,7 +528,7 @@ class DemCell(MicroCell):
     def run_dynamics(self, n_steps, damping=0.0):
         """Plain explicit dynamics for n_steps at fixed F (no convergence test), e.g. for a
         collision or an energy-conservation check. Returns the RunReport."""
-        from .relaxation import NO_CHECK
+        from .slots import NO_CHECK
         n_steps = checks.number("n_steps", n_steps, Range(0, MAX_BUDGET, integer=True))
         damping = checks.number("damping", damping, Range(0.0, 1.0, high_open=True))
         return run(self.state, self._law_array, self.dt, self.state.F, 0, n_steps,

@@ -38,7 +38,7 @@ point lies in the cell, as in the kernel.
 import numpy as np
 from numba import njit
 
-from .contact_law import KN, KR, KS, MU
+from .slots import KN, KR, KS, MU
 from .periodic_cell import branch_vector, contact_copy, contact_frame, fractional_branch
 
 # demcell order of the 2x2 tensors (11, 12, 21, 22); internal macro columns:

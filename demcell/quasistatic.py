@@ -18,36 +18,17 @@ Per-cell scalars live in small arrays: ``cellf`` = (time [s], phi [rad], kappa31
 import numpy as np
 from numba import njit
 
-from .relaxation import (C_ALPHA, C_DT, C_DTMAX, C_GAIN, C_KAP, C_KAP_END, C_KAP_START, C_MAXRATE,
-                         C_METHOD, C_PHI, C_PHI_END, C_PHI_START, C_SKIN, C_STOL, C_TIME, C_TOL,
-                         CELL_TOO_SMALL, CONVERGED, I_CHECK, I_CRIT, I_FCUR, I_MAXSTEPS, I_NPAIRS,
-                         I_NRAMP, MAX_STEPS, N_CTRL, N_OUT, NEED_CAPACITY, NO_CONTACTS, NONFINITE,
-                         O_BONDLOST, O_EKIN, O_EPOT, O_MAXOVL, O_REBUILDS, O_STEPS, O_UNBAL, ROTATIONS,
-                         advance)
+from .relaxation import CELL_TOO_SMALL, CONVERGED, MAX_STEPS, NEED_CAPACITY, NO_CONTACTS, NONFINITE, advance
+from .slots import (C_ALPHA, C_DT, C_DTMAX, C_GAIN, C_KAP, C_KAP_END, C_KAP_START, C_MAXRATE, C_METHOD, C_PHI,
+                    C_PHI_END, C_PHI_START, C_SKIN, C_STOL, C_TIME, C_TOL, IW_INRUN, IW_IPAR, IW_K, IW_NSUB,
+                    IW_REMAIN, IW_STAGE, I_CHECK, I_CRIT, I_FCUR, I_MAXSTEPS, I_NPAIRS, I_NRAMP, N_CTRL, N_IPAR,
+                    N_OPTS, N_OUT, O_BONDLOST, O_EKIN, O_EPOT, O_MAXOVL, O_REBUILDS, O_STEPS, O_UNBAL, Q_CHECK,
+                    Q_CRIT, Q_DAMP, Q_FIREDT, Q_GAIN, Q_LIMIT, Q_MAXINC, Q_METHOD, Q_RATE, Q_SKIN, Q_STOL, Q_TOL,
+                    Q_TOTAL, ROTATIONS, R_BUDGET, R_CONVERGED, R_EKIN, R_EPOT, R_FAILED_STATUS, R_FAILED_STEPS,
+                    R_FAILED_SUB, R_MAXOVL, R_NOCONTACT, R_REBUILDS, R_STEPS, R_SUBSTEPS, R_UNBAL, T_F, T_KAP, T_PHI,
+                    W_CTRL, W_FEND, W_FSTART, W_GEO, W_KAP0, W_OUT, W_PHI0, W_TOTAL)
 from .periodic_cell import deformation_gradient, path_point, path_setup, reduce_lattice, substep_count
 
-# --- options of a solve (float array, one row per cell in a batch) ----------------------------
-# Q_LIMIT: steps of one sub-step after its ramp; Q_TOTAL: steps of the whole solve, ramps included
-(Q_MAXINC, Q_RATE, Q_TOL, Q_CHECK, Q_DAMP, Q_SKIN, Q_METHOD, Q_FIREDT, Q_CRIT, Q_LIMIT,
- Q_STOL, Q_GAIN, Q_TOTAL) = range(13)
-N_OPTS = 13
-# --- the target (float array): F (11, 12, 21, 22), phi, kappa31, kappa32 ------------------------
-T_F, T_PHI, T_KAP = 0, 4, 5
-N_TARGET = 7
-# --- results (float array); R_BUDGET: the step budget of the solve when it ran out, else 0 ------
-(R_STEPS, R_SUBSTEPS, R_CONVERGED, R_NOCONTACT, R_MAXOVL, R_FAILED_SUB, R_FAILED_STATUS,
- R_FAILED_STEPS, R_EKIN, R_EPOT, R_UNBAL, R_REBUILDS, R_BUDGET) = range(13)
-N_RESULT = 13
-# --- progress (float work array and int work array) --------------------------------------------
-W_GEO = 0                       # 10 slots: the F path (periodic_cell.path_setup)
-W_PHI0, W_KAP0 = 10, 11         # phi and kappa at the start of the solve
-W_FSTART, W_FEND = 13, 17       # 4 slots each: the ramp of the current sub-step
-W_CTRL = 21
-W_OUT = W_CTRL + N_CTRL
-W_TOTAL = W_OUT + N_OUT
-N_WORK = W_TOTAL + N_OUT
-IW_STAGE, IW_NSUB, IW_K, IW_INRUN, IW_REMAIN, IW_IPAR = 0, 1, 2, 3, 4, 5
-N_IWORK = IW_IPAR + 7
 # the solve's own codes next to relaxation's (CONVERGED .. CELL_TOO_SMALL)
 DONE = 100
 
@@ -76,7 +57,7 @@ def solve_cell(radius, mass, inertia, s, v, theta, omega, dtheta, force, moment,
     ctrl = work[W_CTRL:W_CTRL + N_CTRL]
     out = work[W_OUT:W_OUT + N_OUT]
     total = work[W_TOTAL:W_TOTAL + N_OUT]
-    ipar = iwork[IW_IPAR:IW_IPAR + 7]
+    ipar = iwork[IW_IPAR:IW_IPAR + N_IPAR]
     max_inc = opts[Q_MAXINC]
     if iwork[IW_STAGE] == 0:
         # the path (DemCell.solve; micropolar: refined until phi and kappa also change by at
@@ -236,7 +217,7 @@ def solve_options(options, skin, max_steps, total_steps=None):
     """The option row of solve_cell from a RelaxationOptions, the skin [m], the step
     budget per sub-step (after the ramp) and the step budget of the whole solve (ramps
     included; None: the options' ``solve_budget``)."""
-    from .relaxation import ENERGY_RATIO, FIRE, LOCAL_DAMPING, UNBALANCED_FORCE
+    from .slots import ENERGY_RATIO, FIRE, LOCAL_DAMPING, UNBALANCED_FORCE
     q = np.zeros(N_OPTS)
     q[Q_MAXINC], q[Q_RATE], q[Q_TOL], q[Q_CHECK] = (options.max_increment, options.strain_rate, options.tol,
                                                     options.check_every)

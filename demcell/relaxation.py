@@ -22,8 +22,13 @@ from dataclasses import dataclass
 import numpy as np
 from numba import njit
 
-from .contact_law import (COH_N, COH_T, ETA_R, FROZEN, KN, KR, KS, MU, ROTATIONS, XI_N, XI_T,
-                          contact_update_params)
+from .contact_law import contact_update_params
+from .slots import (COH_N, COH_T, C_ALPHA, C_DT, C_DTMAX, C_G, C_GAIN, C_KAP, C_KAP_END, C_KAP_START, C_MASK,
+                    C_MAXRATE, C_METHOD, C_PHI, C_PHI_END, C_PHI_START, C_SKIN, C_STOL, C_TARGET, C_TIME, C_TOL,
+                    ENERGY_RATIO, ETA_R, FROZEN, I_CHECK, I_CRIT, I_FCUR, I_KRAMP, I_MAXSTEPS, I_NPAIRS, I_NRAMP, KN,
+                    KR, KS, LOCAL_DAMPING, MU, NO_CHECK, N_CTRL, N_IPAR, N_OUT, O_BONDLOST, O_EKIN, O_EPOT, O_FMEAN,
+                    O_MAXOVL, O_NCONT, O_NSLIDE, O_REACTION, O_REBUILDS, O_S11, O_S12, O_S21, O_S22, O_STEPS, O_UNBAL,
+                    ROTATIONS, XI_N, XI_T)
 from .errors import SolveError
 from .lanes import LANES, dot, fire_sums, sum_products
 from .neighbours import build_pairs, cell_strain_norm, max_displacement, merge_history
@@ -40,26 +45,6 @@ STATUS_TEXT = {
     CELL_TOO_SMALL: "cell too small or too distorted for the minimum-image convention "
                     "(2 R_max + skin exceeds half a cell width)",
 }
-# criterion codes
-ENERGY_RATIO, UNBALANCED_FORCE, NO_CHECK = 0, 1, -1
-# integer and float control slots
-I_NPAIRS, I_FCUR, I_NRAMP, I_KRAMP, I_MAXSTEPS, I_CHECK, I_CRIT = range(7)
-C_DT, C_ALPHA, C_TOL, C_STOL, C_GAIN, C_MAXRATE, C_SKIN, C_TIME = range(8)
-C_MASK, C_TARGET = 8, 12          # 4 + 4 slots, component order 11, 12, 21, 22
-C_METHOD, C_DTMAX = 16, 17        # 0 = local damping (000), 1 = FIRE; FIRE's dt_max / dt
-# micropolar cell (law[ROTATIONS] == 2, docs/micropolar_cell.md): ramp of the micro-rotation phi
-# and of the curvature kappa (start, end, current), and the curvature increment of the last step
-# mapped to the reference lattice, g = dkappa^T h_ref (the rotation jump of an image shifted by
-# n lattice vectors grows by g . n), kept here so that a resumed call still applies it
-C_PHI_START, C_PHI_END, C_PHI = 18, 19, 20
-C_KAP_START, C_KAP_END, C_KAP, C_G = 21, 23, 25, 27   # 2 slots each
-N_CTRL = 29
-ROT_LOCKED, ROT_FREE, ROT_MICROPOLAR = 0, 1, 2     # law[ROTATIONS]
-LOCAL_DAMPING, FIRE = 0, 1
-# output slots
-(O_STEPS, O_EKIN, O_EPOT, O_NCONT, O_NSLIDE, O_UNBAL, O_S11, O_S12, O_S21, O_S22,
- O_REBUILDS, O_MAXOVL, O_BONDLOST, O_FMEAN, O_REACTION) = range(15)
-N_OUT = 15
 
 
 @njit(cache=True)
@@ -859,7 +844,7 @@ def run(state, law_array, dt, F_end, n_ramp, max_steps, criterion=ENERGY_RATIO, 
     ctrl[C_KAP_START:C_KAP_START + 2] = state.kappa
     ctrl[C_KAP:C_KAP + 2] = state.kappa
     ctrl[C_KAP_END:C_KAP_END + 2] = state.kappa if kappa_end is None else np.asarray(kappa_end, float)
-    ipar = np.zeros(7, np.int64)
+    ipar = np.zeros(N_IPAR, np.int64)
     ipar[I_NPAIRS], ipar[I_FCUR], ipar[I_NRAMP] = state.n_pairs, state.forces_current, n_ramp
     ipar[I_CHECK], ipar[I_CRIT] = check_every, criterion
     F_start = state.F

@@ -34,7 +34,7 @@ from dataclasses import dataclass
 import numpy as np
 from numba import njit
 
-from .contact_law import KN, KR, KS, MU
+from .slots import KN, KR, KS, MU
 from .errors import InputError
 from .homogenization import contact_sums
 from .periodic_cell import branch_vector, contact_frame, deformation_gradient

@@ -7,9 +7,9 @@ import numba
 import pytest
 
 import demcell as dc
-from demcell import quasistatic as qs
 from demcell.batch import CellBatch
 from demcell.state import PAIR_FIELDS, PARTICLE_FIELDS
+from demcell import slots
 
 pytestmark = pytest.mark.serial
 
@@ -91,7 +91,7 @@ def test_batch_equals_cells(packing, size, threads):
         same_state(batch.state(k), cell.state)
         converged, _, _, error = batch.outcome(k, res[k])
         assert error is None and converged == alone[k].converged
-        assert int(res[k, qs.R_STEPS]) == alone[k].steps and int(res[k, qs.R_SUBSTEPS]) == alone[k].substeps
+        assert int(res[k, slots.R_STEPS]) == alone[k].steps and int(res[k, slots.R_SUBSTEPS]) == alone[k].substeps
     # homogenized outputs and the Kruyt operator: the values of the cells
     hom = batch.homogenize(rows)
     C = batch.kruyt(rows)
@@ -130,7 +130,7 @@ def test_batch_micropolar_and_capacity(packing):
     hom = batch.homogenize(rows)
     for k, cell in enumerate(ref):
         same_state(batch.state(k), cell.state)
-        assert int(res[k, qs.R_STEPS]) == cell.last_result.steps
+        assert int(res[k, slots.R_STEPS]) == cell.last_result.steps
         assert np.array_equal(hom["couple_stress"][k], cell.couple_stress())
         assert np.array_equal(hom["cauchy"][k], cell.cauchy_stress())
     # a view reads the store: its tangent is the cell's

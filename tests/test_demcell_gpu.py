@@ -16,9 +16,9 @@ import pytest
 from numba import config
 
 import demcell as dc
-from demcell import quasistatic as qs
 from demcell.batch import CellBatch
 from demcell.state import PAIR_FIELDS, PARTICLE_FIELDS
+from demcell import slots
 
 pytestmark = [pytest.mark.serial,
               pytest.mark.skipif(not config.ENABLE_CUDASIM, reason="bit for bit in Numba's CUDA simulator only "
@@ -116,7 +116,7 @@ def test_fixed_steps_in_each_rotation_mode(packing, mode):
     rows = np.arange(len(cells))
     phi, kappa = micro_targets(cells, 2e-3) if mode == "micropolar" else (None, None)
     res = solve_both(cpu, gpu, rows, targets(len(cells), 2e-3), phi, kappa, max_steps=15)
-    assert (res[:, qs.R_CONVERGED] == 0).all()
+    assert (res[:, slots.R_CONVERGED] == 0).all()
     same_cells(cpu, gpu, rows)
     for k in rows:
         assert cpu.outcome(k, res[k]) == gpu.outcome(k, res[k])
@@ -136,8 +136,8 @@ def test_full_solves_substeps_growth_commit_rollback(packing):
     cap0 = gpu.capacity.copy()
     rows = np.arange(2)
     res = solve_both(cpu, gpu, rows, targets(2, 1.2e-2))         # max_increment 0.01
-    assert (res[:, qs.R_SUBSTEPS] >= 2).all() and (res[:, qs.R_CONVERGED] == 1).all()
-    assert (res[:, qs.R_REBUILDS] > 0).all() and (gpu.capacity > cap0).any()
+    assert (res[:, slots.R_SUBSTEPS] >= 2).all() and (res[:, slots.R_CONVERGED] == 1).all()
+    assert (res[:, slots.R_REBUILDS] > 0).all() and (gpu.capacity > cap0).any()
     assert np.array_equal(gpu.capacity, cpu.capacity)
     same_cells(cpu, gpu, rows)
     for b in (cpu, gpu):
@@ -155,7 +155,7 @@ def test_micropolar_full_solve(packing):
     rows = np.arange(2)
     phi, kappa = micro_targets(cells, 4e-3)
     res = solve_both(cpu, gpu, rows, targets(2, 4e-3), phi, kappa)
-    assert (res[:, qs.R_CONVERGED] == 1).all()
+    assert (res[:, slots.R_CONVERGED] == 1).all()
     same_cells(cpu, gpu, rows)
 
 
@@ -170,7 +170,7 @@ def test_fire_and_the_general_contact_law(packing):
     cpu, gpu = both(cells, threads=33)        # more threads than lanes.LANES
     rows = np.arange(2)
     res = solve_both(cpu, gpu, rows, targets(2, 3e-3))
-    assert (res[:, qs.R_STEPS] > 0).all()
+    assert (res[:, slots.R_STEPS] > 0).all()
     same_cells(cpu, gpu, rows)
 
 

@@ -17,9 +17,9 @@ import pytest
 from numba import config
 
 import demcell as dc
-from demcell import quasistatic as qs
 from demcell.batch import CellBatch
 from demcell.interface import RelaxationOptions
+from demcell import slots
 
 pytestmark = pytest.mark.serial
 
@@ -120,7 +120,7 @@ def test_the_device_batch_stops_at_the_same_budget(packing30):
         b.set_targets(rows, F)
     r1, r2 = cpu.solve(rows), gpu.solve(rows)
     assert np.array_equal(r1, r2)
-    assert r1[0, qs.R_STEPS] == 120 and r1[0, qs.R_BUDGET] == 120 and r1[0, qs.R_CONVERGED] == 0.0
+    assert r1[0, slots.R_STEPS] == 120 and r1[0, slots.R_BUDGET] == 120 and r1[0, slots.R_CONVERGED] == 0.0
     converged, _, message, error = cpu.outcome(0, r1[0])
     assert not converged and error is None and "of 2: step budget of the solve spent" in message, message
 

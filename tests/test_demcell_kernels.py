@@ -13,7 +13,8 @@ import numpy as np
 import pytest
 
 import demcell as dc
-from demcell.relaxation import N_OUT, O_NCONT, O_NSLIDE, compute_forces
+from demcell.relaxation import compute_forces
+from demcell.slots import N_OUT, O_NCONT, O_NSLIDE
 
 pytestmark = pytest.mark.serial
 

@@ -17,16 +17,16 @@ grow on the device (doubled, as CellBatch grows them) and the cell continues its
 import numpy as np
 from numba import cuda
 
-from .. import quasistatic as qs
 from ..batch import CellStore, gradients_of, homogenized_outputs
 from ..errors import InputError
 from ..interface import DemCell
 from . import cells as kernels
 from . import simulator
 from .block import MAX_THREADS
-from .layout import (H, HREF, KAP, NCF, NPF, NPI, NQF, NQN, NQS, NQT, PHI, bins_per_cell, from_columns,
-                     to_columns)
+from .layout import bins_per_cell, from_columns, to_columns
+from ..slots import H, HREF, KAP, NCF, NPF, NPI, NQF, NQN, NQS, NQT, PHI
 from .solve import FULL, solve_rows
+from .. import slots
 
 #: threads per cell (one block); 128 was fastest for 228- and 400-disc cells on an H200
 #: (../shared/spec/gpu-cells.md: 256 no faster, 64 half as fast)
@@ -223,17 +223,17 @@ class DeviceCellBatch(CellStore):
         rows = self.rows_of(rows)
         max_steps = self.substep_limit(max_steps)
         if not len(rows):
-            return np.zeros((0, qs.N_RESULT))
+            return np.zeros((0, slots.N_RESULT))
         opts = self.opts if max_steps is None else self.opts.copy()
         if max_steps is not None:
-            opts[:, qs.Q_LIMIT] = max_steps
+            opts[:, slots.Q_LIMIT] = max_steps
         n = len(rows)
         d_rows = cuda.to_device(rows)
         d_law, d_dt, d_opts, d_target = (cuda.to_device(np.ascontiguousarray(a)) for a in
                                          (self.law, self.dt, opts, self.target))
-        work = cuda.to_device(np.zeros((n, qs.N_WORK)))
-        iwork = cuda.to_device(np.zeros((n, qs.N_IWORK), dtype=np.int64))
-        result = cuda.to_device(np.zeros((n, qs.N_RESULT)))
+        work = cuda.to_device(np.zeros((n, slots.N_WORK)))
+        iwork = cuda.to_device(np.zeros((n, slots.N_IWORK), dtype=np.int64))
+        result = cuda.to_device(np.zeros((n, slots.N_RESULT)))
         code = cuda.to_device(np.zeros(n, dtype=np.int64))
         blocks = np.arange(n, dtype=np.int64)
         while True:
@@ -252,7 +252,7 @@ class DeviceCellBatch(CellStore):
             blocks = full.astype(np.int64)
         out = result.copy_to_host()
         self._refresh_mirror("current")
-        self.cost[rows] = np.maximum(out[:, qs.R_STEPS], 1.0)
+        self.cost[rows] = np.maximum(out[:, slots.R_STEPS], 1.0)
         return out
 
     def homogenize(self, rows):

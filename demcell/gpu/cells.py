@@ -10,9 +10,8 @@ import math
 
 from numba import cuda, float64
 
-from ..contact_law import KN, KS, MU
+from ..slots import FN, FS, H, HREF, KN, KS, MR, MU, NCF, NPF, NQF, PI, PJ, RADIUS, SX, SY, TOUCHING
 from .kinematics import branch_vector, inv2
-from .layout import FN, FS, H, HREF, MR, NCF, NPF, NQF, PI, PJ, RADIUS, SX, SY, TOUCHING
 
 
 @cuda.jit(cache=True)

@@ -14,12 +14,11 @@ import math
 
 from numba import cuda
 
-from ..contact_law import COH_N, COH_T, ETA_R, FROZEN, KN, KR, KS, MU, ROTATIONS, XI_N, XI_T
+from ..slots import (BONDED, COH_N, COH_T, DIST, DPX, DPY, DTHETA, DX, DY, ENERGY, ETA_R, FJX, FJY, FN, FROZEN, FS,
+                     FX, FY, ICOUNT, INERTIA, ISTART, JCOUNT, JLIST, JSTART, KN, KR, KS, MASS, MI, MJ, MOMENT, MR, MU,
+                     PI, PJ, RADIUS, ROTATIONS, SX, SY, TOUCHING, XI_N, XI_T)
 from ..lanes import LANES
 from .block import combine_row
-from .layout import (BONDED, DIST, DPX, DPY, DTHETA, DX, DY, ENERGY, FJX, FJY, FN, FS, FX, FY, ICOUNT,
-                     INERTIA, ISTART, JCOUNT, JLIST, JSTART, MASS, MI, MJ, MOMENT, MR, PI, PJ, RADIUS, SX,
-                     SY, TOUCHING)
 
 
 @cuda.jit(device=True)

@@ -7,7 +7,7 @@ import math
 from numba import cuda
 
 from ..periodic_cell import MAX_COUNT
-from .layout import H, HB, HREF, SBX, SBY, SX, SY
+from ..slots import H, HB, HREF, SBX, SBY, SX, SY
 
 
 @cuda.jit(device=True)

@@ -1,60 +1,18 @@
-"""The device store of a batch of cells: which row of which array holds what.
+"""The device store of a batch of cells: packing one CellState into its columns and back.
 
 The cells live on the GPU in a few two-dimensional arrays, one field per row, so that the
-threads of a block, which take consecutive discs or pairs, read consecutive addresses:
-
-    pf  float64 (NPF, P)   per disc: radius [m], mass [kg/m], inertia [kg m], s (2, fractional),
-                           v (2) [m/s], theta, omega, dtheta [rad, rad/s, rad], force (2) [N],
-                           moment [N m], s_build (2)
-    qf  float64 (NQF, Q)   per pair slot: fn, fs [N], mr [N m], d_prev (2) [m]
-    qi  int64   (2, Q)     per pair slot: i, j (indices within the cell, i < j)
-    qb  uint8   (2, Q)     per pair slot: bonded, touching
-    cf  float64 (n, NCF)   per cell: h, h_build, h_ref (row-major 2x2 each) [m], time [s],
-                           phi [rad], kappa (2) [1/m]
-    ci  int64   (n, 2)     per cell: n_pairs, forces_current
-
-P and Q are the discs and pair slots of all cells; cell c holds discs p_off[c]:p_off[c+1] and
-pair slots q_off[c]:q_off[c+1] (its capacity), as ``batch.CellBatch`` lays them out. These
-are the fields of ``state.CellState``; ``to_columns`` and ``from_columns`` convert one cell.
-Nothing here imports numba.cuda: the host side packs and unpacks with numpy alone.
+threads of a block, which take consecutive discs or pairs, read consecutive addresses; which
+row or column holds what, and in which unit, is the table of ``demcell.slots`` ("The device
+store"). Cell c holds discs p_off[c]:p_off[c+1] and pair slots q_off[c]:q_off[c+1] (its
+capacity), as ``batch.CellBatch`` lays them out. ``to_columns`` and ``from_columns`` convert
+one cell. Nothing here imports numba.cuda: the host side packs and unpacks with numpy alone.
 """
 import numpy as np
 
 from ..state import CellState
+from ..slots import (BONDED, DPX, DPY, DTHETA, FCUR, FN, FS, FX, FY, H, HB, HREF, INERTIA, KAP, MASS, MOMENT, MR, NCF,
+                     NPAIRS, NPF, NQF, OMEGA, PHI, PI, PJ, RADIUS, SBX, SBY, SX, SY, THETA, TIME, TOUCHING, VX, VY)
 
-# --- per disc (rows of pf) ---------------------------------------------------------------------
-(RADIUS, MASS, INERTIA, SX, SY, VX, VY, THETA, OMEGA, DTHETA, FX, FY, MOMENT, SBX, SBY) = range(15)
-NPF = 15
-# --- per pair slot (rows of qf, qi, qb) --------------------------------------------------------
-FN, FS, MR, DPX, DPY = range(5)
-NQF = 5
-PI, PJ = 0, 1
-BONDED, TOUCHING = 0, 1
-# --- per cell (columns of cf, ci) --------------------------------------------------------------
-H, HB, HREF = 0, 4, 8             # 4 columns each: 00, 01, 10, 11
-TIME, PHI, KAP = 12, 13, 14       # KAP: 2 columns
-NCF = 16
-NPAIRS, FCUR = 0, 1
-# --- scratch of the relaxation kernel ------------------------------------------------------------
-# per pair slot, float64 (NQS, Q): the branch vector and its length, the force on j, the
-# moments on i and j and the spring energy of each contact in the last force evaluation
-DX, DY, DIST, FJX, FJY, MI, MJ, ENERGY = range(8)
-NQS = 8
-# per pair slot, int64 (NQN, Q): the new list of a rebuild, and the pair slots of each disc as
-# the second disc of a pair, in pair order (JLIST, indexed by JSTART)
-NEW_I, NEW_J, JLIST = range(3)
-NQN = 3
-# per pair slot, the history carried over by a rebuild: float64 (NQT, Q), uint8 (2, Q)
-T_FS, T_MR, T_FN, T_DPX, T_DPY = range(5)
-NQT = 5
-# per disc, int64 (NPI, P): its pair slots as the first disc (ISTART, ICOUNT: the pairs are
-# sorted by i), as the second (JSTART, JCOUNT into JLIST; JFILL while filling), its bin and
-# the bin members of the linked cells of a rebuild, the count and start of its new pairs
-ISTART, ICOUNT, JSTART, JCOUNT, JFILL, BIN_OF, BIN_ITEM, NCOUNT, NSTART = range(9)
-NPI = 9
-# per bin, int64 (2, B): count and start of its members; a cell's bins, at most 4 n + 9
-# (neighbours.build_pairs), lie at b_off[c]:b_off[c+1]
-BCOUNT, BSTART = range(2)
 
 
 def bins_per_cell(n_particles):

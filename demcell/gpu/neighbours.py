@@ -15,9 +15,9 @@ from numba import cuda
 
 from .block import first_slot_of, lower_bound
 from .kinematics import branch_vector
-from .layout import (BCOUNT, BIN_ITEM, BIN_OF, BONDED, BSTART, DPX, DPY, FN, FS, ICOUNT, ISTART, JCOUNT,
-                     JFILL, JLIST, JSTART, MR, NCOUNT, NEW_I, NEW_J, NSTART, PI, PJ, RADIUS, SX, SY, T_DPX,
-                     T_DPY, T_FN, T_FS, T_MR, TOUCHING)
+from ..slots import (BCOUNT, BIN_ITEM, BIN_OF, BONDED, BSTART, DPX, DPY, FN, FS, ICOUNT, ISTART, JCOUNT, JFILL, JLIST,
+                     JSTART, MR, NCOUNT, NEW_I, NEW_J, NSTART, PI, PJ, RADIUS, SX, SY, TOUCHING, T_DPX, T_DPY, T_FN,
+                     T_FS, T_MR)
 
 
 @cuda.jit(device=True)

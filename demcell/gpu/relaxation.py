@@ -18,36 +18,25 @@ import math
 
 from numba import cuda
 
-from ..contact_law import ROTATIONS
+from ..slots import (C_ALPHA, C_DT, C_DTMAX, C_G, C_KAP, C_KAP_END, C_KAP_START, C_METHOD, C_PHI, C_PHI_END,
+                     C_PHI_START, C_SKIN, C_TIME, C_TOL, DIST, DTHETA, DX, DY, ENERGY, ENERGY_RATIO, FJX, FJY, FN, FX,
+                     FY, H, HB, HREF, INERTIA, I_CHECK, I_CRIT, I_FCUR, I_KRAMP, I_MAXSTEPS, I_NPAIRS, I_NRAMP, MASS,
+                     MIX_FORCES, MIX_NONE, MIX_STOP, MOMENT, NO_CHECK, OMEGA, O_BONDLOST, O_EKIN, O_EPOT, O_FMEAN,
+                     O_MAXOVL, O_NCONT, O_REACTION, O_REBUILDS, O_S11, O_S12, O_S21, O_S22, O_STEPS, O_UNBAL, RADIUS,
+                     ROTATIONS, SBX, SBY, SX, SY, S_ALPHA, S_ANG0, S_CV, S_CW, S_DAMP, S_DANG, S_DPHI, S_DT, S_DT0,
+                     S_DTMAX, S_FEND, S_FIRE_A, S_FSTART, S_G, S_GK, S_H, S_HB, S_HINV, S_HREF, S_INV_S2, S_KAP,
+                     S_KAP_END, S_KAP_START, S_KEEP, S_PHI, S_PHI_END, S_PHI_START, S_RCUT, S_REACTION, S_SKIN,
+                     S_SPIN, S_TIME, S_TOL, S_U0, S_U1, THETA, TOUCHING, VX, VY, X_COMPUTED, X_LOST, X_MIX, X_NPOS,
+                     X_REBUILDS, X_STEPS)
 from ..lanes import LANES
-from ..relaxation import (C_ALPHA, C_DT, C_DTMAX, C_G, C_KAP, C_KAP_END, C_KAP_START, C_METHOD, C_PHI,
-                          C_PHI_END, C_PHI_START, C_SKIN, C_TIME, C_TOL, CELL_TOO_SMALL, CONVERGED,
-                          ENERGY_RATIO, I_CHECK, I_CRIT, I_FCUR, I_KRAMP, I_MAXSTEPS, I_NPAIRS, I_NRAMP,
-                          MAX_STEPS, NEED_CAPACITY, NO_CHECK, NO_CONTACTS, NONFINITE, O_BONDLOST, O_EKIN,
-                          O_EPOT, O_FMEAN, O_MAXOVL, O_NCONT, O_REACTION, O_REBUILDS, O_S11, O_S12, O_S21,
-                          O_S22, O_STEPS, O_UNBAL)
+from ..relaxation import CELL_TOO_SMALL, CONVERGED, MAX_STEPS, NEED_CAPACITY, NO_CONTACTS, NONFINITE
 from .block import block_max, combine_row
 from .contacts import gather_forces, gather_weights, hold_mean_rotation, pair_forces, weight_sums
 from .kinematics import cell_strain_norm, inv2, nearest_image, polar
-from .layout import (DIST, DTHETA, DX, DY, ENERGY, FJX, FJY, FN, FX, FY, H, HB, HREF, INERTIA, MASS,
-                     MOMENT, OMEGA, RADIUS, SBX, SBY, SX, SY, THETA, TOUCHING, VX, VY)
 from .neighbours import build_pairs, index_pairs, merge_history
 
 #: a check that found nothing to stop for
 GO_ON = -1
-#: FIRE's treatment of the velocities in a step: none, mixed with the forces, stopped
-MIX_NONE, MIX_FORCES, MIX_STOP = 0, 1, 2
-# --- the cell's values during an advance call, in shared memory: float64 sc (N_SC), written
-# by thread 0 between barriers, read by all (h, h_build, h_ref, h^-1, the ramp's F_start and
-# F_end, its polar stretches and angles, the time step, FIRE's values, the rotation ramp)
-S_H, S_HB, S_HREF, S_HINV, S_FSTART, S_FEND, S_U0, S_U1 = 0, 4, 8, 12, 16, 20, 24, 28
-(S_ANG0, S_DANG, S_DT, S_DT0, S_DTMAX, S_ALPHA, S_SKIN, S_TOL, S_RCUT, S_TIME, S_PHI, S_SPIN, S_DAMP,
- S_DISP, S_FIRE_A, S_CV, S_CW, S_KEEP, S_INV_S2, S_REACTION, S_DPHI, S_PHI_START, S_PHI_END) = range(32, 55)
-S_KAP, S_G, S_GK, S_KAP_START, S_KAP_END = 55, 57, 59, 61, 63       # 2 slots each
-N_SC = 65
-# and int64 si (N_SI): counters and FIRE's state
-(X_STEPS, X_REBUILDS, X_LOST, X_COMPUTED, X_NPOS, X_MIX) = range(6)
-N_SI = 6
 
 
 @cuda.jit(device=True)

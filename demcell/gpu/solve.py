@@ -12,22 +12,20 @@ import os
 
 from numba import config, cuda, float64, int64
 
-from ..contact_law import ROTATIONS
+from ..slots import (C_ALPHA, C_DT, C_DTMAX, C_GAIN, C_KAP, C_KAP_END, C_KAP_START, C_MAXRATE, C_METHOD, C_PHI,
+                     C_PHI_END, C_PHI_START, C_SKIN, C_STOL, C_TIME, C_TOL, FCUR, H, HB, HREF, IW_INRUN, IW_IPAR,
+                     IW_K, IW_NSUB, IW_REMAIN, IW_STAGE, I_CHECK, I_CRIT, I_FCUR, I_MAXSTEPS, I_NPAIRS, I_NRAMP, KAP,
+                     NPAIRS, N_CTRL, N_IPAR, N_OUT, N_SC, N_SI, O_BONDLOST, O_EKIN, O_EPOT, O_MAXOVL, O_REBUILDS,
+                     O_STEPS, O_UNBAL, PHI, Q_CHECK, Q_CRIT, Q_DAMP, Q_FIREDT, Q_GAIN, Q_LIMIT, Q_MAXINC, Q_METHOD,
+                     Q_RATE, Q_SKIN, Q_STOL, Q_TOL, Q_TOTAL, ROTATIONS, R_BUDGET, R_CONVERGED, R_EKIN, R_EPOT,
+                     R_FAILED_STATUS, R_FAILED_STEPS, R_FAILED_SUB, R_MAXOVL, R_NOCONTACT, R_REBUILDS, R_STEPS,
+                     R_SUBSTEPS, R_UNBAL, TIME, T_F, T_KAP, T_PHI, W_CTRL, W_FEND, W_FSTART, W_GEO, W_KAP0, W_OUT,
+                     W_PHI0, W_TOTAL)
 from ..lanes import LANES
-from ..quasistatic import (IW_INRUN, IW_IPAR, IW_K, IW_NSUB, IW_REMAIN, IW_STAGE, Q_CHECK, Q_CRIT,
-                           Q_DAMP, Q_FIREDT, Q_GAIN, Q_LIMIT, Q_MAXINC, Q_METHOD, Q_RATE, Q_SKIN, Q_STOL,
-                           Q_TOL, Q_TOTAL, R_BUDGET, R_CONVERGED, R_EKIN, R_EPOT, R_FAILED_STATUS, R_FAILED_STEPS,
-                           R_FAILED_SUB, R_MAXOVL, R_NOCONTACT, R_REBUILDS, R_STEPS, R_SUBSTEPS, R_UNBAL, T_F,
-                           T_KAP, T_PHI, W_CTRL, W_FEND, W_FSTART, W_GEO, W_KAP0, W_OUT, W_PHI0, W_TOTAL)
-from ..relaxation import (C_ALPHA, C_DT, C_DTMAX, C_GAIN, C_KAP, C_KAP_END, C_KAP_START, C_MAXRATE, C_METHOD,
-                          C_PHI, C_PHI_END, C_PHI_START, C_SKIN, C_STOL, C_TIME, C_TOL, CELL_TOO_SMALL,
-                          CONVERGED, I_CHECK, I_CRIT, I_FCUR, I_MAXSTEPS, I_NPAIRS, I_NRAMP, MAX_STEPS, N_CTRL,
-                          N_OUT, NEED_CAPACITY, NO_CONTACTS, NONFINITE, O_BONDLOST, O_EKIN, O_EPOT, O_MAXOVL,
-                          O_REBUILDS, O_STEPS, O_UNBAL)
+from ..relaxation import CELL_TOO_SMALL, CONVERGED, MAX_STEPS, NEED_CAPACITY, NO_CONTACTS, NONFINITE
 from .block import MAX_THREADS
 from .kinematics import deformation_gradient, path_point, path_setup, reduce_lattice, substep_count
-from .layout import FCUR, H, HB, HREF, KAP, NPAIRS, PHI, TIME
-from .relaxation import N_SC, N_SI, advance
+from .relaxation import advance
 
 #: code of a cell after a launch: waiting, solved, waiting for larger pair slots
 PENDING, SOLVED, FULL = 0, 1, 2
@@ -134,7 +132,7 @@ def start_substep(c, micropolar, k, n, pf, p0, n_particles, cf, ci, target, dt, 
     ctrl[C_KAP + 1] = cf[c, KAP + 1]
     ctrl[C_KAP_END] = kap_k0
     ctrl[C_KAP_END + 1] = kap_k1
-    ipar = iw[IW_IPAR:IW_IPAR + 7]
+    ipar = iw[IW_IPAR:IW_IPAR + N_IPAR]
     for m in range(7):
         ipar[m] = 0
     ipar[I_NPAIRS] = ci[c, NPAIRS]
@@ -170,7 +168,7 @@ def end_substep(c, k, status, budget, cf, ci, wk, iw, res):
     ctrl = wk[W_CTRL:W_CTRL + N_CTRL]
     out = wk[W_OUT:W_OUT + N_OUT]
     total = wk[W_TOTAL:W_TOTAL + N_OUT]
-    ipar = iw[IW_IPAR:IW_IPAR + 7]
+    ipar = iw[IW_IPAR:IW_IPAR + N_IPAR]
     total[O_STEPS] += out[O_STEPS]
     total[O_REBUILDS] += out[O_REBUILDS]
     total[O_BONDLOST] += out[O_BONDLOST]
@@ -254,7 +252,7 @@ def solve_rows(blocks, rows, p_off, q_off, b_off, pf, qf, qi, qb, cf, ci, law, d
             iw[IW_IPAR + I_MAXSTEPS] = iw[IW_REMAIN]
         cuda.syncthreads()
         status = advance(c, p0, n, q0, capacity, pf, qf, qi, qb, cf, law, qs, qn, qt, qtb, pis, bins, b0, weight,
-                         wk[W_CTRL:W_CTRL + N_CTRL], iw[IW_IPAR:IW_IPAR + 7], wk[W_OUT:W_OUT + N_OUT],
+                         wk[W_CTRL:W_CTRL + N_CTRL], iw[IW_IPAR:IW_IPAR + N_IPAR], wk[W_OUT:W_OUT + N_OUT],
                          wk[W_FSTART:W_FSTART + 8], part, shr, shi, shf, sc, si)
         if t == 0:
             end_substep(c, k, status, opts[c, Q_TOTAL], cf, ci, wk, iw, res)

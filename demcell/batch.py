@@ -173,7 +173,7 @@ def demqo(store, rows, eps=1e-6):
         o = perturbation_options(view, eps)          # numpy means, as a DemCell computes them
         view.freeze_contacts()
         base.law[j] = view.law_array
-        base.opts[j] = qs.solve_options(o, o.skin_ratio * float(view.state.radius.min()), o.max_steps)
+        base.opts[j] = qs.solve_options(o, o.skin(view.state.radius), o.max_steps)
     all_ = np.arange(n)
     F = base.deformation_gradients(all_)
     base.set_targets(all_, F, store.target[rows, slots.T_PHI], store.target[rows, slots.T_KAP:slots.T_KAP + 2])
@@ -238,7 +238,7 @@ class CellStore:
         self.micropolar = np.array([c.micropolar for c in cells])
         self.law = np.array([c.law_array for c in cells])
         self.dt = np.array([c.dt for c in cells])
-        self.opts = np.array([qs.solve_options(c.options, c.options.skin_ratio * float(c.state.radius.min()),
+        self.opts = np.array([qs.solve_options(c.options, c.options.skin(c.state.radius),
                                                c.options.max_steps) for c in cells])
         self.max_steps = np.array([c.options.max_steps for c in cells], dtype=np.int64)
         self.target = np.zeros((n, slots.N_TARGET))
@@ -305,7 +305,7 @@ class CellStore:
         self.micropolar[k] = template.micropolar
         self.law[k] = template.law_array
         self.dt[k] = template.dt
-        self.opts[k] = qs.solve_options(template.options, template.options.skin_ratio * float(state.radius.min()),
+        self.opts[k] = qs.solve_options(template.options, template.options.skin(state.radius),
                                         template.options.max_steps)
         self.max_steps[k] = template.options.max_steps
         self.restore(k, state)

@@ -19,19 +19,20 @@ Typical Gauss-point use::
     cell.rollback()                      # to restart a macro iteration from the last commit
 """
 import abc
+import dataclasses
 import math
-from dataclasses import dataclass, fields
+from dataclasses import dataclass
 
 import numpy as np
 
 from .contact_law import ContactLaw
-from .slots import (COH_N, COH_T, ENERGY_RATIO, ETA_R, FIRE, LOCAL_DAMPING, MU, ROTATIONS, ROT_MICROPOLAR,
-                    UNBALANCED_FORCE)
+from .slots import COH_N, COH_T, ETA_R, MU, ROTATIONS, ROT_MICROPOLAR
 from . import checks
 from . import quasistatic as qs
-from .checks import COUNT, MAX_BUDGET, NON_NEGATIVE, POSITIVE, Range
+from .checks import COUNT, MAX_BUDGET, Range
 from .errors import InputError, SolveError
 from .homogenization import homogenize
+from .options import RelaxationOptions
 from .periodic_cell import path_point, path_setup, reduce_cell, substep_count
 from .relaxation import MAX_STEPS, NO_CONTACTS, run, stable_time_step
 from .state import CellState
@@ -44,85 +45,6 @@ from . import slots
 #: 'micropolar' (mean rotation held at the imposed phi, curvature kappa as a rotation jump across
 #: the periodic images: skew stress and couple stress, docs/micropolar_cell.md)
 ROTATION_MODES = ("free", "locked", "micropolar")
-
-
-@dataclass(frozen=True)
-class RelaxationOptions:
-    """Options of the quasi-static solve.
-
-    criterion : 'energy' (E_kin/E_pot <= tol, 000 eq. 31) or 'force' (max unbalanced force /
-        mean contact force <= tol, 001 section 2)
-    tol : tolerance of the criterion (000 Table 3: 1e-3)
-    damping : local non-viscous damping alpha = beta (000 Table 3: 0.7)
-    max_steps : steps allowed per sub-step after its loading ramp before giving up (result
-        flagged not converged)
-    max_total_steps : steps allowed for a whole solve, every ramp and relaxation of every
-        sub-step together (result flagged not converged); None: ``solve_budget``'s default,
-        100 x max_steps and at least 1e7
-    check_every : steps between convergence tests
-    strain_rate : max |dF| per time step during the loading ramp (001 eq. 7 with
-        tau_1 = |F_f - F_i| / strain_rate / dt)
-    max_increment : largest |dF| of one sub-step; larger increments are split (polar path)
-    dt : time step [s]; None = ``stable_time_step`` (follows the stiffness)
-    dt_safety : safety factor of the automatic time step
-    skin_ratio : neighbour-list skin / R_min
-    stress_tol : relative tolerance on stress-controlled components
-    servo_gain : dF per step = -gain (sigma - target) / kn on stress-controlled components
-    method : 'local' (local non-viscous damping, 000 section 3.2.1) or 'fire' (FIRE, Bitzek
-        et al. 2006, adaptive step up to fire_dt_max x dt; see benchmarks/DEM.md for speed)
-    fire_dt_max : largest FIRE time step / dt
-    """
-    criterion: str = "energy"
-    tol: float = 1e-3
-    damping: float = 0.7
-    max_steps: int = 200_000
-    max_total_steps: int = None
-    check_every: int = 50
-    strain_rate: float = 1e-5
-    max_increment: float = 0.01
-    dt: float = None
-    dt_safety: float = 0.25
-    skin_ratio: float = 0.1
-    stress_tol: float = 1e-3
-    servo_gain: float = 0.05
-    method: str = "local"
-    fire_dt_max: float = 2.0
-
-    #: what each numeric option may be (None allowed for dt and max_total_steps: automatic)
-    RANGES = {"tol": POSITIVE, "damping": Range(0.0, 1.0, high_open=True),
-              "max_steps": Range(1, MAX_BUDGET, integer=True), "max_total_steps": Range(1, MAX_BUDGET, integer=True),
-              "check_every": COUNT, "strain_rate": POSITIVE, "max_increment": POSITIVE, "dt": POSITIVE,
-              "dt_safety": Range(0.0, 1.0, low_open=True), "skin_ratio": NON_NEGATIVE, "stress_tol": NON_NEGATIVE,
-              "servo_gain": NON_NEGATIVE, "fire_dt_max": Range(1.0)}
-
-    def __post_init__(self):
-        if self.method not in ("local", "fire"):
-            raise InputError(f"unknown relaxation method {self.method!r}: 'local' or 'fire'")
-        if self.criterion not in ("energy", "force"):
-            raise InputError(f"unknown convergence criterion {self.criterion!r}: use 'energy' "
-                             "(000 eq. 31) or 'force' (unbalanced-force ratio, 001)")
-        for name, allowed in self.RANGES.items():
-            value = getattr(self, name)
-            if value is None and name in ("dt", "max_total_steps"):
-                continue
-            # frozen: the checked value (an int for the step counts) replaces the given one
-            object.__setattr__(self, name, allowed.check(f"RelaxationOptions.{name}", value))
-
-    @property
-    def solve_budget(self):
-        """DEM steps a whole solve may take (every sub-step's ramp and relaxation):
-        max_total_steps, or by default 100 x max_steps and at least 1e7."""
-        if self.max_total_steps is not None:
-            return self.max_total_steps
-        return min(max(100 * self.max_steps, 10 ** 7), MAX_BUDGET)
-
-    @classmethod
-    def from_kwargs(cls, **kw):
-        names = {f.name for f in fields(cls)}
-        unknown = set(kw) - names
-        if unknown:
-            raise InputError(f"unknown relaxation option(s) {sorted(unknown)}; known: {sorted(names)}")
-        return cls(**kw)
 
 
 @dataclass
@@ -379,7 +301,6 @@ class DemCell(MicroCell):
         the options' ``max_steps``).
         """
         o = self.options
-        crit = ENERGY_RATIO if o.criterion == "energy" else UNBALANCED_FORCE
         mask = None
         total = checks.optional("max_steps", max_steps, COUNT)
         total = o.solve_budget if total is None else min(total, MAX_BUDGET)
@@ -405,13 +326,13 @@ class DemCell(MicroCell):
             msgs = [] if converged else [message]
         else:
             converged, no_contacts, msgs, substeps, steps, max_ovl = self._servo_solve(mask, stress_target, limit,
-                                                                                       total, crit)
+                                                                                       total)
         no_contacts, msg = qs.final_words(converged, no_contacts, self.contact_count(), msgs, max_ovl)
         self.last_result = SolveResult(converged=converged, no_contacts=no_contacts, steps=steps,
                                        substeps=substeps, message=msg, max_overlap_ratio=max_ovl)
         return self.last_result
 
-    def _servo_solve(self, mask, stress_target, limit, total, crit):
+    def _servo_solve(self, mask, stress_target, limit, total):
         """Mixed control (stress_mask): sub-steps of the imposed components, each ramped and
         relaxed by relaxation.run with the servo on the others, within `limit` steps after
         each ramp and `total` steps in all. The sub-step targets are made one at a time: a
@@ -440,12 +361,8 @@ class DemCell(MicroCell):
                 size = max(size, self.rotation_increment(phi_k, kappa_k))
             n_ramp = substep_count(size / o.strain_rate)
             budget = min(n_ramp + limit, max(total - steps, 0))
-            rep = run(self.state, self._law_array, self.dt, Fk, n_ramp, budget, criterion=crit,
-                      tol=o.tol, check_every=o.check_every, damping=o.damping,
-                      skin=o.skin_ratio * float(self.state.radius.min()), stress_mask=mask,
-                      stress_target=stress_target, stress_tol=o.stress_tol, servo_gain=o.servo_gain,
-                      max_rate=max(o.strain_rate, 1e-12), method=FIRE if o.method == "fire" else LOCAL_DAMPING,
-                      fire_dt_max=o.fire_dt_max, phi_end=phi_k, kappa_end=kappa_k)
+            rep = run(self.state, self._law_array, self.dt, Fk, n_ramp, budget, o, stress_mask=mask,
+                      stress_target=stress_target, phi_end=phi_k, kappa_end=kappa_k)
             steps += rep.steps
             if rep.status == NO_CONTACTS:
                 no_contacts = True
@@ -473,7 +390,7 @@ class DemCell(MicroCell):
         target[slots.T_F:slots.T_F + 4] = self._target.reshape(4)
         target[slots.T_PHI] = self._target_phi if self.micropolar else st.phi
         target[slots.T_KAP:slots.T_KAP + 2] = self._target_kappa if self.micropolar else st.kappa
-        opts = qs.solve_options(self.options, self.options.skin_ratio * float(st.radius.min()), limit, total)
+        opts = qs.solve_options(self.options, self.options.skin(st.radius), limit, total)
         work, iwork, result = np.zeros(slots.N_WORK), np.zeros(slots.N_IWORK, dtype=np.int64), np.zeros(slots.N_RESULT)
         while qs.solve_cell(st.radius, st.mass, st.inertia, st.s, st.v, st.theta, st.omega, st.dtheta, st.force,
                             st.moment, st.s_build, st.h, st.h_build, st.h_ref, st.pair_i, st.pair_j, st.fn,
@@ -528,12 +445,11 @@ class DemCell(MicroCell):
     def run_dynamics(self, n_steps, damping=0.0):
         """Plain explicit dynamics for n_steps at fixed F (no convergence test), e.g. for a
         collision or an energy-conservation check. Returns the RunReport."""
-        from .slots import NO_CHECK
         n_steps = checks.number("n_steps", n_steps, Range(0, MAX_BUDGET, integer=True))
         damping = checks.number("damping", damping, Range(0.0, 1.0, high_open=True))
-        return run(self.state, self._law_array, self.dt, self.state.F, 0, n_steps,
-                   criterion=NO_CHECK, damping=damping,
-                   skin=self.options.skin_ratio * float(self.state.radius.min()))
+        # plain local damping: the options' method would mix FIRE into the dynamics
+        options = dataclasses.replace(self.options, damping=damping, method="local")
+        return run(self.state, self._law_array, self.dt, self.state.F, 0, n_steps, options, check=False)
 
     def homogenized(self):
         """All homogenized outputs (``homogenization.Homogenized``)."""

@@ -217,14 +217,13 @@ def solve_options(options, skin, max_steps, total_steps=None):
     """The option row of solve_cell from a RelaxationOptions, the skin [m], the step
     budget per sub-step (after the ramp) and the step budget of the whole solve (ramps
     included; None: the options' ``solve_budget``)."""
-    from .slots import ENERGY_RATIO, FIRE, LOCAL_DAMPING, UNBALANCED_FORCE
     q = np.zeros(N_OPTS)
     q[Q_MAXINC], q[Q_RATE], q[Q_TOL], q[Q_CHECK] = (options.max_increment, options.strain_rate, options.tol,
                                                     options.check_every)
     q[Q_DAMP], q[Q_SKIN] = options.damping, skin
-    q[Q_METHOD] = FIRE if options.method == "fire" else LOCAL_DAMPING
+    q[Q_METHOD] = options.method_code
     q[Q_FIREDT] = options.fire_dt_max
-    q[Q_CRIT] = ENERGY_RATIO if options.criterion == "energy" else UNBALANCED_FORCE
+    q[Q_CRIT] = options.criterion_code
     q[Q_LIMIT] = max_steps
     q[Q_STOL], q[Q_GAIN] = options.stress_tol, options.servo_gain
     q[Q_TOTAL] = options.solve_budget if total_steps is None else total_steps

@@ -1,20 +1,28 @@
 """Explicit DEM time stepping of a periodic cell and quasi-static dynamic relaxation.
 
-One Numba kernel (``advance``) runs the whole loop:
-  1. the cell follows the loading ramp F(tau) = F_i + tau/tau_1 (F_f - F_i) (001 eq. 7),
-     with optional stress control of some components of F (mixed control, servo);
-  2. contact forces (``contact_law.contact_update``);
-  3. leapfrog integration of the fluctuating motion with local non-viscous damping
-     f_d = -alpha |f| sign(v), m_d = -beta |m| sign(omega) (000 section 3.2.1, eq. 30),
-     or, as an alternative relaxation method, FIRE (Bitzek et al. 2006: velocity mixing
-     towards the force, adaptive time step up to ``fire_dt_max`` x dt, stop when the power
-     F.v turns negative; its sums over the discs in the order of lanes.py);
-  4. after the ramp, the convergence test every ``check_every`` steps: kinetic / potential
-     energy ratio (000 eqs. 31-32; rattlers excluded) or maximum unbalanced force over mean contact force
-     (001 section 2), plus the stress targets of the stress-controlled components.
+``advance`` runs the loop, each step made of named kernels that any assembly of discs can
+call (they take plain arrays):
+  1. neighbour list: ``neighbours_stale`` (skin test), ``rebuild_neighbours`` (new list, the
+     contact history carried over);
+  2. contact forces (``compute_forces``, ``contact_law.contact_update``) and, in a
+     micropolar cell, the reaction of the held mean rotation (``constrain_moments``);
+  3. after the ramp, the convergence test every ``check_every`` steps (``kinetic_energy``,
+     ``convergence_test``): kinetic / potential energy ratio (000 eqs. 31-32; rattlers
+     excluded) or maximum unbalanced force over mean contact force (001 section 2), plus the
+     stress targets of the stress-controlled components;
+  4. the loading ramp F(tau) = F_i + tau/tau_1 (F_f - F_i) (001 eq. 7), with optional stress
+     control of some components of F (mixed control, servo): ``ramp_cell``, ``cell_rates``
+     (spin and h^-1), ``ramp_rotation`` (a micropolar cell's phi and kappa);
+  5. FIRE (Bitzek et al. 2006: velocity mixing towards the force, adaptive time step up to
+     ``fire_dt_max`` x dt, stop when the power F.v turns negative; its sums over the discs in
+     the order of lanes.py): ``fire_mix``, when it is the relaxation method;
+  6. leapfrog integration (kick and drift) of the fluctuating motion with local non-viscous
+     damping f_d = -alpha |f| sign(v), m_d = -beta |m| sign(omega) (000 section 3.2.1, eq.
+     30): ``leapfrog``, ``leapfrog_micropolar``.
+The slots of the arrays they share (law, ipar, ctrl, out) are those of ``slots``.
 
-The Python function ``run`` wraps the kernel: it grows the pair arrays when needed and
-turns status codes into a ``RunReport``.
+The Python function ``run`` wraps the kernel with the settings of a RelaxationOptions: it
+grows the pair arrays when needed and turns status codes into a ``RunReport``.
 """
 import math
 from dataclasses import dataclass
@@ -26,8 +34,8 @@ from .contact_law import contact_update_params
 from .slots import (COH_N, COH_T, C_ALPHA, C_DT, C_DTMAX, C_G, C_GAIN, C_KAP, C_KAP_END, C_KAP_START, C_MASK,
                     C_MAXRATE, C_METHOD, C_PHI, C_PHI_END, C_PHI_START, C_SKIN, C_STOL, C_TARGET, C_TIME, C_TOL,
                     ENERGY_RATIO, ETA_R, FROZEN, I_CHECK, I_CRIT, I_FCUR, I_KRAMP, I_MAXSTEPS, I_NPAIRS, I_NRAMP, KN,
-                    KR, KS, LOCAL_DAMPING, MU, NO_CHECK, N_CTRL, N_IPAR, N_OUT, O_BONDLOST, O_EKIN, O_EPOT, O_FMEAN,
-                    O_MAXOVL, O_NCONT, O_NSLIDE, O_REACTION, O_REBUILDS, O_S11, O_S12, O_S21, O_S22, O_STEPS, O_UNBAL,
+                    KR, KS, MU, NO_CHECK, N_CTRL, N_IPAR, N_OUT, O_BONDLOST, O_EKIN, O_EPOT, O_FMEAN, O_MAXOVL,
+                    O_NCONT, O_NSLIDE, O_REACTION, O_REBUILDS, O_S11, O_S12, O_S21, O_S22, O_STEPS, O_UNBAL,
                     ROTATIONS, XI_N, XI_T)
 from .errors import SolveError
 from .lanes import LANES, dot, fire_sums, sum_products
@@ -562,13 +570,200 @@ def leapfrog_micropolar(force, moment, v, s, omega, dtheta, theta, inv_m, inv_i,
     return vmax2
 
 
+#: a convergence test that found no reason to stop
+GO_ON = -1
+
+
+@njit(cache=True)
+def neighbours_stale(disp, h, h_build, r_cut, skin):
+    """True when the neighbour list may miss a contact: the fluctuating displacement since the
+    last build (bound ``disp`` [m], counted twice: both discs of a pair move) plus the cell's
+    deformation since then, acting over the cut-off r_cut [m], exceed the skin [m]."""
+    return 2.1 * disp + cell_strain_norm(h, h_build) * r_cut > skin
+
+
+@njit(cache=True)
+def rebuild_neighbours(h, s, radius, skin, s_build, h_build, pair_i, pair_j, fn, fs, mr, bonded, touching,
+                       d_prev, n_pairs):
+    """A new neighbour list (every pair closer than R_i + R_j + skin) in place of the old one,
+    the contact history carried over (neighbours.merge_history); s_build and h_build become the
+    current s and h. Returns (pairs listed, bonds lost), or (-1, 0) when the pair arrays are
+    full (nothing changed), (-2, 0) when the cell is too small for the minimum image."""
+    n = radius.shape[0]
+    cap = pair_i.shape[0]
+    new_i = np.empty(cap, np.int64)
+    new_j = np.empty(cap, np.int64)
+    m = build_pairs(h, s, radius, skin, new_i, new_j)
+    if m < 0:
+        return m, 0
+    t_fs = np.empty(cap)
+    t_mr = np.empty(cap)
+    t_bd = np.empty(cap, np.uint8)
+    t_to = np.empty(cap, np.uint8)
+    t_dp = np.empty((cap, 2))
+    t_fn = np.empty(cap)
+    lost = merge_history(n, n_pairs, pair_i, pair_j, m, new_i, new_j, fs, mr, bonded, touching, d_prev, fn,
+                         t_fs, t_mr, t_bd, t_to, t_dp, t_fn)
+    pair_i[:] = new_i
+    pair_j[:] = new_j
+    fs[:] = t_fs
+    mr[:] = t_mr
+    bonded[:] = t_bd
+    touching[:] = t_to
+    d_prev[:] = t_dp
+    fn[:] = t_fn
+    s_build[:] = s
+    h_build[:] = h
+    return m, lost
+
+
+@njit(cache=True)
+def kinetic_energy(mass, inertia, v, omega, force, moment):
+    """(kinetic energy [J/m] of the discs that carry a force, resp. a moment; the largest
+    squared resultant force [N^2]). A disc without any contact force (a rattler) or without a
+    moment (frictionless) keeps its velocity forever under local damping and carries no
+    stress: its kinetic energy is left out of the convergence test (000 eq. 31)."""
+    ekin = 0.0
+    fmax2 = 0.0
+    for i in range(mass.shape[0]):
+        f2 = force[i, 0] ** 2 + force[i, 1] ** 2
+        if f2 > 0.0:
+            ekin += 0.5 * mass[i] * (v[i, 0] ** 2 + v[i, 1] ** 2)
+        if moment[i] != 0.0:
+            ekin += 0.5 * inertia[i] * omega[i] ** 2
+        if f2 > fmax2:
+            fmax2 = f2
+    return ekin, fmax2
+
+
+@njit(cache=True)
+def convergence_test(ekin, fmax2, crit, ctrl, stress_controlled, smax_t, out):
+    """The convergence test of the relaxation: energy ratio E_kin/E_pot <= tol (000 eqs.
+    31-32) or largest unbalanced force / mean contact force <= tol (001 section 2), and the
+    stress-controlled components (stress_controlled) within ctrl[C_STOL] x smax_t [N/m] of
+    their targets. Writes O_EKIN and O_UNBAL; returns CONVERGED, NONFINITE, NO_CONTACTS (no
+    contact left and nothing stress-controlled), or GO_ON."""
+    out[O_EKIN] = ekin
+    unbal = math.sqrt(fmax2) / out[O_FMEAN] if out[O_FMEAN] > 0.0 else math.inf
+    out[O_UNBAL] = unbal
+    if not (math.isfinite(ekin) and math.isfinite(out[O_EPOT]) and math.isfinite(out[O_S11])):
+        return NONFINITE
+    if out[O_NCONT] == 0 and not stress_controlled:
+        return NO_CONTACTS
+    if crit == ENERGY_RATIO:
+        ok = ekin <= ctrl[C_TOL] * out[O_EPOT]
+    else:
+        ok = unbal <= ctrl[C_TOL]
+    if ok and stress_controlled:
+        for c in range(4):
+            if ctrl[C_MASK + c] > 0.5:
+                if abs(out[O_S11 + c] - ctrl[C_TARGET + c]) > ctrl[C_STOL] * max(smax_t, 1e-300):
+                    ok = False
+    return CONVERGED if ok else GO_ON
+
+
+@njit(cache=True)
+def ramp_cell(h, h_old, h_ref, href_inv, F_start, F_end, tau, ctrl, kn, out, polar_ramp, ang0, dang, U0, U1,
+              Fm):
+    """The cell matrix h [m] of the next step: F = F_start + tau (F_end - F_start) on the
+    imposed components (001 eq. 7; polar_ramp: turned by ang0 + tau dang and stretched
+    linearly from U0 to U1 instead, polar.py's path), and on the stress-controlled ones
+    (ctrl[C_MASK]) the F of h_old corrected by the servo, dF = -gain (sigma - target) / kn
+    (kn [N/m]) capped at ctrl[C_MAXRATE]; then h = F h_ref. Fm: scratch (2x2)."""
+    for a in range(2):
+        for b in range(2):
+            c = 2 * a + b
+            if ctrl[C_MASK + c] > 0.5:
+                dF = -ctrl[C_GAIN] * (out[O_S11 + c] - ctrl[C_TARGET + c]) / kn
+                dF = min(max(dF, -ctrl[C_MAXRATE]), ctrl[C_MAXRATE])
+                Fm[a, b] = h_old[a, 0] * href_inv[0, b] + h_old[a, 1] * href_inv[1, b] + dF
+            elif not polar_ramp:
+                Fm[a, b] = F_start[a, b] + tau * (F_end[a, b] - F_start[a, b])
+    if polar_ramp:
+        if tau >= 1.0:
+            Fm[:] = F_end
+        else:
+            ca = math.cos(ang0 + tau * dang)
+            sa = math.sin(ang0 + tau * dang)
+            for b in range(2):
+                u0b = U0[0, b] + tau * (U1[0, b] - U0[0, b])
+                u1b = U0[1, b] + tau * (U1[1, b] - U0[1, b])
+                Fm[0, b] = ca * u0b - sa * u1b
+                Fm[1, b] = sa * u0b + ca * u1b
+    for a in range(2):
+        for b in range(2):
+            h[a, b] = Fm[a, 0] * h_ref[0, b] + Fm[a, 1] * h_ref[1, b]
+
+
+@njit(cache=True)
+def cell_rates(h_old, h):
+    """(macroscopic spin increment [rad], the skew part of dF F^-1 between h_old and h; the
+    entries 00, 01, 10, 11 of h^-1 [1/m]). Scalar inverses: no 2x2 array per step, the
+    arithmetic of inv2."""
+    hi00, hi01, hi10, hi11 = _inv2_scalars(h_old[0, 0], h_old[0, 1], h_old[1, 0], h_old[1, 1])
+    g01 = (h[0, 0] - h_old[0, 0]) * hi01 + (h[0, 1] - h_old[0, 1]) * hi11
+    g10 = (h[1, 0] - h_old[1, 0]) * hi00 + (h[1, 1] - h_old[1, 1]) * hi10
+    spin = 0.5 * (g10 - g01)
+    hinv00, hinv01, hinv10, hinv11 = _inv2_scalars(h[0, 0], h[0, 1], h[1, 0], h[1, 1])
+    return spin, hinv00, hinv01, hinv10, hinv11
+
+
+@njit(cache=True)
+def fire_mix(force, v, moment, omega, rot, part, fire_a, fire_npos, dt, dt_max, dt_min):
+    """One FIRE update (Bitzek et al., PRL 97, 170201, 2006; N_min 5, f_inc 1.1, f_dec 0.5,
+    alpha_start 0.1, f_alpha 0.99): while the power F.v is positive the velocities turn
+    towards the forces by fire_a and, after 5 such steps, the time step grows (up to dt_max
+    [s]) and fire_a shrinks; otherwise the discs stop, the step halves (down to dt_min) and
+    fire_a starts again. Sums over the discs in the order of lanes.py (part: scratch).
+    Returns (dt, fire_a, fire_npos)."""
+    power, vn2, fn2, wn2, mn2 = fire_sums(force, v, moment, omega, rot, part)
+    if power > 0.0:
+        cv = fire_a * math.sqrt(vn2 / fn2) if fn2 > 0.0 else 0.0
+        cw = fire_a * math.sqrt(wn2 / mn2) if mn2 > 0.0 else 0.0
+        for i in range(v.shape[0]):
+            v[i, 0] = (1.0 - fire_a) * v[i, 0] + cv * force[i, 0]
+            v[i, 1] = (1.0 - fire_a) * v[i, 1] + cv * force[i, 1]
+            omega[i] = (1.0 - fire_a) * omega[i] + cw * moment[i]
+        fire_npos += 1
+        if fire_npos > 5:
+            dt = min(dt * 1.1, dt_max)
+            fire_a *= 0.99
+    else:
+        dt = max(dt * 0.5, dt_min)
+        fire_a = 0.1
+        fire_npos = 0
+        v[:] = 0.0
+        omega[:] = 0.0
+    return dt, fire_a, fire_npos
+
+
+@njit(cache=True)
+def ramp_rotation(ctrl, tau, h_ref):
+    """Micropolar cell: the micro-rotation phi [rad] and the curvature kappa [1/m] follow the
+    ramp (001 eq. 7 applied to phi and kappa). Stores the new kappa in ctrl[C_KAP] and its
+    increment on the reference lattice, dkappa^T h_ref, in ctrl[C_G] (also for the next force
+    evaluation); returns (phi, kappa31, kappa32)."""
+    phi_new = ctrl[C_PHI_START] + tau * (ctrl[C_PHI_END] - ctrl[C_PHI_START])
+    k0 = ctrl[C_KAP_START] + tau * (ctrl[C_KAP_END] - ctrl[C_KAP_START])
+    k1 = ctrl[C_KAP_START + 1] + tau * (ctrl[C_KAP_END + 1] - ctrl[C_KAP_START + 1])
+    dk0 = k0 - ctrl[C_KAP]
+    dk1 = k1 - ctrl[C_KAP + 1]
+    ctrl[C_KAP] = k0
+    ctrl[C_KAP + 1] = k1
+    ctrl[C_G] = dk0 * h_ref[0, 0] + dk1 * h_ref[1, 0]
+    ctrl[C_G + 1] = dk0 * h_ref[0, 1] + dk1 * h_ref[1, 1]
+    return phi_new, k0, k1
+
+
 @njit(cache=True, nogil=True)   # long: lets run_guard's watchdog act on a signal meanwhile
 def advance(radius, mass, inertia, s, v, theta, omega, dtheta, force, moment, s_build, h,
             h_build, h_ref, pair_i, pair_j, fn, fs, mr, bonded, touching, d_prev,
             law, ipar, ctrl, F_start, F_end, out):
     """Run up to ipar[I_MAXSTEPS] steps of the loading ramp + relaxation (see module doc).
     All arrays are updated in place; ipar keeps n_pairs, forces_current and the ramp
-    progress so that a call interrupted by NEED_CAPACITY can be resumed. Returns a status."""
+    progress so that a call interrupted by NEED_CAPACITY can be resumed. Returns a status.
+    Each step: neighbour list (rebuilt when stale), forces, convergence test after the ramp,
+    next cell of the ramp, FIRE mixing (method FIRE), kick and drift."""
     n = radius.shape[0]
     dt = ctrl[C_DT]
     alpha = ctrl[C_ALPHA]
@@ -608,8 +803,7 @@ def advance(radius, mass, inertia, s, v, theta, omega, dtheta, force, moment, s_
     inv_s2 = 0.0
     if micropolar:             # (a resumed call with current forces needs them from its first step)
         inv_s2 = contact_weights(weight, inv_i, pair_i, pair_j, touching, fn, ipar[I_NPAIRS])
-    # FIRE (Bitzek et al., PRL 97, 170201, 2006): N_min 5, f_inc 1.1, f_dec 0.5,
-    # alpha_start 0.1, f_alpha 0.99; time step between dt/2^k and dt_max = C_DTMAX dt
+    # FIRE: time step between dt/2^k and dt_max = C_DTMAX dt
     fire = ctrl[C_METHOD] > 0.5
     dt_max = dt * max(ctrl[C_DTMAX], 1.0)
     fire_a = 0.1
@@ -622,35 +816,15 @@ def advance(radius, mass, inertia, s, v, theta, omega, dtheta, force, moment, s_
     status = MAX_STEPS
     for step in range(ipar[I_MAXSTEPS] + 1):
         if ipar[I_FCUR] == 0:
-            if 2.1 * disp + cell_strain_norm(h, h_build) * r_cut > skin:
-                cap = pair_i.shape[0]
-                new_i = np.empty(cap, np.int64)
-                new_j = np.empty(cap, np.int64)
-                m = build_pairs(h, s, radius, skin, new_i, new_j)
+            if neighbours_stale(disp, h, h_build, r_cut, skin):
+                m, lost = rebuild_neighbours(h, s, radius, skin, s_build, h_build, pair_i, pair_j, fn, fs, mr,
+                                             bonded, touching, d_prev, ipar[I_NPAIRS])
                 if m == -1:
                     return NEED_CAPACITY
                 if m == -2:
                     return CELL_TOO_SMALL
-                t_fs = np.empty(cap)
-                t_mr = np.empty(cap)
-                t_bd = np.empty(cap, np.uint8)
-                t_to = np.empty(cap, np.uint8)
-                t_dp = np.empty((cap, 2))
-                t_fn = np.empty(cap)
-                out[O_BONDLOST] += merge_history(n, ipar[I_NPAIRS], pair_i, pair_j, m, new_i, new_j,
-                                                 fs, mr, bonded, touching, d_prev, fn,
-                                                 t_fs, t_mr, t_bd, t_to, t_dp, t_fn)
-                pair_i[:] = new_i
-                pair_j[:] = new_j
-                fs[:] = t_fs
-                mr[:] = t_mr
-                bonded[:] = t_bd
-                touching[:] = t_to
-                d_prev[:] = t_dp
-                fn[:] = t_fn
+                out[O_BONDLOST] += lost
                 ipar[I_NPAIRS] = m
-                s_build[:] = s
-                h_build[:] = h
                 disp = 0.0
                 out[O_REBUILDS] += 1
             compute_forces(radius, mass, s, dtheta, force, moment, h, pair_i, pair_j, fn, fs, mr,
@@ -662,40 +836,11 @@ def advance(radius, mass, inertia, s, v, theta, omega, dtheta, force, moment, s_
             ipar[I_FCUR] = 1
         # convergence test once the ramp is over
         if crit != NO_CHECK and ipar[I_KRAMP] >= n_ramp and step % check_every == 0 and step > 0:
-            ekin = 0.0
-            fmax2 = 0.0
-            for i in range(n):
-                # particles without any contact force (rattlers) or without moment (frictionless)
-                # keep their velocity forever under local damping and carry no stress: their
-                # kinetic energy is left out of the test
-                f2 = force[i, 0] ** 2 + force[i, 1] ** 2
-                if f2 > 0.0:
-                    ekin += 0.5 * mass[i] * (v[i, 0] ** 2 + v[i, 1] ** 2)
-                if moment[i] != 0.0:
-                    ekin += 0.5 * inertia[i] * omega[i] ** 2
-                if f2 > fmax2:
-                    fmax2 = f2
-            out[O_EKIN] = ekin
-            unbal = math.sqrt(fmax2) / out[O_FMEAN] if out[O_FMEAN] > 0.0 else math.inf
-            out[O_UNBAL] = unbal
-            if not (math.isfinite(ekin) and math.isfinite(out[O_EPOT]) and math.isfinite(out[O_S11])):
-                status = NONFINITE
+            ekin, fmax2 = kinetic_energy(mass, inertia, v, omega, force, moment)
+            status = convergence_test(ekin, fmax2, crit, ctrl, any_mask, smax_t, out)
+            if status != GO_ON:
                 break
-            if out[O_NCONT] == 0 and not any_mask:
-                status = NO_CONTACTS
-                break
-            if crit == ENERGY_RATIO:
-                ok = ekin <= ctrl[C_TOL] * out[O_EPOT]
-            else:
-                ok = unbal <= ctrl[C_TOL]
-            if ok and any_mask:
-                for c in range(4):
-                    if ctrl[C_MASK + c] > 0.5:
-                        if abs(out[O_S11 + c] - ctrl[C_TARGET + c]) > ctrl[C_STOL] * max(smax_t, 1e-300):
-                            ok = False
-            if ok:
-                status = CONVERGED
-                break
+            status = MAX_STEPS
         if step == ipar[I_MAXSTEPS]:
             break
         # --- new cell: ramp (001 eq. 7) and servo on the stress-controlled components
@@ -703,70 +848,16 @@ def advance(radius, mass, inertia, s, v, theta, omega, dtheta, force, moment, s_
         if ipar[I_KRAMP] < n_ramp:
             ipar[I_KRAMP] += 1
         tau = ipar[I_KRAMP] / n_ramp if n_ramp > 0 else 1.0
-        for a in range(2):
-            for b in range(2):
-                c = 2 * a + b
-                if ctrl[C_MASK + c] > 0.5:
-                    # servo: current F_ab (from h_old) corrected towards the target stress
-                    dF = -ctrl[C_GAIN] * (out[O_S11 + c] - ctrl[C_TARGET + c]) / law[KN]
-                    dF = min(max(dF, -ctrl[C_MAXRATE]), ctrl[C_MAXRATE])
-                    Fm[a, b] = h_old[a, 0] * href_inv[0, b] + h_old[a, 1] * href_inv[1, b] + dF
-                elif not polar_ramp:
-                    Fm[a, b] = F_start[a, b] + tau * (F_end[a, b] - F_start[a, b])
-        if polar_ramp:
-            if tau >= 1.0:
-                Fm[:] = F_end
-            else:
-                ca = math.cos(ang0 + tau * dang)
-                sa = math.sin(ang0 + tau * dang)
-                for b in range(2):
-                    u0b = U0[0, b] + tau * (U1[0, b] - U0[0, b])
-                    u1b = U0[1, b] + tau * (U1[1, b] - U0[1, b])
-                    Fm[0, b] = ca * u0b - sa * u1b
-                    Fm[1, b] = sa * u0b + ca * u1b
-        for a in range(2):
-            for b in range(2):
-                h[a, b] = Fm[a, 0] * h_ref[0, b] + Fm[a, 1] * h_ref[1, b]
-        # macroscopic spin increment: skew part of dF F^-1
-        # (scalar inverses: no 2x2 array allocated per step; same arithmetic as inv2)
-        hi00, hi01, hi10, hi11 = _inv2_scalars(h_old[0, 0], h_old[0, 1], h_old[1, 0], h_old[1, 1])
-        g01 = (h[0, 0] - h_old[0, 0]) * hi01 + (h[0, 1] - h_old[0, 1]) * hi11
-        g10 = (h[1, 0] - h_old[1, 0]) * hi00 + (h[1, 1] - h_old[1, 1]) * hi10
-        spin = 0.5 * (g10 - g01)
-        hinv00, hinv01, hinv10, hinv11 = _inv2_scalars(h[0, 0], h[0, 1], h[1, 0], h[1, 1])
+        ramp_cell(h, h_old, h_ref, href_inv, F_start, F_end, tau, ctrl, law[KN], out, polar_ramp, ang0, dang,
+                  U0, U1, Fm)
+        spin, hinv00, hinv01, hinv10, hinv11 = cell_rates(h_old, h)
         damp = alpha
         if fire:
             damp = 0.0
-            power, vn2, fn2, wn2, mn2 = fire_sums(force, v, moment, omega, rot, fire_part)
-            if power > 0.0:
-                cv = fire_a * math.sqrt(vn2 / fn2) if fn2 > 0.0 else 0.0
-                cw = fire_a * math.sqrt(wn2 / mn2) if mn2 > 0.0 else 0.0
-                for i in range(n):
-                    v[i, 0] = (1.0 - fire_a) * v[i, 0] + cv * force[i, 0]
-                    v[i, 1] = (1.0 - fire_a) * v[i, 1] + cv * force[i, 1]
-                    omega[i] = (1.0 - fire_a) * omega[i] + cw * moment[i]
-                fire_npos += 1
-                if fire_npos > 5:
-                    dt = min(dt * 1.1, dt_max)
-                    fire_a *= 0.99
-            else:
-                dt = max(dt * 0.5, ctrl[C_DT] / 64.0)
-                fire_a = 0.1
-                fire_npos = 0
-                v[:] = 0.0
-                omega[:] = 0.0
+            dt, fire_a, fire_npos = fire_mix(force, v, moment, omega, rot, fire_part, fire_a, fire_npos, dt,
+                                             dt_max, ctrl[C_DT] / 64.0)
         if micropolar:
-            # micro-rotation and curvature follow the ramp (001 eq. 7 applied to phi, kappa)
-            phi_new = ctrl[C_PHI_START] + tau * (ctrl[C_PHI_END] - ctrl[C_PHI_START])
-            k0 = ctrl[C_KAP_START] + tau * (ctrl[C_KAP_END] - ctrl[C_KAP_START])
-            k1 = ctrl[C_KAP_START + 1] + tau * (ctrl[C_KAP_END + 1] - ctrl[C_KAP_START + 1])
-            dk0 = k0 - ctrl[C_KAP]
-            dk1 = k1 - ctrl[C_KAP + 1]
-            ctrl[C_KAP] = k0
-            ctrl[C_KAP + 1] = k1
-            # kappa^T h_ref and dkappa^T h_ref (the latter also for the next force evaluation)
-            ctrl[C_G] = dk0 * h_ref[0, 0] + dk1 * h_ref[1, 0]
-            ctrl[C_G + 1] = dk0 * h_ref[0, 1] + dk1 * h_ref[1, 1]
+            phi_new, k0, k1 = ramp_rotation(ctrl, tau, h_ref)
             vmax2 = leapfrog_micropolar(force, moment, v, s, omega, dtheta, theta, inv_m, inv_i,
                                         weight, inv_s2, hinv00, hinv01, hinv10, hinv11, dt, damp,
                                         phi_new - ctrl[C_PHI], k0 * h_ref[0, 0] + k1 * h_ref[1, 0],
@@ -818,24 +909,24 @@ def stable_time_step(radius, mass, inertia, law, safety=0.25):
     return safety * 2.0 / w * (math.sqrt(1.0 + xi * xi) - xi)
 
 
-def run(state, law_array, dt, F_end, n_ramp, max_steps, criterion=ENERGY_RATIO, tol=1e-3,
-        check_every=100, damping=0.7, skin=None, stress_mask=None, stress_target=None,
-        stress_tol=1e-3, servo_gain=0.05, max_rate=1e-4, method=LOCAL_DAMPING, fire_dt_max=2.0,
-        phi_end=None, kappa_end=None):
-    """Ramp the cell from its current F to ``F_end`` in ``n_ramp`` steps, then relax.
+def run(state, law_array, dt, F_end, n_ramp, max_steps, options, stress_mask=None, stress_target=None,
+        phi_end=None, kappa_end=None, check=True):
+    """Ramp the cell from its current F to ``F_end`` in ``n_ramp`` steps, then relax, with the
+    relaxation settings of ``options`` (a RelaxationOptions: criterion, tol, check_every,
+    damping, skin_ratio, stress_tol, servo_gain, strain_rate as the servo's largest dF per
+    step, method, fire_dt_max); ``dt`` [s] the time step, ``law_array`` the kernels' law.
     A micropolar cell (law_array[ROTATIONS] == 2) also ramps its micro-rotation from state.phi
     to ``phi_end`` and its curvature from state.kappa to ``kappa_end`` (None: unchanged).
-    Stops at convergence, at ``max_steps`` steps, or on a failure status. ``stress_mask``
-    (2x2 bool) selects the components of F driven by the servo to reach ``stress_target``
-    (2x2 Cauchy stress, tension positive). Returns a RunReport; raises SolveError on
-    non-finite values (the state is then unusable: roll back)."""
-    n = state.n_particles
-    if skin is None:
-        skin = 0.1 * float(np.min(state.radius))
+    Stops at convergence, at ``max_steps`` steps, or on a failure status; check=False: no
+    convergence test (plain dynamics for max_steps). ``stress_mask`` (2x2 bool) selects the
+    components of F driven by the servo to reach ``stress_target`` (2x2 Cauchy stress [N/m],
+    tension positive). Returns a RunReport; raises SolveError on non-finite values (the
+    state is then unusable: roll back)."""
     ctrl = np.zeros(N_CTRL)
-    ctrl[C_DT], ctrl[C_ALPHA], ctrl[C_TOL], ctrl[C_STOL] = dt, damping, tol, stress_tol
-    ctrl[C_GAIN], ctrl[C_MAXRATE], ctrl[C_SKIN], ctrl[C_TIME] = servo_gain, max_rate, skin, state.time
-    ctrl[C_METHOD], ctrl[C_DTMAX] = method, fire_dt_max
+    ctrl[C_DT], ctrl[C_ALPHA], ctrl[C_TOL], ctrl[C_STOL] = dt, options.damping, options.tol, options.stress_tol
+    ctrl[C_GAIN], ctrl[C_MAXRATE] = options.servo_gain, max(options.strain_rate, 1e-12)
+    ctrl[C_SKIN], ctrl[C_TIME] = options.skin(state.radius), state.time
+    ctrl[C_METHOD], ctrl[C_DTMAX] = options.method_code, options.fire_dt_max
     if stress_mask is not None:
         ctrl[C_MASK:C_MASK + 4] = np.asarray(stress_mask, dtype=float).reshape(4)
         ctrl[C_TARGET:C_TARGET + 4] = np.asarray(stress_target, dtype=float).reshape(4)
@@ -846,7 +937,7 @@ def run(state, law_array, dt, F_end, n_ramp, max_steps, criterion=ENERGY_RATIO, 
     ctrl[C_KAP_END:C_KAP_END + 2] = state.kappa if kappa_end is None else np.asarray(kappa_end, float)
     ipar = np.zeros(N_IPAR, np.int64)
     ipar[I_NPAIRS], ipar[I_FCUR], ipar[I_NRAMP] = state.n_pairs, state.forces_current, n_ramp
-    ipar[I_CHECK], ipar[I_CRIT] = check_every, criterion
+    ipar[I_CHECK], ipar[I_CRIT] = options.check_every, options.criterion_code if check else NO_CHECK
     F_start = state.F
     F_end = np.array(F_end, dtype=np.float64)
     out = np.zeros(N_OUT)

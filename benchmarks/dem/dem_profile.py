@@ -36,6 +36,7 @@ Writes --out/summary.json (figures, CPU and wall seconds, load average) and prin
 """
 import argparse
 import importlib.util
+import inspect
 import json
 import math
 import os
@@ -48,7 +49,8 @@ from numba import njit
 import demcell as dc
 from demcell.neighbours import build_pairs, merge_history
 from demcell.periodic_cell import branch_vector
-from demcell.relaxation import N_OUT, NO_CHECK, compute_forces, leapfrog, run
+from demcell.relaxation import compute_forces, leapfrog, run
+from demcell.slots import N_OUT, NO_CHECK
 
 KN, PRESSURE, FRICTION, DAMPING = 1.0e4, 10.0, 0.4, 0.7
 STRAIN = 2.0e-3      # total imposed e22 = -e11 over the timed steps (small: the state stays comparable)
@@ -80,13 +82,22 @@ def deform(state, strain):
     return state.F @ np.diag([math.exp(-strain), math.exp(strain)])
 
 
+def dynamics(run_fn, st, la, dt, F1, n_ramp, nsteps, skin):
+    """nsteps steps without convergence test of run_fn, relaxation.run of this checkout (a
+    RelaxationOptions) or of one from before run took the options (loose arguments)."""
+    if "options" not in inspect.signature(run_fn).parameters:
+        return run_fn(st, la, dt, F1, n_ramp, nsteps, criterion=NO_CHECK, damping=DAMPING, skin=skin)
+    options = dc.RelaxationOptions(damping=DAMPING, skin_ratio=skin / float(st.radius.min()))
+    return run_fn(st, la, dt, F1, n_ramp, nsteps, options, check=False)
+
+
 def timed_run(run_fn, st, la, dt, nsteps, skin):
     """nsteps steps of the deformation ramp on st (modified); returns cpu, wall, rebuilds,
     mean touching contacts (counted before and after)."""
     c_before = int(np.count_nonzero(st.touching[:st.n_pairs]))
     F1 = deform(st, STRAIN)
     c0, t0 = time.process_time(), time.perf_counter()
-    rep = run_fn(st, la, dt, F1, nsteps, nsteps, criterion=NO_CHECK, damping=DAMPING, skin=skin)
+    rep = dynamics(run_fn, st, la, dt, F1, nsteps, nsteps, skin)
     cpu, wall = time.process_time() - c0, time.perf_counter() - t0
     c_after = int(np.count_nonzero(st.touching[:st.n_pairs]))
     return cpu, wall, rep.rebuilds, 0.5 * (c_before + c_after)
@@ -163,7 +174,7 @@ def cpu_of(fn, *args):
 def breakdown(state, law, dt, nsteps, skin):
     la = law.as_array()
     st = state.copy()
-    run(st, la, dt, st.F, 0, 50, criterion=NO_CHECK, damping=DAMPING, skin=skin)   # JIT, first list
+    dynamics(run, st, la, dt, st.F, 0, 50, skin)   # JIT, first list
     base = st.copy()
     cpu, wall, rebuilds, contacts = timed_run(run, st, la, dt, nsteps, skin)
     # forced rebuilds: zero skin (rebuild test fires on every step with motion)
@@ -220,10 +231,10 @@ def ab(state, law, dt, nsteps, skin, other, rounds):
     la = law.as_array()
     run_a = sys.modules[other.__name__ + ".relaxation"].run
     st = state.copy()
-    run(st, la, dt, st.F, 0, 50, criterion=NO_CHECK, damping=DAMPING, skin=skin)
+    dynamics(run, st, la, dt, st.F, 0, 50, skin)
     start = st.copy()
     sa = start.copy()
-    run_a(sa, la, dt, sa.F, 0, 2, criterion=NO_CHECK, damping=DAMPING, skin=skin)   # JIT of A
+    dynamics(run_a, sa, la, dt, sa.F, 0, 2, skin)   # JIT of A
     res = {"A": [], "B": []}
     finals = {}
     for _ in range(rounds):

@@ -42,7 +42,7 @@ import numpy as np
 import demcell as dc
 from benchmarks import ROOT
 from demcell.contact_law import ContactLaw
-from demcell.relaxation import NO_CHECK, UNBALANCED_FORCE, run, stable_time_step
+from demcell.relaxation import run, stable_time_step
 from demcell.state import CellState
 
 HERE = os.path.dirname(os.path.abspath(__file__))
@@ -93,10 +93,10 @@ def demcell_side(export, nsteps, kn, ks, tol, maxsolve, repeat=3):
     law = ContactLaw(kn=kn, ks=ks, friction=d["friction"])
     la = law.as_array()
     dt = d["dt"]           # the time step YADE used (the one we passed to it)
-    skin = 0.1 * float(st0.radius.min())
+    dynamics = dc.RelaxationOptions(damping=0.7)      # skin_ratio 0.1: a skin of 0.1 R_min
     # warm-up (JIT, first neighbour list) then timed run under the same velocity gradient
     st = st0.copy()
-    run(st, la, dt, st.F, 0, 200, criterion=NO_CHECK, damping=0.7, skin=skin)
+    run(st, la, dt, st.F, 0, 200, dynamics, check=False)
     F0 = st.F
     rate = 1e-5
 
@@ -113,8 +113,7 @@ def demcell_side(export, nsteps, kn, ks, tol, maxsolve, repeat=3):
         done = 0
         half = nsteps // 2
         for chunk in (half, nsteps - half):
-            rep = run(st, la, dt, ramp(st, done + chunk), chunk, chunk, criterion=NO_CHECK, damping=0.7,
-                      skin=skin)
+            rep = run(st, la, dt, ramp(st, done + chunk), chunk, chunk, dynamics, check=False)
             done += chunk
             counts.append(int(np.count_nonzero(st.touching[:st.n_pairs])))
         trials.append((time.process_time() - c0, time.perf_counter() - t0))
@@ -126,11 +125,11 @@ def demcell_side(export, nsteps, kn, ks, tol, maxsolve, repeat=3):
                stress_yy=float(dc.homogenize(st, la).cauchy[1, 1]) / 0.1)
     # one quasi-static solve from the exported state (same recipe as the YADE driver)
     st = st0.copy()
-    run(st, la, dt, st.F, 0, 1, criterion=NO_CHECK, damping=0.7, skin=skin)
+    run(st, la, dt, st.F, 0, 1, dynamics, check=False)
     t0, c0 = time.perf_counter(), time.process_time()
     F1 = st.F @ np.diag([math.exp(10 * rate), math.exp(-10 * rate)])
-    rep = run(st, la, dt, F1, 10, 10 + maxsolve, criterion=UNBALANCED_FORCE, tol=tol, check_every=50,
-              damping=0.7, skin=skin)
+    rep = run(st, la, dt, F1, 10, 10 + maxsolve, dc.RelaxationOptions(criterion="force", tol=tol, check_every=50,
+                                                                      damping=0.7))
     res.update(solve_steps=rep.steps, solve_wall=time.perf_counter() - t0, solve_cpu=time.process_time() - c0,
                solve_converged=rep.converged, solve_unbalanced=rep.unbalanced_ratio,
                solve_contacts=rep.n_contacts, solve_stress=dc.homogenize(st, la).cauchy.tolist())

@@ -502,7 +502,8 @@ def large_pass(a, results):
     # the same pass on one host core, per cell from a sample
     m = a.cpu_cells
     from demcell.batch import CellBatch
-    host = CellBatch([cell.holding(st) for st in gpu.committed_states(rows[:m])])
+    from demcell.interface import DemCell
+    host = CellBatch([DemCell.view(cell, st) for st in gpu.committed_states(rows[:m])])
     host.rollback(np.arange(m))
     F = committed[:m] + biaxial_targets(n, 2e-4, seed=10)[:m] - np.eye(2)
     host.set_targets(np.arange(m), F)

@@ -4,10 +4,11 @@ The mesh partition gives every rank the same number of Gauss points, but in FEM 
 point's work is its cell's relaxation, and the cells in a band relax far longer than those
 outside it: a rank holding the band finishes its cells late and the others wait for it at
 the next collective (the assembly). `BalancedMaterial` wraps a material and lets another
-rank work on a point: the partition's points of a rank are its *home* points (the callback
-keeps their float history, fluxes and tangents), and each home point has one *worker* rank
-whose inner material holds its resident state (the DEM cell) in a *slot*. Initially every
-point is worked on at home; the float history never moves, only the resident state does.
+rank work on a point: the partition's points of a rank are its *home* points (the
+Gauss-point store keeps their float history, fluxes and tangents), and each home point has
+one *worker* rank whose inner material holds its resident state (the DEM cell) in a *slot*.
+Initially every point is worked on at home; the float history never moves, only the
+resident state does.
 
 Per call (every rank, every time: `collective = True`, quadrature.QuadratureMap then
 calls even a rank with nothing to update):
@@ -20,7 +21,7 @@ calls even a rank with nothing to update):
              inner material with the point's coordinates) go back with comm.alltoall
 
 Failures stay local until the exchange is complete: the inner material's ConstitutiveError
-becomes a failed status with its message (the callback raises it on the home rank after the
+becomes a failed status with its message (the store raises it on the home rank after the
 material returned, the solver makes it collective), any other exception of the inner
 material is carried back as a fatal error and raised (RuntimeError) on the home ranks of
 the points of that call, again only after every exchange of the call.
@@ -171,14 +172,11 @@ class BalancedMaterial(Constitutive):
         self.tangent_on_demand = inner.tangent_on_demand
         self.state_names = tuple(inner.state_names)
         self.gradient_size, self.flux_size = inner.gradient_size, inner.flux_size
-        if hasattr(inner, "state_index"):
-            self.state_index = inner.state_index
-        self.cost_unit = getattr(inner, "cost_unit", "")
+        self.cost_unit = inner.cost_unit
         self.serial = comm.size == 1
         self.n_home = 0
         self.worker = np.zeros(0, dtype=np.int64)     # worker rank of each home point
         self.zone = None                              # home zones (set_zones), None: none given
-        self.coordinates = None                       # home (x, y) (set_point_coordinates)
         self._timers_done = {}                        # timers of the inner materials replaced
         self._own = {"exchange": 0.0, "migration": 0.0}
         self._commits = 0
@@ -188,19 +186,18 @@ class BalancedMaterial(Constitutive):
         self._pass = {"imbalance": [], "moves": 0, "seconds": 0.0}   # this step's passes
         self.records = []
 
-    # --- set-up (before the callback is built) ------------------------------------------
+    # --- set-up (before the Gauss-point store is built) ----------------------------------
     def set_zones(self, zone):
         self.zone = np.asarray(zone, dtype=np.int64)
         self.inner.set_zones(self.zone)
 
     def set_point_coordinates(self, xy):
-        self.coordinates = np.asarray(xy, dtype=float)
-        if hasattr(self.inner, "set_point_coordinates"):
-            self.inner.set_point_coordinates(self.coordinates)
+        super().set_point_coordinates(xy)
+        self.inner.set_point_coordinates(self.coordinates)
 
     def initial_state(self, n_points):
         """Every point starts at home: the inner material's slots are the home points.
-        Collective (the callback is built on every rank)."""
+        Collective (the store is built on every rank)."""
         state = self.inner.initial_state(n_points)
         self.n_home = n_points
         if self.serial:
@@ -215,16 +212,10 @@ class BalancedMaterial(Constitutive):
         self._slots_changed()
         return state
 
-    def initial_fluxes(self):
+    def initial_fluxes(self, n_points):
         if self._moved:
             raise RuntimeError("BalancedMaterial.initial_fluxes: only before any point has moved")
-        return self.inner.initial_fluxes()
-
-    def where(self, p):
-        if self.coordinates is not None and p < len(self.coordinates):
-            x, y = self.coordinates[p]
-            return f"Gauss point at ({x:.4g}, {y:.4g})"
-        return f"local Gauss point {p}"
+        return self.inner.initial_fluxes(n_points)
 
     def _slots_changed(self):
         """Lookup global point -> slot and the slot work arrays, after the slots changed."""
@@ -355,13 +346,11 @@ class BalancedMaterial(Constitutive):
         message = failure if (status < 0).any() else (flag if (status > 0).any() else "")
         return PointReport(status=status, cost=cost, message=message, cost_unit=self.cost_unit)
 
-    # --- the callback -------------------------------------------------------------------
+    # --- the update -----------------------------------------------------------------------
     def update(self, gradients, dt, state_old, flux_out, tangent_out, state_new, points=None):
         """As the inner material's update, each point on its worker (collective)."""
         if self.serial:
-            if self.rate_independent:
-                return self.inner.update(gradients, dt, state_old, flux_out, tangent_out, state_new, points=points)
-            return self.inner.update(gradients, dt, state_old, flux_out, tangent_out, state_new)
+            return self.inner.update(gradients, dt, state_old, flux_out, tangent_out, state_new, points=points)
         points = np.arange(self.n_home) if points is None else np.asarray(points, dtype=np.int64)
         if self.passes:
             self._balance_pass(points)
@@ -387,7 +376,7 @@ class BalancedMaterial(Constitutive):
                 status, cost, messages = self._work(
                     lambda k: inner.update(G, dt, SO, F, T, SN, points=slots[k:k + 1]), None, slots, source)
             else:
-                status, cost, messages = self._work(None, lambda: inner.update(G, dt, SO, F, T, SN), slots, source)
+                status, cost, messages = self._work(None, lambda: inner.update(G, dt, SO, F, T, SN, points=None), slots, source)
             columns = [F[slots], SN[slots]]
             if not self.tangent_on_demand:
                 columns.append(T[slots].reshape(len(slots), nf * nf))
@@ -535,12 +524,12 @@ class BalancedMaterial(Constitutive):
             self.slot_zone = np.concatenate([b["zone"] for b in blocks])[order]
         if self.slot_xy is not None:
             self.slot_xy = np.concatenate([b["xy"] for b in blocks])[order]
-        for name, value in old.timers.items() if hasattr(old, "timers") else ():
+        for name, value in old.timers.items():
             self._timers_done[name] = self._timers_done.get(name, 0.0) + value
         inner = self.make_material()
         if self.slot_zone is not None:
             inner.set_zones(self.slot_zone)
-        if self.slot_xy is not None and hasattr(inner, "set_point_coordinates"):
+        if self.slot_xy is not None:
             inner.set_point_coordinates(self.slot_xy)
         inner.initial_state(len(self.slot_global))
         offset = 0
@@ -603,13 +592,13 @@ class BalancedMaterial(Constitutive):
         """The inner materials' timers (summed over those replaced by migrations) and the
         wrapper's own: exchange (in the collectives, waiting included), migration [s]."""
         out = dict(self._timers_done)
-        for name, value in getattr(self.inner, "timers", {}).items():
+        for name, value in self.inner.timers.items():
             out[name] = out.get(name, 0.0) + value
         out.update(self._own)
         return out
 
     def memory_bytes(self):
-        return self.inner.memory_bytes() if hasattr(self.inner, "memory_bytes") else 0
+        return self.inner.memory_bytes()
 
     def describe(self):
         return self.inner.describe()

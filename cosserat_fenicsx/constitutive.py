@@ -1,4 +1,4 @@
-"""The constitutive callback interface: what a Gauss-point material implements.
+"""The Gauss-point material interface: what a material implements (docs/reference/quadrature_map.md).
 
 Per Gauss point, with the order of `kinematics.GRADIENT_NAMES` / `FLUX_NAMES`:
 
@@ -8,37 +8,49 @@ Per Gauss point, with the order of `kinematics.GRADIENT_NAMES` / `FLUX_NAMES`:
 
 A material works on flat arrays over all Gauss points of the cells a rank owns (the MPI
 partition splits the work), in the style of fenics-constitutive's interface and
-dolfinx_materials' gradients/fluxes/tangent blocks. `update` is pure in the float history:
-it reads the committed history `state_old` and writes a trial history `state_new`; the
-caller copies trial into committed only when a load step has converged, which is what makes
-a cut-back a rollback. A Cauchy scene passes eps12 = eps21 = sym part and zero curvature
-and uses the first four fluxes only.
+dolfinx_materials' gradients/fluxes/tangent blocks; the store of these arrays is
+quadrature.QuadratureMap. `update` is pure in the float history: it reads the committed
+history `state_old` and writes a trial history `state_new`; the store copies trial into
+committed only when a load step has converged, which is what makes a cut-back a rollback.
+A Cauchy scene passes eps12 = eps21 = sym part and zero curvature and uses the first four
+fluxes only.
 
-Three optional capabilities serve materials whose points are expensive or whose state is
-not a float array (a DEM cell per Gauss point); the defaults keep the simple materials
-(linear elasticity, Ehlers) exactly as they were:
+Every hook below is declared on `Constitutive` with a default that keeps the simple
+materials (linear elasticity, Ehlers) as they are; a material overrides what it needs:
 
+* `update(..., points=None)`: `points` None updates every row; a `rate_independent`
+  material (fluxes depend on its committed state and its gradients only, not on dt) is
+  given the indices of the rows to update instead: the store leaves out the points whose
+  gradients equal those of their last update, bitwise (the first residual of a load step,
+  whose fields are the committed ones, and any repeated evaluation at the same iterate).
+  Rows not in `points` must be left untouched. A material that is not rate_independent is
+  always given None.
 * `commit()` / `rollback()` are called when a load step converged / was cut, after the
   float history was committed / restored, so resident state (cells) follows the same
   rule (dolfinx_materials' update / revert).
-* `tangent_on_demand = True`: `update` need not fill `tangent_out`; the callback calls
+* `tangent_on_demand = True`: `update` need not fill `tangent_out`; the store calls
   `tangent(points, tangent_out)` when the Jacobian is assembled, for the points updated
   since their last tangent only.
-* `rate_independent = True`: the fluxes of a point depend on its committed state and its
-  gradients only (not on dt), so the callback passes `points` (indices of the rows to
-  update) and leaves out the points whose gradients equal those of their last update: the
-  first residual of a load step (the fields are the committed ones) and any repeated
-  evaluation at the same iterate. Rows not in `points` must be left untouched.
+* `collective = True`: update and tangent exchange data between ranks; the store calls
+  them on every rank every time, with an empty `points` where nothing changed.
+* set-up, before the store is built: `set_zones(zone)` (which variant of the material
+  each point is), `set_point_coordinates(xy)` (to name a point in messages, `where`);
+  then the store reads `initial_state(n)` and `initial_fluxes(n)`.
+* resident state (what is not in the float history, e.g. a DEM cell per point):
+  `export_points`, `import_points`, `check_exported` (checkpoints, points moved between
+  ranks).
+* diagnostics: `cost_unit`, `timers`, `memory_bytes()`, `describe()`.
 
 `update` (and `tangent`) may return a `PointReport`: per updated point a status (0 ok,
 > 0 usable but flagged, e.g. a cell that lost every contact; < 0 failed) and a cost
-(the work done, in the material's unit, e.g. DEM time steps). A material that cannot
+(the work done, in the material's `cost_unit`, e.g. DEM time steps). A material that cannot
 produce a stress raises `ConstitutiveError` (or reports a negative status) with a message
 naming the cause; the solver makes the failure collective over the ranks before any MPI
 call, turns it into a step cut-back and reports it.
 """
 import abc
 from dataclasses import dataclass
+from types import MappingProxyType
 
 import numpy as np
 
@@ -68,28 +80,66 @@ class PointReport:
 
 
 class Constitutive(abc.ABC):
-    """Base class of Gauss-point materials."""
+    """Base class of Gauss-point materials (see the module docstring for every hook)."""
 
     gradient_size = GRADIENT_SIZE
     flux_size = FLUX_SIZE
     state_names = ()
     tangent_on_demand = False
     rate_independent = False
-    #: update / tangent do collective exchanges (balancing.BalancedMaterial): the callback
+    #: update / tangent do collective exchanges (balancing.BalancedMaterial): the store
     #: calls them on every rank every time, with an empty `points` where nothing changed
     collective = False
+    #: unit of PointReport.cost, e.g. "DEM time steps" ("" : no cost reported)
+    cost_unit = ""
+    #: (n, 2) x, y [m] of the points, given by set_point_coordinates (None: not given)
+    coordinates = None
+    #: wall seconds [s] spent per part of the work, e.g. {"solve": ..., "tangent": ...}
+    timers = MappingProxyType({})
 
     @property
     def state_size(self):
         return len(self.state_names)
 
+    @property
+    def state_index(self):
+        """Column of each history variable: state[:, material.state_index[name]]."""
+        return {name: i for i, name in enumerate(self.state_names)}
+
+    # --- set-up, before the store is built ------------------------------------------------
+    def set_zones(self, zone):
+        """zone[p]: which variant of the material point p is (e.g. a weakened one). A
+        material with one variant takes zeros only."""
+        zone = np.asarray(zone)
+        if zone.size and np.any(zone != 0):
+            raise ValueError(f"{type(self).__name__} has one zone: zone indices must be 0")
+
+    def set_point_coordinates(self, xy):
+        """(x, y) [m] of the points (quadrature.gauss_point_coordinates), used by `where`."""
+        self.coordinates = np.asarray(xy, dtype=float)
+
+    def where(self, p):
+        """Point p in words, for messages: its position when the coordinates were given."""
+        if self.coordinates is not None and p < len(self.coordinates):
+            x, y = self.coordinates[p]
+            return f"Gauss point at ({x:.4g}, {y:.4g})"
+        return f"local Gauss point {p}"
+
     def initial_state(self, n_points):
+        """(n_points, state_size) committed history before the first step."""
         return np.zeros((n_points, self.state_size))
 
+    def initial_fluxes(self, n_points):
+        """(n_points, flux_size) fluxes before the first step (a pre-stressed reference
+        state has its stress here), zero by default."""
+        return np.zeros((n_points, self.flux_size))
+
+    # --- the update ------------------------------------------------------------------------
     @abc.abstractmethod
-    def update(self, gradients, dt, state_old, flux_out, tangent_out, state_new):
-        """Write flux_out (n, 6), tangent_out (n, 6, 6) and state_new (n, state_size).
-        A `rate_independent` material also takes `points=` (see the module docstring)."""
+    def update(self, gradients, dt, state_old, flux_out, tangent_out, state_new, points=None):
+        """Write flux_out (n, 6), tangent_out (n, 6, 6) and state_new (n, state_size) for
+        the rows `points` (None: every row; see the module docstring); dt [pseudo-time].
+        May return a PointReport with one entry per updated row."""
 
     def tangent(self, points, tangent_out):
         """Write tangent_out[points] (a `tangent_on_demand` material only)."""
@@ -119,10 +169,19 @@ class Constitutive(abc.ABC):
         where the state has meaning. Called before any import, so that a refusal can be
         made on every rank together."""
 
+    # --- diagnostics -----------------------------------------------------------------------
+    def memory_bytes(self):
+        """Bytes of resident state held on this rank (0 for a material without any)."""
+        return 0
+
+    def describe(self):
+        """What the run's summary records about the material (a dict of plain values)."""
+        return {}
+
 
 class LinearElasticMaterial(Constitutive):
-    """Linear isotropic micropolar elasticity through the callback: the trivial
-    implementation of the interface, used to check the callback plumbing against the
+    """Linear isotropic micropolar elasticity as a Gauss-point material: the trivial
+    implementation of the interface, used to check the Gauss-point store against the
     pure-UFL path. `elasticity` is a `MicropolarElasticity`."""
 
     def __init__(self, elasticity):
@@ -136,6 +195,10 @@ class LinearElasticMaterial(Constitutive):
         c[4, 4] = c[5, 5] = bend
         self.stiffness = c
 
-    def update(self, gradients, dt, state_old, flux_out, tangent_out, state_new):
-        np.matmul(gradients, self.stiffness.T, out=flux_out)
-        tangent_out[:] = self.stiffness
+    def update(self, gradients, dt, state_old, flux_out, tangent_out, state_new, points=None):
+        if points is None:
+            np.matmul(gradients, self.stiffness.T, out=flux_out)
+            tangent_out[:] = self.stiffness
+        else:
+            flux_out[points] = gradients[points] @ self.stiffness.T
+            tangent_out[points] = self.stiffness

@@ -7,7 +7,7 @@ couple stress and tangent are written into quadrature Functions that the residua
 Jacobian forms use. The quadrature degree of these spaces is the degree of the forms'
 measure, so the forms read exactly the values the material produced.
 
-Which points are updated when (docs/quadrature_map.md):
+Which points are updated when (docs/reference/quadrature_map.md):
 
 * residual: every point, or, for a `rate_independent` material, the points whose
   gradients differ from those of their last update (bitwise);
@@ -75,9 +75,9 @@ class QuadratureMap:
         self.dofs = compat.cell_dofs(self.flux_space, len(self.cells)).reshape(-1)
         n = self.n_points
         self.gradients = np.zeros((n, material.gradient_size))
-        self.flux_values = np.zeros((n, nf))
         self.tangent_values = np.zeros((n, nf, nf))
         self.state_old = material.initial_state(n)
+        self.flux_values = np.array(material.initial_fluxes(n), dtype=np.float64).reshape(n, nf)
         self.state_new = self.state_old.copy()
         self.time_step = 0.0
         self.status = np.zeros(n, dtype=np.int32)
@@ -95,8 +95,8 @@ class QuadratureMap:
         self._tangent_stale = np.ones(n, dtype=bool)
         self._stale_committed = self._tangent_stale.copy()
         self._status_committed = self.status.copy()
-
         self._coordinates = None
+        self.flux.x.array.reshape(-1, nf)[self.dofs] = self.flux_values
 
     @property
     def n_points(self):
@@ -110,12 +110,12 @@ class QuadratureMap:
         return self._coordinates
 
     def set_initial_fluxes(self, values):
-        """Current and committed fluxes (n_points, flux_size) before the first solve, e.g.
-        the stress of a pre-stressed reference state; the flux Function follows."""
+        """Current and committed fluxes (n_points, flux_size) before the first solve, in
+        place of the material's initial_fluxes (read when the store was built); the flux
+        Function follows."""
         self.flux_values[:] = values
         self._flux_committed[:] = self.flux_values
-        nf = self.material.flux_size
-        self.flux.x.array.reshape(-1, nf)[self.dofs] = self.flux_values
+        self.flux.x.array.reshape(-1, self.material.flux_size)[self.dofs] = self.flux_values
 
     # --- UFL views used by the forms -----------------------------------------------
     def stress(self):
@@ -143,30 +143,28 @@ class QuadratureMap:
         self.evaluate_gradients()
         m = self.material
         start = time.perf_counter()
+        points = None          # every point
         if m.rate_independent:
             points = np.flatnonzero((self.gradients != self._updated_at).any(axis=1))
             self.counters["points_unchanged"] += self.n_points - len(points)
-            report = None
-            if len(points) or m.collective:     # a collective material is called on every rank
-                report = m.update(self.gradients, self.time_step, self.state_old, self.flux_values,
-                                  self.tangent_values, self.state_new, points=points)
-        else:
-            points = slice(None)
+        report = None
+        # a collective material is called on every rank, even one with nothing to update
+        if points is None or len(points) or m.collective:
             report = m.update(self.gradients, self.time_step, self.state_old, self.flux_values,
-                              self.tangent_values, self.state_new)
+                              self.tangent_values, self.state_new, points=points)
         self.timers["update"] += time.perf_counter() - start
-        n_updated = self.n_points if isinstance(points, slice) else len(points)
-        self.counters["point_updates"] += n_updated
-        self._record(points, report)
-        flux = self.flux_values[points]
+        rows = slice(None) if points is None else points
+        self.counters["point_updates"] += self.n_points if points is None else len(points)
+        self._record(rows, report)
+        flux = self.flux_values[rows]
         finite = np.isfinite(flux).all(axis=1)
         if not m.tangent_on_demand:
-            finite &= np.isfinite(self.tangent_values[points]).all(axis=(1, 2))
+            finite &= np.isfinite(self.tangent_values[rows]).all(axis=(1, 2))
         if not finite.all():
             raise ConstitutiveError(f"material returned non-finite stress or tangent at "
                                     f"{int(np.count_nonzero(~finite))} Gauss point(s)")
-        self._updated_at[points] = self.gradients[points]
-        self._tangent_stale[points] = True
+        self._updated_at[rows] = self.gradients[rows]
+        self._tangent_stale[rows] = True
         nf = m.flux_size
         self.flux.x.array.reshape(-1, nf)[self.dofs] = self.flux_values
         if not m.tangent_on_demand:

@@ -193,7 +193,7 @@ def test_tiny_micropolar_run_in_process():
     s = FemDemSettings(nx=1, ny=2, mode="micropolar", tangent="demqo", axial_strain=0.004, steps=2,
                        weak_size=0.007, weak_friction_factor=0.7, cell=CellOptions(particles=40))
     test = FemDemBiaxial(MPI.COMM_SELF, s, verbose=False)
-    f0 = test.material.initial_fluxes().copy()
+    f0 = test.material.initial_fluxes(test.gauss_points.n_points)
     history = test.run()
     assert len(history) == 3 and 0 < test.n_weak_cells < 4          # a non-uniform specimen
     cb = test.gauss_points

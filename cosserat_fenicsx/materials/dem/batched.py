@@ -29,8 +29,10 @@ class BatchedDemMaterial(DemMaterial):
     def __init__(self, reference_cells, mode, tangent="pstlo", max_strain_increment=0.05, device="cpu"):
         if device not in self.DEVICES:
             raise ValueError(f"unknown cell device {device!r}: one of {', '.join(self.DEVICES)}")
+        self.batch = None
         super().__init__(reference_cells, mode, tangent, max_strain_increment)
         self.device = device
+        self._pool, self._pool_threads = None, 0
 
     def initial_state(self, n_points):
         state = super().initial_state(n_points)      # the cells, as copies of the zones' reference cells
@@ -48,7 +50,7 @@ class BatchedDemMaterial(DemMaterial):
     @property
     def cells(self):
         """Views of the cells in the store (read them; the batch solves)."""
-        if getattr(self, "batch", None) is None:
+        if self.batch is None:
             return self._cells_list or []
         return [self.batch.view(k) for k in range(self.batch.n_cells)]
 
@@ -175,7 +177,7 @@ class BatchedDemMaterial(DemMaterial):
         threads = numba.get_num_threads()
         if threads < 2 or self.tangent_name not in GIL_FREE_TANGENTS:
             return None
-        if getattr(self, "_pool", None) is None or self._pool_threads != threads:
+        if self._pool is None or self._pool_threads != threads:
             from concurrent.futures import ThreadPoolExecutor
             self._pool, self._pool_threads = ThreadPoolExecutor(threads), threads
         return self._pool

@@ -1,4 +1,4 @@
-"""FEM x DEM: a periodic DEM cell (demcell) at every Gauss point, behind the callback.
+"""FEM x DEM: a periodic DEM cell (demcell) at every Gauss point, behind the Gauss-point interface.
 
 One `demcell.DemCell` per Gauss point of the cells this rank owns, created once (copies of
 the zone's reference cell) and resident on the rank for the whole run.
@@ -56,7 +56,7 @@ class DemMaterial(Constitutive):
             raise ValueError(refusal)
         if not reference_cells:
             raise ValueError("DemMaterial needs at least one reference cell")
-        if mode.name == "micropolar" and not all(getattr(c, "micropolar", False) for c in reference_cells):
+        if mode.name == "micropolar" and not all(c.micropolar for c in reference_cells):
             raise ValueError("mode 'micropolar' needs cells that carry rotation and curvature themselves "
                              "(demcell.DemCell(..., rotation_mode='micropolar'), as "
                              "reference_cells(..., micropolar=True) makes them)")
@@ -69,22 +69,17 @@ class DemMaterial(Constitutive):
         self._kind = TANGENTS[tangent]
         self.zone = None
         self.cells = []
-        self.coordinates = None
         self._touched = set()
         self._floors = {}
         self.timers = {"solve": 0.0, "homogenize": 0.0, "tangent": 0.0, "commit": 0.0}
 
     # --- set-up ------------------------------------------------------------------------
     def set_zones(self, zone):
-        """zone[p]: index of the reference cell of point p (before the callback is built)."""
+        """zone[p]: index of the reference cell of point p (before the store is built)."""
         zone = np.asarray(zone, dtype=np.int64)
         if zone.size and (zone.min() < 0 or zone.max() >= len(self.reference_cells)):
             raise ValueError("DemMaterial: zone index out of range")
         self.zone = zone
-
-    def set_point_coordinates(self, xy):
-        """(x, y) of the points, used to name a failing point in messages."""
-        self.coordinates = np.asarray(xy)
 
     def initial_state(self, n_points):
         """Create the cells (copies of the reference cells) and their initial outputs."""
@@ -98,27 +93,21 @@ class DemMaterial(Constitutive):
             state[self.zone == z] = self._outputs(ref.homogenized(), 0, 0)
         return state
 
-    def initial_fluxes(self):
-        """Fluxes of the reference state (F = I) per point, (n, 6)."""
-        out = np.zeros((len(self.zone), 6))
+    def initial_fluxes(self, n_points):
+        """Fluxes of the reference state (F = I) per point, (n_points, 6) [Pa, N/m]."""
+        out = np.zeros((n_points, 6))
         for z, ref in enumerate(self.reference_cells):
             row = np.zeros(6)
             self.mode.fluxes(ref.homogenized(), np.zeros(6), row)
             out[self.zone == z] = row
         return out
 
-    def where(self, p):
-        if self.coordinates is not None and p < len(self.coordinates):
-            x, y = self.coordinates[p]
-            return f"Gauss point at ({x:.4g}, {y:.4g})"
-        return f"local Gauss point {p}"
-
     @staticmethod
     def _outputs(h, steps, status):
         return (h.coordination_number, h.anisotropy, h.sliding_fraction, h.stress_ratio,
                 h.n_contacts, steps, status)
 
-    # --- the callback --------------------------------------------------------------------
+    # --- the update ------------------------------------------------------------------------
     def update(self, gradients, dt, state_old, flux_out, tangent_out, state_new, points=None):
         points = np.arange(len(self.cells)) if points is None else np.asarray(points)
         status = np.zeros(len(points), dtype=np.int32)

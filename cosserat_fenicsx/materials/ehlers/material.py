@@ -1,6 +1,6 @@
-"""Constitutive callback object for the FE side (no dolfinx import).
+"""The Ehlers model as a Gauss-point material of the FE side (no dolfinx import).
 
-Contract (issue 3): per Gauss point
+Contract (constitutive.Constitutive): per Gauss point
 
 * gradients [eps11, eps22, eps12, eps21, kappa31, kappa32]; eps_ij = u_i,j + e_ij3 phi
   (eps12 = u1,2 + phi, eps21 = u2,1 - phi, eq. 2.49), kappa3j = phi_,j [1/m] (2.52);
@@ -87,14 +87,22 @@ class EhlersMaterial(Constitutive):
         return np.tile(row, (int(n_points), 1))
 
     # ----------------------------------------------------------------- update
-    def update(self, gradients, dt, state_old, flux_out, tangent_out, state_new) -> None:
-        """Update all points: see module docstring for layouts and units.
+    def update(self, gradients, dt, state_old, flux_out, tangent_out, state_new, points=None) -> None:
+        """Update the rows `points` (None: all points): see module docstring for layouts
+        and units.
 
         Pure: depends only on the arguments (state_old is read-only).  Raises
-        MaterialPointError naming the cause and the first failing point when the local
-        problem has no acceptable solution after substepping; ValueError on bad input.
+        MaterialPointError naming the cause and the first failing point (counted among
+        the rows updated) when the local problem has no acceptable solution after
+        substepping; ValueError on bad input.
         """
-        self._run(gradients, dt, state_old, flux_out, tangent_out, state_new, 6)
+        if points is None:
+            self._run(gradients, dt, state_old, flux_out, tangent_out, state_new, 6)
+            return
+        points = np.asarray(points, dtype=np.int64)
+        flux, tangent, state = flux_out[points], tangent_out[points], state_new[points]
+        self._run(gradients[points], dt, state_old[points], flux, tangent, state, 6)
+        flux_out[points], tangent_out[points], state_new[points] = flux, tangent, state
 
     def update_generalised(self, strain7, dt, state_old, flux_out, tangent_out, state_new):
         """Same as update with 7 components [eps11, eps22, eps33, eps12, eps21, kappa31, kappa32]

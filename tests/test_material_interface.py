@@ -1,4 +1,4 @@
-"""The extended Gauss-point callback interface (constitutive.py, quadrature.py, snes.py):
+"""The Gauss-point material interface (constitutive.py, quadrature.py, snes.py):
 rate-independent materials are asked only for the points whose gradients changed,
 tangents on demand come from the Jacobian path only, commit / rollback reach the material
 when the LoadStepper commits / cuts a step, per-point status and cost (PointReport), flags
@@ -32,7 +32,7 @@ def plate():
 
 
 def scene(material, mesh_data, loads=True, scale=None):
-    """The plate of tests/test_callback.py: pulled and sheared, mixed Dirichlet / traction /
+    """The plate of tests/test_quadrature_map.py: pulled and sheared, mixed Dirichlet / traction /
     couple conditions (loads=False: driven by the Dirichlet value on top only), every load
     scaled by scale(t) (default t)."""
     mesh, tags, names = mesh_data
@@ -77,7 +77,7 @@ def max_strain(problem, local=False):
 
 # --- instrumented materials ------------------------------------------------------------------
 class ProbeElastic(LinearElasticMaterial):
-    """Linear elastic through the callback, instrumented.
+    """Linear elastic as a Gauss-point material, instrumented.
 
     History (float state): the gradients of the committed step. Resident state (what a DEM
     cell would hold, outside the float arrays): `at`, the gradients of each point's last
@@ -112,7 +112,7 @@ class ProbeElastic(LinearElasticMaterial):
         self.commit_after_history, self.rollback_after_history = [], []
         return np.zeros((n, self.state_size))
 
-    # the callback ---------------------------------------------------------------------------
+    # the update -----------------------------------------------------------------------------
     def update(self, gradients, dt, state_old, flux_out, tangent_out, state_new, points=None):
         n = len(gradients)
         if (points is not None) != self.rate_independent:
@@ -286,7 +286,7 @@ def run(problem, material, solver=None, **stepper_args):
 def test_rate_independent_skips_unchanged_points(kind):
     """Four load steps: the plain material's answer (1e-9), with fewer point updates: the
     first residual of steps 2-4 updates no point, no point is updated at unchanged
-    gradients, no changed point is left out; the callback's counters agree."""
+    gradients, no changed point is left out; the store's counters agree."""
     mesh_data = plate()
     ref = scene(LinearElasticMaterial(ELASTIC), mesh_data)
     ref_solver = NewtonSolver(ref)
@@ -330,7 +330,7 @@ def test_rate_independent_points_are_the_changed_ones():
     with x < 0.05 only -> the points of the cells touching them, and none else."""
     material = RateIndependentOnDemand(ELASTIC)
     problem = scene(material, plate())
-    NewtonSolver(problem)      # builds the forms and the callback
+    NewtonSolver(problem)      # builds the forms and the Gauss-point store
     cb = problem.gauss_points
     n = cb.n_points
     problem.before_residual()                      # never updated: every point
@@ -482,12 +482,11 @@ def test_commit_and_rollback_follow_the_stepper(kind):
 
 class NaNTangentAboveLimit:
     """Mixin: the tangent of a point whose increment exceeds `limit` comes back NaN (how a
-    local solver that broke down leaves it); the callback turns it into a failure."""
+    local solver that broke down leaves it); the store turns it into a failure."""
     limit = np.inf
 
     def update(self, gradients, dt, state_old, flux_out, tangent_out, state_new, points=None):
-        report = super().update(gradients, dt, state_old, flux_out, tangent_out, state_new,
-                                **({} if points is None else {"points": points}))
+        report = super().update(gradients, dt, state_old, flux_out, tangent_out, state_new, points=points)
         given = np.arange(len(gradients)) if points is None else np.asarray(points)
         increment = np.abs(gradients[given, :4] - state_old[given, :4]).max(axis=1, initial=0.0)
         tangent_out[given[increment > self.limit]] = np.nan

@@ -1,4 +1,4 @@
-"""The Gauss-point callback: same answer as pure UFL; history commit/rollback; step
+"""A material through the Gauss-point store (QuadratureMap): same answer as pure UFL; history commit/rollback; step
 cut-back on material failure; clear stop (no hang under MPI) when nothing converges."""
 import numpy as np
 import pytest
@@ -40,19 +40,19 @@ def solve(problem, dt=1.0, **kwargs):
 
 @pytest.mark.parametrize("micropolar", [True, False])
 @pytest.mark.parametrize("cell_type", ["triangle", "quadrilateral"])
-def test_callback_equals_pure_ufl(micropolar, cell_type):
+def test_gauss_point_material_equals_pure_ufl(micropolar, cell_type):
     mesh_data = plate(cell_type)
     ufl_path = scene(micropolar, elasticity=ELASTIC, mesh_data=mesh_data)
     solve(ufl_path)
-    callback_path = scene(micropolar, material=LinearElasticMaterial(ELASTIC), mesh_data=mesh_data)
-    solve(callback_path)
-    a, b = ufl_path.w.x.array, callback_path.w.x.array
+    store_path = scene(micropolar, material=LinearElasticMaterial(ELASTIC), mesh_data=mesh_data)
+    solve(store_path)
+    a, b = ufl_path.w.x.array, store_path.w.x.array
     scale = MPI.COMM_WORLD.allreduce(np.abs(a).max(), op=MPI.MAX)
     diff = MPI.COMM_WORLD.allreduce(np.abs(a - b).max(), op=MPI.MAX)
     assert scale > 1e-6
     assert diff < 1e-9 * scale
     for boundary, component in (("bottom", "u1"), ("bottom", "u2")):
-        assert callback_path.reaction(boundary, component) == pytest.approx(
+        assert store_path.reaction(boundary, component) == pytest.approx(
             ufl_path.reaction(boundary, component), rel=1e-8)
 
 
@@ -65,11 +65,11 @@ class IncrementLimitedElastic(LinearElasticMaterial):
         super().__init__(elasticity)
         self.limit = limit
 
-    def update(self, gradients, dt, state_old, flux_out, tangent_out, state_new):
+    def update(self, gradients, dt, state_old, flux_out, tangent_out, state_new, points=None):
         increment = np.abs(gradients[:, :4] - state_old[:, :4]).max(initial=0.0)
         if increment > self.limit:
             raise ConstitutiveError(f"strain increment {increment:.2e} above {self.limit:.2e}")
-        super().update(gradients, dt, state_old, flux_out, tangent_out, state_new)
+        super().update(gradients, dt, state_old, flux_out, tangent_out, state_new, points)
         state_new[:] = gradients
 
 
@@ -88,15 +88,15 @@ def test_cut_back_recovers_and_commits_history():
 
 
 class FailsOnRankZero(LinearElasticMaterial):
-    def update(self, gradients, dt, state_old, flux_out, tangent_out, state_new):
-        super().update(gradients, dt, state_old, flux_out, tangent_out, state_new)
+    def update(self, gradients, dt, state_old, flux_out, tangent_out, state_new, points=None):
+        super().update(gradients, dt, state_old, flux_out, tangent_out, state_new, points)
         if MPI.COMM_WORLD.rank == 0 and abs(gradients).max() > 0:
             raise ConstitutiveError("local Newton did not converge at Gauss point 3")
 
 
 class ReturnsNaN(LinearElasticMaterial):
-    def update(self, gradients, dt, state_old, flux_out, tangent_out, state_new):
-        super().update(gradients, dt, state_old, flux_out, tangent_out, state_new)
+    def update(self, gradients, dt, state_old, flux_out, tangent_out, state_new, points=None):
+        super().update(gradients, dt, state_old, flux_out, tangent_out, state_new, points)
         flux_out[0, 0] = np.nan
 
 

@@ -7,7 +7,9 @@ Output: --out DIR, --fields. Stepping: --steps. PETSc options (-snes_*, -ksp_*, 
 
 Every numeric option declares its range (`validation.number`), so a bad value is refused
 while parsing, in one line with exit status 2 (`validation.Parser`); checks that need
-several options (`parse(..., check=...)`) run before the output directory is created.
+several options (`parse(..., check=...)`) run before the output directory is created. A
+scene's options are made from its settings dataclass (`add_settings`, `settings_values`):
+the range declared on a field (`validation.setting`) is the option's type.
 """
 import argparse
 import logging
@@ -17,7 +19,8 @@ from petsc4py import PETSc
 
 from .elasticity import MicropolarElasticity
 from .output import FIELDS
-from .validation import COUNT, NON_NEGATIVE, POSITIVE, STEPS, Parser, Range, key_value, number
+from .validation import (COUNT, DEGREE, NON_NEGATIVE, POSITIVE, STEPS, Parser, declared, field_default, key_value,
+                         number, option_dest, option_flag)
 
 PETSC_PREFIXES = ("-snes_", "-ksp_", "-pc_", "-mat_", "-redundant_", "-log_view")
 
@@ -50,9 +53,6 @@ def add_material_options(parser, mu=1.0e8, lmbda=1.0e8, mu_c=None, l_c=1.0e-2):
     g.add_argument("--cauchy", action="store_true", help="classical (Cauchy) continuum: no rotation field")
 
 
-DEGREE = Range(1, 4, integer=True)
-
-
 def add_mesh_options(parser, cell_size=None, with_cell_size=True):
     """--cell-size (default cell_size; left out when with_cell_size is False because the
     scene has its own mesh option), --cell-type, --degree-u, --degree-phi."""
@@ -75,6 +75,33 @@ def add_output_options(parser, out):
 def add_stepping_options(parser, steps=1):
     g = parser.add_argument_group("load stepping")
     g.add_argument("--steps", type=number(STEPS), default=steps, help="load increments (default %(default)s)")
+
+
+def add_settings(group, cls, names, defaults=None):
+    """The fields `names` of the settings dataclass `cls` (declared with validation.setting)
+    as options of the argparse `group`: a number typed with its range, a choice among its
+    choices, a bool a flag; the default the field's, or `defaults[name]` (the demo's own)."""
+    fields = declared(cls)
+    for name in names:
+        f = fields[name]
+        meta = f.metadata
+        default = (defaults or {}).get(name, field_default(f))
+        kwargs = dict(dest=option_dest(f), help=meta["help"])
+        if isinstance(field_default(f), bool):
+            group.add_argument(option_flag(f), action="store_true", **kwargs)
+            continue
+        if default is not None:      # an optional setting's help says what None means
+            kwargs["help"] += " (default %(default)s)" if meta["choices"] else " (default %(default)g)"
+        if meta["choices"] is not None:
+            group.add_argument(option_flag(f), choices=meta["choices"], default=default, **kwargs)
+        else:
+            group.add_argument(option_flag(f), type=number(meta["allowed"]), default=default, **kwargs)
+
+
+def settings_values(cls, args, names):
+    """{field: value} of the fields `names` of `cls` from the parsed options (add_settings)."""
+    fields = declared(cls)
+    return {name: getattr(args, option_dest(fields[name])) for name in names}
 
 
 #: options a restart may give (everything else comes from the checkpoint)

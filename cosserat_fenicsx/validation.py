@@ -7,6 +7,9 @@ naming the option, the value and the allowed range:
     --height must be > 0, got -1
     biaxial: axial_strain must be in (0, 0.5), got 0.7
 
+A scene's settings (a dataclass) declare each value's range once, on the field
+(`setting`): `check_settings` checks an instance against them (the Python API), and
+cli.add_settings makes the same fields command-line options whose type carries that range.
 The command-line side (`Parser`, `number`) declares the range on the option itself, so
 argparse refuses the value while parsing and the property tests can read every numeric
 option of a demo and its range from the parser (`describe_options`; a demo run with
@@ -14,7 +17,7 @@ COSSERAT_DESCRIBE_OPTIONS=1 prints them as JSON and exits). `Parser.error` print
 one line (no usage block), on rank 0 only, and exits with status 2 on every rank.
 """
 import argparse
-from dataclasses import dataclass
+from dataclasses import MISSING, dataclass, field, fields
 import json
 import math
 import os
@@ -87,6 +90,7 @@ AXIAL_STRAIN = Range(0.0, 0.5, low_open=True, high_open=True)   # compression of
 FRACTION = Range(0.0, 1.0, low_open=True)    # a factor that weakens: (0, 1]
 DISCS = Range(10, 100_000, integer=True)     # discs per periodic DEM cell
 FRICTION = Range(0.0, infinite=True)         # Coulomb coefficient; inf: no sliding
+DEGREE = Range(1, 4, integer=True)           # polynomial degree of a field
 
 
 def check(name, value, allowed=ANY):
@@ -97,6 +101,53 @@ def check(name, value, allowed=ANY):
 def check_optional(name, value, allowed=ANY):
     """None passes (the option's default applies); anything else must lie in `allowed`."""
     return None if value is None else allowed.check(name, value)
+
+
+# --- settings declared with their ranges -----------------------------------------------
+
+def setting(default=None, allowed=None, help=None, *, choices=None, flag=None):
+    """A dataclass field that declares what it takes: a number in `allowed` (a Range), one
+    of `choices`, or a bool (a bool default); a None default makes the setting optional
+    (None passes). `help` (with the unit) and `flag` (default --name) are its command-line
+    option (cli.add_settings); a field without `help` is the Python API's only."""
+    return field(default=default, metadata={"allowed": allowed, "choices": choices, "help": help, "flag": flag})
+
+
+def declared(cls):
+    """{name: dataclasses.Field} of the fields of `cls` declared with `setting`."""
+    return {f.name: f for f in fields(cls) if "allowed" in f.metadata}
+
+
+def check_settings(settings, label):
+    """Every declared field of `settings` in its range: InputError '<label>: <name> must be
+    ..., got ...' for the first that is not."""
+    for name, f in declared(type(settings)).items():
+        value = getattr(settings, name)
+        meta = f.metadata
+        if value is None and f.default is None:
+            continue
+        if isinstance(f.default, bool):
+            if not isinstance(value, bool):
+                raise InputError(f"{label}: {name} must be True or False, got {value!r}")
+        elif meta["choices"] is not None:
+            if not isinstance(value, str) or value not in meta["choices"]:
+                raise InputError(f"{label}: {name} must be one of {', '.join(meta['choices'])}, got {value!r}")
+        elif meta["allowed"] is not None:
+            meta["allowed"].check(f"{label}: {name}", value)
+
+
+def option_flag(f):
+    """The command-line flag of a declared field: its `flag`, else --name."""
+    return f.metadata["flag"] or "--" + f.name.replace("_", "-")
+
+
+def option_dest(f):
+    """The argparse dest of a declared field's option (from its flag)."""
+    return option_flag(f)[2:].replace("-", "_")
+
+
+def field_default(f):
+    return f.default_factory() if f.default is MISSING else f.default
 
 
 # --- command line --------------------------------------------------------------------

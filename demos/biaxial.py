@@ -54,31 +54,27 @@ from cosserat_fenicsx import cli
 from cosserat_fenicsx.demo_run import DemoRun
 from cosserat_fenicsx.figures import pyplot
 from cosserat_fenicsx.output import print0
-from cosserat_fenicsx.scenes.biaxial import BiaxialSettings, BiaxialTest, convergence_orders
+from cosserat_fenicsx.newton_history import convergence_orders
+from cosserat_fenicsx.scenes.biaxial import BiaxialSettings, BiaxialTest
 from cosserat_fenicsx.shear_band import assess_band, bell
-from cosserat_fenicsx.validation import AXIAL_STRAIN, COUNT, FRACTION, NON_NEGATIVE, POSITIVE, STEPS, number
+from cosserat_fenicsx.validation import COUNT, NON_NEGATIVE, number
+
+#: the scene's settings given as options (their ranges and help: scenes/biaxial.py)
+DISCRETISATION = ["cell_size", "cell_type", "degree_u", "degree_phi"]
+SPECIMEN = ["width", "height", "confining", "axial_strain", "consolidation_steps", "steps", "eta", "weak_size",
+            "weak_beta_factor"]
 
 parser = cli.make_parser(__doc__)
 cli.add_material_options(parser, mu=91.0e6, lmbda=49.4e6, l_c=3.0e-3)
-cli.add_mesh_options(parser, cell_size=2.5e-3)
+cli.add_settings(parser.add_argument_group("discretization"), BiaxialSettings, DISCRETISATION,
+                 defaults={"cell_size": 2.5e-3})
 cli.add_output_options(parser, "results/biaxial")
-cli.add_stepping_options(parser, steps=50)
 g = parser.add_argument_group("biaxial test")
 g.add_argument("--classical", action="store_true", dest="cauchy",
                help="classical (Cauchy) continuum: no rotation field, micropolar terms off (same as --cauchy)")
-g.add_argument("--width", type=number(POSITIVE), default=0.05, help="specimen width W [m] (default %(default)g)")
-g.add_argument("--height", type=number(POSITIVE), default=0.10, help="specimen height H [m] (default %(default)g)")
-g.add_argument("--confining", type=number(POSITIVE), default=100e3, help="confining pressure p [Pa] (default %(default)g)")
-g.add_argument("--axial-strain", type=number(AXIAL_STRAIN), default=0.05,
-               help="platen displacement / H in phase 2, in (0, 0.5) (default %(default)g)")
-g.add_argument("--consolidation-steps", type=number(STEPS), default=5, help="steps of phase 1 (default %(default)s)")
+cli.add_settings(g, BiaxialSettings, SPECIMEN, defaults={"axial_strain": 0.05, "steps": 50})
 g.add_argument("--k-sigma", type=number(NON_NEGATIVE), default=10.0, help="skew-stress weight k_sigma in F, G (default %(default)g)")
 g.add_argument("--k-mu", type=number(NON_NEGATIVE), default=0.0, help="couple-stress weight k_mu [1/m^2] (default %(default)g)")
-g.add_argument("--eta", type=number(NON_NEGATIVE), default=0.1, help="Perzyna time eta [s] (2.81), 1 s per step (default %(default)g)")
-g.add_argument("--weak-size", type=number(NON_NEGATIVE), default=5e-3,
-               help="side of the weakened square at the lower left corner [m], 0: none (default %(default)g)")
-g.add_argument("--weak-factor", type=number(FRACTION), default=0.8,
-               help="beta0 and beta* of the weakened square relative to the rest, in (0, 1] (default %(default)g)")
 g.add_argument("--parameters", metavar="FILE", default=None,
                help="JSON Ehlers parameter file (identified_parameters.json of demos/identify.py); the material "
                     "options typed on the command line override its values")
@@ -100,12 +96,8 @@ def material_values(args):
 
 
 def biaxial_settings(args):
-    return BiaxialSettings(
-        width=args.width, height=args.height, confining=args.confining, axial_strain=args.axial_strain,
-        consolidation_steps=args.consolidation_steps, steps=args.steps, cell_size=args.cell_size,
-        cell_type=args.cell_type, micropolar=not args.cauchy, weak_size=args.weak_size,
-        weak_beta_factor=args.weak_factor, eta=args.eta, degree_u=args.degree_u, degree_phi=args.degree_phi,
-        material=material_values(args))
+    return BiaxialSettings(**cli.settings_values(BiaxialSettings, args, DISCRETISATION + SPECIMEN),
+                           micropolar=not args.cauchy, material=material_values(args))
 
 
 args = cli.parse(parser, check=lambda args: biaxial_settings(args).check())

@@ -75,38 +75,34 @@ import sys, os  # noqa: E401
 sys.path.insert(0, os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
 
 import math
-import time
 
 import numpy as np
 from mpi4py import MPI
 
 from cosserat_fenicsx import cli
-from cosserat_fenicsx.balancing import COSTS as BALANCE_COSTS
-from cosserat_fenicsx.materials.dem.cells import TANGENTS     # names only: no demcell import
-from cosserat_fenicsx.output import CsvLog, FieldWriter, print0
+from cosserat_fenicsx.demo_run import DemoRun
+from cosserat_fenicsx.figures import pyplot
+from cosserat_fenicsx.output import print0
 from cosserat_fenicsx.scenes.femdem_biaxial import FemDemBiaxial, FemDemSettings, max_over_ranks, parse_mesh
 from cosserat_fenicsx.shear_band import assess_band, no_band
-from cosserat_fenicsx.run_guard import RunGuard
-from cosserat_fenicsx.stepping import LoadSteppingError
-from cosserat_fenicsx.validation import (AXIAL_STRAIN, COUNT, DISCS, FRACTION, FRICTION, NON_NEGATIVE, NON_NEGATIVE_INTEGER, POSITIVE,
-                                         UNIT_OPEN, number)
+from cosserat_fenicsx.validation import (COUNT, DISCS, FRICTION, NON_NEGATIVE, NON_NEGATIVE_INTEGER, POSITIVE, UNIT_OPEN,
+                                         number)
+
+#: the scene's settings given as options (their ranges and help: scenes/femdem_biaxial.py)
+DISCRETISATION = ["cell_type", "degree_u", "degree_phi"]
+SPECIMEN = ["width", "height", "axial_strain", "steps", "weak_size", "weak_friction_factor"]
+COUPLING = ["mode", "mu_c", "l_c", "grain_diameter", "tangent", "force_rtol"]
+CELLS = ["balance", "balance_threshold", "balance_cost", "balance_passes", "batched", "cell_threads", "cell_device"]
 
 parser = cli.make_parser(__doc__)
-cli.add_mesh_options(parser, with_cell_size=False)
+cli.add_settings(parser.add_argument_group("discretization"), FemDemSettings, DISCRETISATION)
 cli.add_output_options(parser, "results/femdem_biaxial")
-cli.add_stepping_options(parser, steps=100)
 cli.add_checkpoint_options(parser, "femdem_biaxial",
                            solver_options=("tangent", "force_rtol", "accept_rtol", "stagnation_its", "batched",
                                            "cell_threads", "cell_device"))
 g = parser.add_argument_group("specimen and loading (000 section 4.1)")
 g.add_argument("--mesh", default="2x4", help="NXxNY rectangles (000: 1x1, 1x2, 2x4, 4x8; default %(default)s)")
-g.add_argument("--width", type=number(POSITIVE), default=0.01, help="specimen width W [m] (default %(default)g)")
-g.add_argument("--height", type=number(POSITIVE), default=0.02, help="specimen height H [m] (default %(default)g)")
-g.add_argument("--axial-strain", type=number(AXIAL_STRAIN), default=0.10,
-               help="platen displacement / H, in (0, 0.5) (default %(default)g)")
-g.add_argument("--weak-size", type=number(NON_NEGATIVE), default=0.0, help="side of the weak square at the lower left corner [m] (default 0: none)")
-g.add_argument("--weak-friction", type=number(FRACTION), default=1.0,
-               help="contact friction of the weak cells / --friction, in (0, 1] (default %(default)g)")
+cli.add_settings(g, FemDemSettings, SPECIMEN)
 g = parser.add_argument_group("the cell (as demos/dem_cell.py)")
 g.add_argument("--particles", type=number(DISCS), default=228, help="number of discs (default 228, 000 Table 3)")
 g.add_argument("--seed", type=number(NON_NEGATIVE_INTEGER), default=0, help="packing seed (default 0)")
@@ -125,17 +121,7 @@ g.add_argument("--cell-option", type=cli.key_value, action="append", default=[],
                help="a further demcell.RelaxationOptions of the cells, e.g. method=fire, dt_safety=0.5, "
                     "strain_rate=1e-5 (repeat for more; docs/femdem.md, 'Cheaper cells')")
 g = parser.add_argument_group("coupling")
-g.add_argument("--mode", choices=("classical", "hybrid", "micropolar"), default="hybrid",
-               help="classical: Cauchy continuum; hybrid (default): micropolar, elastic skew and couple stress; "
-                    "micropolar: every flux and tangent block from a micropolar cell")
-g.add_argument("--mu-c", type=number(POSITIVE), default=None, help="Cosserat modulus [N/m] (hybrid; default: the cell's initial shear modulus)")
-g.add_argument("--l-c", type=number(NON_NEGATIVE), default=None, help="internal length [m] (hybrid; default: --grain-diameter)")
-g.add_argument("--grain-diameter", type=number(POSITIVE), default=2.5e-4,
-               help="mean grain diameter in the specimen's units [m] (default %(default)g: W / 40)")
-g.add_argument("--tangent", choices=TANGENTS, default="pstlo",
-               help="cell operator of the macro Newton (default %(default)s; pstlo_sliding: PSTLO with the "
-                    "contacts on their Coulomb limit sliding, not for --mode micropolar; docs/femdem.md)")
-g.add_argument("--force-rtol", type=number(POSITIVE), default=1e-2, help="Newton stops at FNORM/RNORM <= this (default %(default)g)")
+cli.add_settings(g, FemDemSettings, COUPLING)
 g.add_argument("--accept-rtol", type=number(NON_NEGATIVE), default=3e-2,
                help="a step whose Newton stagnates ends at its best iterate if FNORM/RNORM <= this, reported as "
                     "accepted (default %(default)g; 0: never)")
@@ -143,24 +129,7 @@ g.add_argument("--stagnation-its", type=number(NON_NEGATIVE_INTEGER), default=4,
                help="... and ends it as soon as its best FNORM/RNORM gained less than 10 %% in this many "
                     "iterations (default %(default)s; 0: only at -snes_max_it)")
 g.add_argument("--write-every", type=number(COUNT), default=1, help="XDMF every N steps and at the end (default %(default)s)")
-g.add_argument("--balance", action="store_true",
-               help="move cells between ranks so that the ranks finish their cells together (docs/balancing.md)")
-g.add_argument("--balance-threshold", type=number(low=1.0, infinite=True), default=1.10,
-               help="... when the slowest rank's cell work / the mean exceeds this (default %(default)g; "
-                    "inf: measure the imbalance only)")
-g.add_argument("--balance-cost", choices=BALANCE_COSTS, default="wall",
-               help="... cell work measured in wall seconds (default) or in DEM steps (work: the same moves in "
-                    "every run, whatever the machine's load)")
-g.add_argument("--balance-passes", action="store_true",
-               help="... at the start of every Newton pass, by the cell work of the pass before, instead of after "
-                    "every step (docs/balancing.md)")
-g.add_argument("--batched", action="store_true",
-               help="the rank's cells in one struct of arrays, solved by one Numba call (same results; docs/femdem.md)")
-g.add_argument("--cell-threads", type=number(COUNT), default=1,
-               help="Numba threads per rank over the cells, with --batched (default 1; ranks x threads <= cores)")
-g.add_argument("--cell-device", choices=("cpu", "gpu"), default="cpu",
-               help="where a rank's cells live: cpu (default) or gpu, its CUDA device (rank r on GPU r mod the "
-                    "GPUs; batched; docs/gpu.md); refused without a GPU and Numba's CUDA target")
+cli.add_settings(parser.add_argument_group("the cells' ranks and devices"), FemDemSettings, CELLS)
 
 
 def femdem_settings(args):
@@ -168,19 +137,13 @@ def femdem_settings(args):
     from cosserat_fenicsx.materials.dem import CellOptions
     nx, ny = parse_mesh(args.mesh)
     return FemDemSettings(
-        width=args.width, height=args.height, nx=nx, ny=ny, cell_type=args.cell_type,
-        degree_u=args.degree_u, degree_phi=args.degree_phi, mode=args.mode, tangent=args.tangent,
-        mu_c=args.mu_c, l_c=args.l_c, grain_diameter=args.grain_diameter, axial_strain=args.axial_strain,
-        steps=args.steps, weak_size=args.weak_size, weak_friction_factor=args.weak_friction,
-        force_rtol=args.force_rtol, accept_rtol=args.accept_rtol if args.accept_rtol != 0 else None,
+        nx=nx, ny=ny, **cli.settings_values(FemDemSettings, args, DISCRETISATION + SPECIMEN + COUPLING + CELLS),
+        accept_rtol=args.accept_rtol if args.accept_rtol != 0 else None,
         stagnation_its=args.stagnation_its if args.stagnation_its != 0 else None,
         cell=CellOptions(particles=args.particles, seed=args.seed, packing=args.packing, friction=args.friction,
                          pressure=args.pressure, kn=args.kn, ks=args.ks, rotation=not args.no_rotation,
                          relaxation_tol=args.relaxation_tol, criterion=args.criterion,
-                         max_steps=args.max_dem_steps, extra=dict(args.cell_option)),
-        balance=args.balance, balance_threshold=args.balance_threshold, balance_cost=args.balance_cost,
-        balance_passes=args.balance_passes, batched=args.batched,
-        cell_threads=args.cell_threads, cell_device=args.cell_device)
+                         max_steps=args.max_dem_steps, extra=dict(args.cell_option)))
 
 
 def check(args):
@@ -201,13 +164,9 @@ args = cli.parse(parser, check=check)
 comm = MPI.COMM_WORLD
 settings = femdem_settings(args)
 nx, ny = settings.nx, settings.ny
-guard = RunGuard(comm, os.path.join(args.out, "summary.json"),
-                 {"options": {k: v for k, v in vars(args).items() if k != "elasticity"}}, label="femdem",
-                 write_now=args.restart is None)
-try:
-    test = FemDemBiaxial(comm, settings)
-except (ValueError, RuntimeError) as error:   # e.g. a packing that cannot be compacted (demcell errors)
-    guard.stop(f"preparing the cells: {error}")
+run = DemoRun(comm, args, "femdem", {"options": {k: v for k, v in vars(args).items() if k != "elasticity"}})
+# e.g. a packing that cannot be compacted (demcell errors)
+test = run.build(lambda: FemDemBiaxial(comm, settings), "preparing the cells", errors=(ValueError, RuntimeError))
 n_points = comm.allreduce(len(test.points))
 print0(comm, f"femdem: {args.mode} mode, {args.tangent} tangent, mesh {nx}x{ny}, {n_points} Gauss points "
              f"({test.n_weak_cells} weak elements), {test.packing_info['n_particles']} discs per cell, "
@@ -217,31 +176,18 @@ print0(comm, f"femdem: {args.mode} mode, {args.tangent} tangent, mesh {nx}x{ny},
                 f"B = {test.cell_moduli['bending_modulus']:.4g} N m, l_c / d = "
                 f"{test.cell_moduli['l_c_over_grain_diameter']:.3g})" if test.cell_moduli else ""))
 
-# --- checkpoints (--checkpoint-every, --stop-after) and --restart -------------------------
-per_point = []        # (axial_strain, stress ratios in the rank-independent order), rank 0
-written = []          # pseudo-times written to fields.xdmf
-checkpoint = cli.checkpointer(comm, args)
-if checkpoint.start(test, guard, extra=lambda: {"per_point": per_point, "written": written}):
-    per_point, written = checkpoint.restored_extra["per_point"], checkpoint.restored_extra["written"]
+# (axial_strain, stress ratios in the rank-independent order) per step, on rank 0; kept in the
+# checkpoints (--checkpoint-every, --stop-after) and continued by --restart
+per_point = run.start(test, {"per_point": []})["per_point"]
 
 # --- outputs written as the run goes ---------------------------------------------------
-cb = test.gauss_points
-idx = test.material.state_index
-writer = FieldWriter(test.problem, checkpoint.fields_path("fields.xdmf"), args.fields,
-                     resume_time=checkpoint.resume_time)
-for name in ("coordination_number", "anisotropy", "sliding_fraction", "dem_steps"):
-    writer.add_cell_field(name, (), lambda name=name: cb.cell_average(cb.state_old[:, [idx[name]]]))
-writer.add_cell_field("stress_ratio", (), lambda: cb.cell_average(test.gauss_point_ratios()[:, None]))
-writer.add_cell_field("equivalent_strain", (),
-                      lambda: cb.cell_average(test.equivalent_strain(test.gradients_start)[:, None]))
-writer.add_cell_field("incremental_equivalent_strain", (),
-                      lambda: cb.cell_average(test.equivalent_strain(test.gradients_previous)[:, None]))
-columns = ["step", "time", "phase", "axial_strain", "stress_ratio", "volumetric_strain", "coordination_number",
-           "anisotropy", "sliding_fraction", "vertical_reaction", "vertical_stress", "mean_sigma11", "mean_sigma22",
-           "newton_iterations", "force_ratio", "accepted", "dem_steps", "points_without_contacts", "cuts", "wall_time"]
-history = CsvLog(comm, os.path.join(args.out, "history.csv"), columns, resume_step=checkpoint.resume_step)
-gauss_log = CsvLog(comm, os.path.join(args.out, "gauss_points.csv"), ["step", "axial_strain", "point", "x", "y", "stress_ratio"],
-                   resume_step=checkpoint.resume_step)
+run.fields(test.cell_fields())
+history = run.log("history.csv", ["step", "time", "phase", "axial_strain", "stress_ratio", "volumetric_strain",
+                                  "coordination_number", "anisotropy", "sliding_fraction", "vertical_reaction",
+                                  "vertical_stress", "mean_sigma11", "mean_sigma22", "newton_iterations",
+                                  "force_ratio", "accepted", "dem_steps", "points_without_contacts", "cuts",
+                                  "wall_time"])
+gauss_log = run.log("gauss_points.csv", ["step", "axial_strain", "point", "x", "y", "stress_ratio"])
 
 
 def record(row):
@@ -252,25 +198,9 @@ def record(row):
         for k, (xy, r) in enumerate(zip(pts, ratios)):
             gauss_log.write({"step": row["step"], "axial_strain": row["axial_strain"], "point": k,
                              "x": xy[0], "y": xy[1], "stress_ratio": r})
-    if row["step"] % args.write_every == 0:
-        writer.write(row["time"])
-        written.append(row["time"])
 
 
-start = time.perf_counter()
-stopped = ""
-try:
-    test.run(guard.protect(record, lambda row: {"final_axial_strain": row["axial_strain"]}), checkpoint=checkpoint)
-    stopped = checkpoint.stop_note(test.stepper)
-except LoadSteppingError as error:
-    stopped = str(error)   # keep what was computed: summary, plot and snapshots of the part before
-    print0(comm, f"femdem: stopped early: {stopped}")
-if test.history and test.history[-1]["time"] not in written:
-    writer.write(test.history[-1]["time"])
-writer.close()
-history.close()
-gauss_log.close()
-wall = time.perf_counter() - start
+run.run(record, lambda row: {"final_axial_strain": row["axial_strain"]}, write_every=args.write_every)
 
 # --- particle snapshots of the Gauss points with the highest and lowest stress ratio ------
 ratios = test.gauss_point_ratios()
@@ -320,23 +250,20 @@ summary = {
     "steps_accepted_above_force_rtol": int(sum(r["accepted"] for r in test.history)),
     "dem_steps_total": float(sum(r["dem_steps"] for r in test.history)),
     "steps": len(test.history), "cut_backs": int(test.history[-1]["cuts"]) if test.history else 0,
-    "completed": not stopped, "stopped": stopped, "reason": stopped, **checkpoint.summary_entries(),
-    "wall_time": wall, "cell_preparation_time": test.preparation_time, "ranks": comm.size,
+    "cell_preparation_time": test.preparation_time, "ranks": comm.size,
     "cell_device": test.cell_device,
     "time_max_over_ranks": timing,
     "memory_per_cell_bytes": memory / n_points, "snapshots": snapshots,
     "mode": test.material.describe(), "mu_c": test.mu_c, "l_c": test.l_c, "cell_moduli": test.cell_moduli,
     "length_scale": test.length_scale, "packing": test.packing_info,
     "options": {k: v for k, v in vars(args).items() if k != "elasticity"},
-    "balance": test.material.balance_report() if hasattr(test.material, "balance_report") else None,
+    "balance": test.balance_report(),
 }
-guard.finish(summary)
+run.finish(summary)
 
 # --- figure: 000 Figs 4-6 -----------------------------------------------------------------------
 if comm.rank == 0 and rows:
-    import matplotlib
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+    plt = pyplot()
     rows_all = test.history
     eps = np.array([-r["axial_strain"] * 100 for r in rows_all])
     fig, ax = plt.subplots(2, 3, figsize=(14, 7.5))
@@ -360,6 +287,5 @@ if comm.rank == 0 and rows:
     fig.tight_layout(); fig.savefig(os.path.join(args.out, "femdem_biaxial.png"), dpi=110)
     plt.close(fig)
 print0(comm, f"peak stress ratio {summary['peak_stress_ratio']} at axial strain {summary['axial_strain_at_peak']}; "
-             f"band H = {summary['band_thickness']}; {wall:.0f} s; outputs in {args.out}")
-if stopped and not test.stepper.stopped_early:
-    sys.exit(1)
+             f"band H = {summary['band_thickness']}; {run.wall_time:.0f} s; outputs in {args.out}")
+run.exit()

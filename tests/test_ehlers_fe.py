@@ -11,7 +11,8 @@ from mpi4py import MPI
 from cosserat_fenicsx import meshes
 from cosserat_fenicsx.elasticity import MicropolarElasticity
 from cosserat_fenicsx.problem import CosseratProblem
-from cosserat_fenicsx.scenes.biaxial import BiaxialSettings, BiaxialTest, convergence_orders
+from cosserat_fenicsx.newton_history import convergence_orders
+from cosserat_fenicsx.scenes.biaxial import BiaxialSettings, BiaxialTest
 from cosserat_fenicsx.snes import NewtonSolver
 from cosserat_fenicsx.stepping import LoadStepper
 from cosserat_fenicsx.materials.ehlers import EhlersMaterial

@@ -14,7 +14,8 @@ traction p0 to the lateral faces and checks that the specimen is in equilibrium 
 Phase 2 moves the top platen down by axial_strain x H in `steps` equal steps with the
 lateral traction kept (dead load: the macro is geometrically linear). Smooth platens:
 u2 = 0 at the bottom, u2 uniform at the top, u1 free except at a pin at the bottom centre;
-the rotation (micropolar scene) is free everywhere.
+the rotation (micropolar scene) is free everywhere (scenes.platen_test, shared with the
+Ehlers biaxial test).
 
 Modes (materials/dem/modes.py): classical (Cauchy), hybrid (cell's symmetric stress, elastic
 skew and couple stress with mu_c, l_c) and micropolar (every flux and tangent block from a
@@ -33,23 +34,20 @@ stagnates ends at its best iterate if that reached accept_rtol (3e-2), reported 
 as soon as that best has gained less than 10 % in stagnation_its (4) iterations.
 """
 from dataclasses import dataclass, field
-import math
 import time
 
-import dolfinx.fem
 import numpy as np
-import ufl
 from mpi4py import MPI
 
-from .. import compat, meshes
-from ..problem import CosseratProblem
-from ..quadrature import gauss_point_coordinates
-from ..checkpoint import stepper_keywords
+from .. import meshes
+from ..balancing import COSTS
+from ..materials.dem.cells import TANGENTS
+from ..materials.dem.modes import MODES
 from ..shear_band import fit_band_collective
 from ..snes import NewtonSolver
-from ..stepping import LoadStepper
-from ..validation import check
-from .biaxial import RecordingSolver
+from ..validation import (AXIAL_STRAIN, COUNT, DEGREE, FRACTION, NON_NEGATIVE, POSITIVE, STEPS, Range,
+                          check_settings, setting)
+from .platen_test import CELL_TYPES, PlatenTest
 
 DEFAULT_SOLVER_OPTIONS = {"snes_linesearch_type": "basic"}   # full Newton steps, as 001 and YADE
 
@@ -65,61 +63,67 @@ MAX_CELL_BYTES = 16e9
 @dataclass
 class FemDemSettings:
     """Geometry, loading, discretisation, coupling mode and cell of one run (SI units for
-    lengths, the cell's 2D units (N/m) for stresses)."""
-    width: float = 0.01
-    height: float = 0.02
-    nx: int = 2
-    ny: int = 4
-    cell_type: str = "triangle"
-    degree_u: int = 2
-    degree_phi: int = 1
-    mode: str = "hybrid"               # classical | hybrid | micropolar
-    tangent: str = "pstlo"             # cto | demqo | kruyt | pstlo | pstlo_sliding (not micropolar)
-    mu_c: float = None                 # None: the cell's initial shear modulus
-    l_c: float = None                  # None: grain_diameter
-    grain_diameter: float = 2.5e-4     # mean grain diameter in the specimen's units [m]
-    axial_strain: float = 0.10         # platen displacement / H in phase 2
-    steps: int = 100
-    weak_size: float = 0.0
-    weak_friction_factor: float = 1.0
-    force_rtol: float = 1e-2
-    accept_rtol: float = 3e-2          # a stagnating step ends at its best iterate if below this (None: never)
-    stagnation_its: int = 4            # ... as soon as its best gained < 10 % in this many iterations (acts with accept_rtol; None: at the cap)
-    dt_min_fraction: float = 2.0 ** -6
+    lengths, the cell's 2D units (N/m) for stresses). Each field declares its range
+    (validation.setting); the demo's options are made from them."""
+    width: float = setting(0.01, meshes.RECTANGLE_LENGTH, "specimen width W [m]")
+    height: float = setting(0.02, meshes.RECTANGLE_LENGTH, "specimen height H [m]")
+    nx: int = setting(2, COUNT)        # rectangles across W (the demo's --mesh NXxNY)
+    ny: int = setting(4, COUNT)        # rectangles along H
+    cell_type: str = setting("triangle", choices=CELL_TYPES, help="element shape")
+    degree_u: int = setting(2, DEGREE, "displacement degree 1-4 (2: Taylor-Hood)")
+    degree_phi: int = setting(1, DEGREE, "rotation degree 1-4")
+    mode: str = setting("hybrid", choices=MODES,
+                        help="classical: Cauchy continuum; hybrid: micropolar, elastic skew and couple stress; "
+                             "micropolar: every flux and tangent block from a micropolar cell")
+    tangent: str = setting("pstlo", choices=TANGENTS,
+                           help="cell operator of the macro Newton (pstlo_sliding: PSTLO with the contacts on their "
+                                "Coulomb limit sliding, not for mode micropolar; docs/femdem.md)")
+    mu_c: float = setting(None, POSITIVE, "Cosserat modulus [N/m] (hybrid; default: the cell's initial shear modulus)")
+    l_c: float = setting(None, NON_NEGATIVE, "internal length [m] (hybrid; default: --grain-diameter)")
+    grain_diameter: float = setting(2.5e-4, POSITIVE, "mean grain diameter in the specimen's units [m] (W / 40)")
+    axial_strain: float = setting(0.10, AXIAL_STRAIN, "platen displacement / H, in (0, 0.5)")
+    steps: int = setting(100, STEPS, "load steps of the compression")
+    weak_size: float = setting(0.0, NON_NEGATIVE, "side of the weak square at the lower left corner [m], 0: none")
+    weak_friction_factor: float = setting(1.0, FRACTION, "contact friction of the weak cells / --friction, in (0, 1]",
+                                          flag="--weak-friction")
+    force_rtol: float = setting(1e-2, POSITIVE, "Newton stops at FNORM/RNORM <= this")
+    # a stagnating step ends at its best iterate if below this (None: never), as soon as its
+    # best gained < 10 % in stagnation_its iterations (None: at the cap); the demo's
+    # --accept-rtol 0 and --stagnation-its 0 are the None
+    accept_rtol: float = setting(3e-2, NON_NEGATIVE)
+    stagnation_its: int = setting(4, COUNT)
+    dt_min_fraction: float = setting(2.0 ** -6, FRACTION)   # smallest step after cut-backs, in nominal steps
     solver_options: dict = field(default_factory=dict)
     cell: object = None                # materials.dem.CellOptions
-    balance: bool = False              # move cells between ranks so that they finish together (balancing.py)
-    balance_threshold: float = 1.10    # ... when the slowest rank's cell work exceeds the mean by this factor
-    balance_cost: str = "wall"         # ... measured as wall seconds per point, or as DEM steps ("work": reproducible)
-    balance_passes: bool = False       # ... at the start of every Newton pass by the last pass's costs, not per step
-    batched: bool = False              # the rank's cells in one struct of arrays, one Numba solve (materials/dem/batched.py)
-    cell_threads: int = 1              # Numba threads per rank over the cells (batched; ranks x threads <= cores)
-    cell_device: str = "cpu"           # cpu | gpu: the rank's batched cells on its CUDA device (demcell.gpu)
+    balance: bool = setting(False, help="move cells between ranks so that the ranks finish their cells together "
+                                        "(docs/balancing.md)")
+    balance_threshold: float = setting(1.10, Range(low=1.0, infinite=True),
+                                       "... when the slowest rank's cell work / the mean exceeds this (inf: measure "
+                                       "the imbalance only)")
+    balance_cost: str = setting("wall", choices=COSTS,
+                                help="... cell work measured in wall seconds or in DEM steps (work: the same moves "
+                                     "in every run, whatever the machine's load)")
+    balance_passes: bool = setting(False, help="... at the start of every Newton pass, by the cell work of the pass "
+                                               "before, instead of after every step (docs/balancing.md)")
+    batched: bool = setting(False, help="the rank's cells in one struct of arrays, solved by one Numba call (same "
+                                        "results; docs/femdem.md)")
+    cell_threads: int = setting(1, COUNT, "Numba threads per rank over the cells, with --batched "
+                                          "(ranks x threads <= cores)")
+    cell_device: str = setting("cpu", choices=("cpu", "gpu"),
+                               help="where a rank's cells live: cpu or gpu, its CUDA device (rank r on GPU r mod the "
+                                    "GPUs; batched; docs/gpu.md); refused without a GPU and Numba's CUDA target")
 
     def check(self):
         """Raises ValueError naming the setting; called before any cell is created."""
-        from ..materials.dem import MODES, CellOptions, check_tangent
+        from ..materials.dem import CellOptions, check_tangent
         if self.cell is None:
             self.cell = CellOptions()
-        for name in ("width", "height"):
-            check(f"femdem: {name}", getattr(self, name), meshes.RECTANGLE_LENGTH)
-        for name in ("grain_diameter", "force_rtol"):
-            v = getattr(self, name)
-            if not (isinstance(v, (int, float)) and math.isfinite(v) and v > 0):
-                raise ValueError(f"femdem: {name} must be a positive number, got {v!r}")
-        for name in ("nx", "ny", "steps"):
-            v = getattr(self, name)
-            if not (isinstance(v, (int, np.integer)) and v >= 1):
-                raise ValueError(f"femdem: {name} must be an integer >= 1, got {v!r}")
+        check_settings(self, "femdem")
         if not self.grain_diameter < min(self.width, self.height):
             raise ValueError(f"femdem: grain_diameter must be below the specimen's width and height, "
                              f"got {self.grain_diameter!r}")
-        if self.l_c is not None and not (math.isfinite(self.l_c) and self.l_c < min(self.width, self.height)):
+        if self.l_c is not None and not self.l_c < min(self.width, self.height):
             raise ValueError(f"femdem: l_c must be below the specimen's width and height, got {self.l_c!r}")
-        if not (math.isfinite(self.axial_strain) and 0 < self.axial_strain < 0.5):
-            raise ValueError(f"femdem: axial_strain must be in (0, 0.5), got {self.axial_strain!r}")
-        if self.mode not in MODES:
-            raise ValueError(f"femdem: unknown mode {self.mode!r}: one of {', '.join(MODES)}")
         refusal = check_tangent(self.tangent, self.mode)
         if refusal:
             raise ValueError(f"femdem: {refusal}")
@@ -129,44 +133,19 @@ class FemDemSettings:
         if self.mode == "micropolar" and (self.mu_c is not None or self.l_c is not None):
             raise ValueError("femdem: mu_c and l_c are hybrid-mode options; in mode micropolar the skew and "
                              "couple stresses come from the cells (their moduli are reported)")
-        if self.mu_c is not None and not (math.isfinite(self.mu_c) and self.mu_c > 0):
-            raise ValueError(f"femdem: mu_c must be positive, got {self.mu_c!r}")
-        if self.l_c is not None and not (math.isfinite(self.l_c) and self.l_c >= 0):
-            raise ValueError(f"femdem: l_c must be >= 0, got {self.l_c!r}")
-        if self.accept_rtol is not None and not (math.isfinite(self.accept_rtol) and self.accept_rtol >= self.force_rtol):
+        if self.accept_rtol is not None and not self.accept_rtol >= self.force_rtol:
             raise ValueError(f"femdem: accept_rtol must be >= force_rtol ({self.force_rtol:g}) or None, "
                              f"got {self.accept_rtol!r}")
-        if self.stagnation_its is not None and not (isinstance(self.stagnation_its, (int, np.integer))
-                                                    and self.stagnation_its >= 1):
-            raise ValueError(f"femdem: stagnation_its must be an integer >= 1 or None, "
-                             f"got {self.stagnation_its!r}")
-        if not 0 <= self.weak_size < min(self.width, self.height):
+        if not self.weak_size < min(self.width, self.height):
             raise ValueError(f"femdem: weak_size must be in [0, min(W, H)), got {self.weak_size!r}")
-        if not 0 < self.weak_friction_factor <= 1:
-            raise ValueError(f"femdem: weak_friction_factor must be in (0, 1], got {self.weak_friction_factor!r}")
-        for name in ("degree_u", "degree_phi"):
-            v = getattr(self, name)
-            if not (isinstance(v, (int, np.integer)) and v >= 1):
-                raise ValueError(f"femdem: {name} must be an integer >= 1, got {v!r}")
         meshes.check_node_at_centre(self.nx, self.degree_u)
         if self.mode == "micropolar" and not self.cell.rotation:
             raise ValueError("femdem: mode micropolar needs grains that rotate (a micropolar cell imposes the "
                              "rotation and curvature on them): drop the locked rotations or use mode hybrid")
-        if self.cell_type not in ("triangle", "quadrilateral"):
-            raise ValueError(f"femdem: cell_type must be triangle or quadrilateral, got {self.cell_type!r}")
         self.cell.check()
-        for name in ("balance", "balance_passes"):
-            if not isinstance(getattr(self, name), bool):
-                raise ValueError(f"femdem: {name} must be True or False, got {getattr(self, name)!r}")
         if self.balance_passes and not self.balance:
             raise ValueError("femdem: balance_passes (--balance-passes) is a way to balance: it needs balance "
                              "(--balance)")
-        if not isinstance(self.batched, bool):
-            raise ValueError(f"femdem: batched must be True or False, got {self.batched!r}")
-        if not (isinstance(self.cell_threads, (int, np.integer)) and self.cell_threads >= 1):
-            raise ValueError(f"femdem: cell_threads must be an integer >= 1, got {self.cell_threads!r}")
-        if self.cell_device not in ("cpu", "gpu"):
-            raise ValueError(f"femdem: cell_device must be cpu or gpu, got {self.cell_device!r}")
         if self.cell_device == "gpu":
             from demcell.gpu import available
             reason = available()
@@ -179,12 +158,6 @@ class FemDemSettings:
         if self.cell_threads > numba.config.NUMBA_NUM_THREADS:
             raise ValueError(f"femdem: cell_threads = {self.cell_threads} exceeds NUMBA_NUM_THREADS = "
                              f"{numba.config.NUMBA_NUM_THREADS} (set the environment variable, or use fewer)")
-        if not (isinstance(self.balance_threshold, (int, float)) and self.balance_threshold >= 1):
-            raise ValueError(f"femdem: balance_threshold must be a number >= 1 (slowest / mean), "
-                             f"got {self.balance_threshold!r}")
-        from ..balancing import COSTS
-        if self.balance_cost not in COSTS:
-            raise ValueError(f"femdem: balance_cost must be one of {', '.join(COSTS)}, got {self.balance_cost!r}")
         cells_bytes = CELL_POINTS_PER_RECTANGLE * self.nx * self.ny * BYTES_PER_DISC * self.cell.particles
         if not cells_bytes <= MAX_CELL_BYTES:
             raise ValueError(f"femdem: a {self.nx}x{self.ny} mesh of {self.cell.particles}-disc cells needs about "
@@ -229,13 +202,12 @@ def parse_mesh(text):
     return nx, ny
 
 
-class FemDemBiaxial:
+class FemDemBiaxial(PlatenTest):
     """Build and run one FEM x DEM biaxial test (see the module docstring)."""
 
     def __init__(self, comm, settings=None, verbose=True):
         from ..materials.dem import (DemMaterial, initial_shear_modulus, make_mode, mean_grain_diameter,
                                      reference_cells)
-        self.comm = comm
         self.s = s = settings or FemDemSettings()
         s.check()
         self.verbose = verbose
@@ -261,6 +233,7 @@ class FemDemBiaxial:
             self.mode = make_mode(s.mode, length_scale=self.length_scale)
             self.cell_moduli = self.mode.moduli = reference_moduli(self.mode, ref, s.tangent, s.grain_diameter)
             self.mu_c, self.l_c = self.cell_moduli["mu_c"], self.cell_moduli["l_c"]
+
         def make_material():
             return DemMaterial(self.reference_cells, self.mode, s.tangent)
         self.cell_device = "cpu"
@@ -275,44 +248,27 @@ class FemDemBiaxial:
             def make_material():
                 return BatchedDemMaterial(self.reference_cells, self.mode, s.tangent, device=s.cell_device)
         self.material = make_material()
-        if s.balance and comm.size > 1:
+        self.balanced = s.balance and comm.size > 1
+        if self.balanced:
             from ..balancing import BalancedMaterial
             self.material = BalancedMaterial(comm, make_material,
                                              threshold=s.balance_threshold, cost=s.balance_cost,
                                              passes=s.balance_passes)
 
-        self.mesh, tags, names = meshes.rectangle(comm, s.width, s.height, cell_type=s.cell_type,
-                                                  divisions=(s.nx, s.ny))
-        self.problem = problem = CosseratProblem(self.mesh, tags, names, material=self.material,
-                                                 micropolar=self.mode.micropolar_scene,
-                                                 degree_u=s.degree_u, degree_phi=s.degree_phi)
-        self.points = gauss_point_coordinates(self.mesh, problem.quadrature_degree)
-        n_qp = len(compat.quadrature_points(self.mesh, problem.quadrature_degree)[1])
-        centres = self.points.reshape(-1, n_qp, 2).mean(axis=1)   # whole cells are weakened
-        weak = (centres[:, 0] < s.weak_size) & (centres[:, 1] < s.weak_size)
-        zone = np.repeat(weak.astype(np.int64), n_qp) if len(frictions) > 1 else np.zeros(len(self.points), int)
-        self.material.set_zones(zone)
+        mesh = meshes.rectangle(comm, s.width, s.height, cell_type=s.cell_type, divisions=(s.nx, s.ny))
+        zone = self.build_specimen(comm, mesh, self.material, self.mode.micropolar_scene,
+                                   weakened=len(frictions) > 1)
         self.in_imperfection = zone.astype(bool)   # per owned Gauss point
         self.material.set_point_coordinates(self.points)
-        self.n_weak_cells = comm.allreduce(int(weak.sum()) if len(frictions) > 1 else 0)
-
-        p0 = s.cell.pressure
-        self.t_end = 1.0 + s.steps
-        problem.add_traction("left", (p0, 0.0), scale=lambda t: 1.0)     # t = sigma n, n = (-1, 0)
-        problem.add_traction("right", (-p0, 0.0), scale=lambda t: 1.0)
-        problem.add_dirichlet("bottom", "u2", 0.0)
-        problem.add_dirichlet("top", "u2", 1.0, scale=self.platen_displacement)
-        problem.add_point_dirichlet((0.5 * s.width, 0.0), "u1", 0.0)
+        self.load_platens(s.cell.pressure, lambda t: 1.0)
         options = dict(DEFAULT_SOLVER_OPTIONS, **s.solver_options)
-        self.newton = NewtonSolver(problem, options=options, force_rtol=s.force_rtol, accept_rtol=s.accept_rtol,
+        self.newton = NewtonSolver(self.problem, options=options, force_rtol=s.force_rtol,
+                                   accept_rtol=s.accept_rtol,
                                    stagnation_its=s.stagnation_its if s.accept_rtol is not None else None)
-        self.solver = RecordingSolver(self.newton)
-        self._volume_form = dolfinx.fem.form(ufl.div(problem.displacement) * problem.dx)
-        cb = problem.gauss_points
-        cb.set_initial_fluxes(self.material.initial_fluxes())    # sigma = -p0 I before any solve
+        self.use_solver(self.newton, t_end=1.0 + s.steps)
+        cb = self.problem.gauss_points     # fluxes sigma = -p0 I before any solve (initial_fluxes)
         self.gradients_start = np.zeros_like(cb.gradients)       # phase 2 starts at u = 0
         self.gradients_previous = np.zeros_like(cb.gradients)
-        self.history = []
 
     # --- loading ---------------------------------------------------------------------
     def platen_displacement(self, t):
@@ -320,15 +276,7 @@ class FemDemBiaxial:
         s = self.s
         return -s.height * s.axial_strain * max(t - 1.0, 0.0) / s.steps
 
-    @property
-    def gauss_points(self):
-        return self.problem.gauss_points
-
     # --- measurements ---------------------------------------------------------------------
-    def state(self, name):
-        """Committed output `name` of every owned Gauss point (DemMaterial.state_names)."""
-        return self.gauss_points.state_old[:, self.material.state_index[name]]
-
     def mean(self, values):
         """Mean over all Gauss points of all ranks (000 averages over the integration points)."""
         return self.comm.allreduce(float(np.sum(values))) / self.comm.allreduce(len(values))
@@ -346,10 +294,6 @@ class FemDemBiaxial:
         sym = 0.5 * (d[:, 2] + d[:, 3])
         return np.sqrt(d[:, 0] ** 2 + d[:, 1] ** 2 + 2.0 * sym ** 2)
 
-    def volumetric_strain(self):
-        """Mean of tr(eps) over the specimen [-] (small-strain J - 1)."""
-        return self.comm.allreduce(dolfinx.fem.assemble_scalar(self._volume_form)) / (self.s.width * self.s.height)
-
     def band(self):
         """Gaussian fit of thesis eq 4.22 to the equivalent strain since the start of phase 2,
         over the Gauss points outside the imperfection: the weak cells strain more than the
@@ -357,6 +301,25 @@ class FemDemBiaxial:
         corner, not the band that leaves it (docs/femdem.md, regularisation study)."""
         keep = ~self.in_imperfection
         return fit_band_collective(self.comm, self.points[keep], self.equivalent_strain(self.gradients_start)[keep])
+
+    def cell_fields(self):
+        """(name, shape, values_fn) of the DG0 fields written next to the FE fields: the
+        cells' coordination_number, anisotropy, sliding_fraction and dem_steps, the
+        stress_ratio (000 eq. 40), the equivalent_strain since the start of phase 2 and the
+        incremental_equivalent_strain of the last step (000 Fig. 7)."""
+        cb = self.gauss_points
+        idx = self.material.state_index
+
+        def state(name):
+            return lambda: cb.cell_average(cb.state_old[:, [idx[name]]])
+
+        return ([(name, (), state(name)) for name in ("coordination_number", "anisotropy", "sliding_fraction",
+                                                      "dem_steps")]
+                + [("stress_ratio", (), lambda: cb.cell_average(self.gauss_point_ratios()[:, None])),
+                   ("equivalent_strain", (),
+                    lambda: cb.cell_average(self.equivalent_strain(self.gradients_start)[:, None])),
+                   ("incremental_equivalent_strain", (),
+                    lambda: cb.cell_average(self.equivalent_strain(self.gradients_previous)[:, None]))])
 
     def global_order(self, values):
         """(points, values) of all ranks on rank 0, sorted by (y, x): rank-independent order."""
@@ -374,7 +337,7 @@ class FemDemBiaxial:
         cb = self.gauss_points
         info = self.solver.infos[-1]
         phase = 1 if record.time <= 1.0 + 1e-9 else 2
-        reaction = self.problem.reaction("top", "u2")
+        reaction = self.vertical_reaction()
         status = self.state("status")
         row = {"step": record.step, "time": record.time, "phase": phase,
                "axial_strain": self.platen_displacement(record.time) / s.height,
@@ -395,32 +358,22 @@ class FemDemBiaxial:
     # --- checkpoint and restart (checkpoint.py) ------------------------------------------
     def checkpoint_state(self):
         """(per-point arrays, run state) beyond the fields, the Gauss-point arrays and the cells."""
-        return {"gradients_previous": self.gradients_previous}, {"history": self.history, "infos": self.solver.infos}
+        per_point, run_state = super().checkpoint_state()
+        return dict(per_point, gradients_previous=self.gradients_previous), run_state
 
     def restore_state(self, per_point, run_state):
+        super().restore_state(per_point, run_state)
         self.gradients_previous[:] = per_point["gradients_previous"]
-        self.history = list(run_state["history"])
-        self.solver.infos = list(run_state["infos"])
 
     # --- run --------------------------------------------------------------------------
-    def run(self, on_step=None, checkpoint=None):
-        """Phase 1 and phase 2; `on_step(row)` after every converged step. checkpoint: a
-        checkpoint.Checkpointer (writes as due, stops at its stop_after, continues from
-        the checkpoint it restored). Raises LoadSteppingError (naming the cause) when a
-        step cannot be cut small enough."""
+    def after_step(self):
+        """The next step's incremental equivalent strain counts from here."""
+        self.gradients_previous[:] = self.gauss_points.gradients
 
-        def record(step):
-            row = self.row(step)
-            self.history.append(row)
-            if on_step is not None:
-                on_step(row)
-            self.gradients_previous[:] = self.gauss_points.gradients
-
-        self.stepper = LoadStepper(self.problem, self.solver, t_end=self.t_end, dt=1.0,
-                                   dt_min=self.s.dt_min_fraction, dt_max=1.0, on_step=record,
-                                   easy_iterations=8, verbose=self.verbose, **stepper_keywords(checkpoint))
-        self.stepper.run()
-        return self.history
+    def balance_report(self):
+        """What the load balancer did (balancing.BalancedMaterial.balance_report); None when
+        the cells do not move between ranks."""
+        return self.material.balance_report() if self.balanced else None
 
     def timing(self):
         """Where the time went on this rank [s]: cell solves, cell tangents, assembly,
@@ -433,10 +386,6 @@ class FemDemBiaxial:
                 "cell_commits": m["commit"], "gradient_evaluation": cb["gradients"],
                 "residual_assembly": t["residual_assembly"], "jacobian_assembly": t["jacobian_assembly"],
                 "linear_solve_and_snes": other, "newton_total": t["solve_total"]}
-
-    def log(self, text):
-        if self.verbose and self.comm.rank == 0:
-            print(text, flush=True)
 
 
 def max_over_ranks(comm, value):

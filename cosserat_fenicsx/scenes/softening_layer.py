@@ -38,6 +38,7 @@ from ..constitutive import ConstitutiveError
 from ..materials.ehlers import EhlersMaterial
 from ..shear_band import fit_band, strain_norm
 from ..stepping import LoadStepper
+from ..validation import COUNT, FRACTION, NON_NEGATIVE, POSITIVE, STEPS, check_settings, setting
 
 # 3-point Gauss-Legendre on [-1, 1]: exact for the P2 x P2 stiffness (and as the 2D forms)
 _XI = np.array([-math.sqrt(0.6), 0.0, math.sqrt(0.6)])
@@ -46,30 +47,28 @@ _W = np.array([5.0, 8.0, 5.0]) / 9.0
 
 @dataclass
 class LayerSettings:
-    height: float = 0.1             # L [m]
-    cell_size: float = 1.0e-3       # h [m]
-    confining: float = 100e3        # p [Pa]
-    shear: float = 0.1              # U_end / L [-]
-    steps: int = 100                # nominal steps of the shear phase
-    micropolar: bool = True
-    weak_size: float = 4.0e-3       # base of the tent-shaped weakening at mid-height [m]
-    weak_beta_factor: float = 0.9   # beta0, beta* factor at the centre of the tent
-    eta: float = 0.1                # Perzyna time [s]; one nominal step is 1 s
+    """The layer, its loading and the solver's limits; each field declares its range
+    (validation.setting)."""
+    height: float = setting(0.1, POSITIVE)          # L [m]
+    cell_size: float = setting(1.0e-3, POSITIVE)    # h [m]
+    confining: float = setting(100e3, POSITIVE)     # p [Pa]
+    shear: float = setting(0.1, POSITIVE)           # U_end / L [-]
+    steps: int = setting(100, STEPS)                # nominal steps of the shear phase
+    micropolar: bool = setting(True)
+    weak_size: float = setting(4.0e-3, NON_NEGATIVE)    # base of the tent-shaped weakening at mid-height [m]
+    weak_beta_factor: float = setting(0.9, FRACTION)    # beta0, beta* factor at the centre of the tent
+    eta: float = setting(0.1, POSITIVE)             # Perzyna time [s]; one nominal step is 1 s
     material: dict = field(default_factory=dict)   # EhlersMaterial keyword overrides
-    max_iterations: int = 25
-    tolerance: float = 1e-8         # residual relative to the first one of the step (floor 1e-9 p sqrt(ndof))
-    min_step: float = 2.0 ** -12    # smallest step after cut-backs, in nominal steps
+    max_iterations: int = setting(25, COUNT)
+    tolerance: float = setting(1e-8, POSITIVE)      # residual relative to the first one of the step (floor 1e-9 p sqrt(ndof))
+    min_step: float = setting(2.0 ** -12, FRACTION)  # smallest step after cut-backs, in nominal steps
 
     def check(self):
-        for name in ("height", "cell_size", "confining", "shear", "eta"):
-            if not getattr(self, name) > 0:
-                raise ValueError(f"softening layer: {name} must be positive, got {getattr(self, name)!r}")
+        check_settings(self, "softening layer")
         if self.cell_size > self.height / 4:
             raise ValueError("softening layer: cell_size must be <= height / 4")
-        if not 0 <= self.weak_size < self.height:
+        if not self.weak_size < self.height:
             raise ValueError(f"softening layer: weak_size must be in [0, height), got {self.weak_size!r}")
-        if not 0 < self.weak_beta_factor <= 1:
-            raise ValueError("softening layer: weak_beta_factor must be in (0, 1]")
 
 
 class SofteningLayer:

@@ -24,7 +24,7 @@ from cosserat_fenicsx.materials.dem import CellOptions, DemMaterial, make_mode, 
 from cosserat_fenicsx.materials.dem.material import STATUS_BAD_F, STATUS_NO_CONTACTS
 from cosserat_fenicsx.problem import CosseratProblem
 from cosserat_fenicsx.quadrature import gauss_point_coordinates
-from cosserat_fenicsx.scenes.biaxial import RecordingSolver
+from cosserat_fenicsx.newton_history import RecordingSolver
 from cosserat_fenicsx.scenes.femdem_biaxial import FemDemBiaxial, FemDemSettings
 from cosserat_fenicsx.snes import NewtonSolver
 from cosserat_fenicsx.stepping import LoadStepper, LoadSteppingError
@@ -149,8 +149,7 @@ def pulled_apart_scene(reference, steps):
     problem.add_dirichlet("top", "u2", 1.0, scale=lambda t: 0.02 * H * t)
     problem.add_point_dirichlet((0.5 * W, 0.0), "u1", 0.0)
     solver = RecordingSolver(NewtonSolver(problem, options={"snes_linesearch_type": "basic"}, force_rtol=1e-2))
-    cb = problem.gauss_points
-    cb.set_initial_fluxes(material.initial_fluxes())     # sigma = -p0 I, as FemDemBiaxial
+    cb = problem.gauss_points          # fluxes sigma = -p0 I before any solve (initial_fluxes)
     stepper = LoadStepper(problem, solver, t_end=float(steps), dt=1.0, dt_min=2.0 ** -3, verbose=False)
     message = ""
     try:

@@ -6,17 +6,23 @@ import dolfinx.mesh
 import numpy as np
 
 from . import compat
+from .resources import memory_bytes
 from .validation import POSITIVE, InputError, Range, check
 
 MESH_DIR = os.path.join(os.path.dirname(os.path.dirname(os.path.abspath(__file__))), "meshes")
 RECTANGLE_BOUNDARIES = {"left": 1, "right": 2, "bottom": 3, "top": 4}
 
 
-#: more elements than this do not fit a direct (MUMPS) solve of the P2/P1 problem on a
-#: 24 GiB machine: refused before gmsh or dolfinx is asked for them. Measured on the
-#: shear layer: 4.2e5 triangles (2.5e6 unknowns) 8.4 GB and 106 s; 1.3e6 killed by the
-#: out-of-memory killer after 9 minutes.
-MAX_ELEMENTS = 500_000
+#: memory of the P2/P1 problem with its direct (MUMPS) factorisation per triangle [bytes]:
+#: measured on the shear layer, 4.2e5 triangles (2.5e6 unknowns) took 8.4 GB and 106 s
+BYTES_PER_ELEMENT = 2.0e4
+#: the share of memory a mesh may plan for: on a 24 GiB machine 1.3e6 triangles were killed
+#: by the out-of-memory killer after 9 minutes (the factorisation's peak is above the
+#: measured resident size), 4.2e5 ran
+MEMORY_SHARE = 0.4
+#: more elements than this do not fit a direct solve on this machine (resources.memory_bytes):
+#: refused before gmsh or dolfinx is asked for them; about 5e5 on a 24 GiB machine
+MAX_ELEMENTS = int(MEMORY_SHARE * memory_bytes() / BYTES_PER_ELEMENT)
 
 
 def rectangle_divisions(width, height, cell_size):

@@ -42,6 +42,7 @@ def make_parser(description):
 
 
 def add_material_options(parser, mu=1.0e8, lmbda=1.0e8, mu_c=None, l_c=1.0e-2):
+    parser.material_options = True
     g = parser.add_argument_group("material (linear micropolar elasticity, SI units)")
     g.add_argument("--mu", type=number(POSITIVE), default=mu, help="shear modulus [Pa] (default %(default)g)")
     g.add_argument("--lmbda", type=number(), default=lmbda,
@@ -66,6 +67,7 @@ def add_mesh_options(parser, cell_size=None, with_cell_size=True):
 
 
 def add_output_options(parser, out):
+    parser.output_options = True
     g = parser.add_argument_group("output")
     g.add_argument("--out", default=out, help="output directory (default %(default)s)")
     g.add_argument("--fields", nargs="+", default=list(FIELDS), choices=FIELDS,
@@ -156,7 +158,7 @@ def restart_arguments(parser, args, argv=None):
     saved = meta["options"]
     parser.check_saved(saved, f"--restart {args.restart}: the checkpoint's options")
     typed = parser.given_options(argv)
-    solver = getattr(parser, "restart_solver_options", ())
+    solver = parser.restart_solver_options
     changes = {}
     for dest in sorted(typed - set(RUN_CONTROL)):
         if dest == "out" and os.path.abspath(args.out) == os.path.abspath(args.restart):
@@ -192,7 +194,7 @@ def checkpointer(comm, args):
     from .checkpoint import Checkpointer
     return Checkpointer(comm, args.out, args.checkpoint_label, run_options(args),
                         every=args.checkpoint_every, stop_after=args.stop_after, restart=args.restart is not None,
-                        changes=getattr(args, "restart_changes", None))
+                        changes=args.restart_changes if args.restart is not None else None)
 
 
 def parse(parser, argv=None, check=None):
@@ -205,14 +207,14 @@ def parse(parser, argv=None, check=None):
     args, unknown = parser.parse_known_args(argv)
     forward_petsc_options(parser, unknown)
     try:
-        if hasattr(parser, "checkpoint_label"):
+        if parser.checkpoint_label is not None:
             args.petsc_options = list(unknown)        # saved in a checkpoint: a restart solves alike
-            if getattr(args, "restart", None) is not None:
+            if args.restart is not None:
                 args = restart_arguments(parser, args, argv)
                 # the run's PETSc options, then those typed now (they win)
                 forward_petsc_options(parser, list(args.petsc_options) + list(unknown))
             args.checkpoint_label = parser.checkpoint_label
-        if hasattr(args, "mu"):
+        if parser.material_options:
             args.elasticity = MicropolarElasticity(mu=args.mu, lmbda=args.lmbda, mu_c=args.mu_c, l_c=args.l_c)
             if not args.cauchy:
                 args.elasticity.check_micropolar()
@@ -220,7 +222,7 @@ def parse(parser, argv=None, check=None):
             check(args)
     except ValueError as error:
         parser.refuse(error)
-    if hasattr(args, "out"):
+    if parser.output_options:
         os.makedirs(args.out, exist_ok=True)
     return args
 

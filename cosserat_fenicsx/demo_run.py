@@ -34,7 +34,7 @@ class DemoRun:
     def __init__(self, comm, args, label, entries=None):
         self.comm, self.args, self.label = comm, args, label
         self.guard = RunGuard(comm, os.path.join(args.out, "summary.json"), entries, label=label,
-                              write_now=getattr(args, "restart", None) is None)
+                              write_now=args.restart is None)
         self.scene = self.checkpoint = self.writer = None
         self.logs = []
         self.written = []          # pseudo-times written to fields.xdmf (a restart continues the list)

@@ -218,6 +218,13 @@ class Parser(argparse.ArgumentParser):
     Negative numbers in scientific notation (`--lmbda -1e9`, `--shift -inf`) are values,
     not options (argparse's own pattern knows only -12 and -1.5)."""
 
+    #: set by cli.add_material_options, add_output_options, add_checkpoint_options: what
+    #: cli.parse makes of the options (the elasticity, the output directory, a restart)
+    material_options = False
+    output_options = False
+    checkpoint_label = None          # the demo's name in its checkpoints; None: no checkpoints
+    restart_solver_options = ()      # dests a restart may change (how a step is solved)
+
     def __init__(self, *args, **kwargs):
         super().__init__(*args, **kwargs)
         self._negative_number_matcher = re.compile(r"^-(\d+\.?\d*|\.\d+)([eE][-+]?\d+)?$|^-inf(inity)?$",

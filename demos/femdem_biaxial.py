@@ -26,7 +26,7 @@ rotation and the curvature of the point, demcell rotation_mode='micropolar'; the
 scaled so that its mean grain diameter is --grain-diameter, which converts its curvature and
 couple stress; its Cosserat moduli G, mu_c, B = dm/dkappa and l_c = sqrt(B / 2 mu_c) at the
 reference state are printed and go to summary.json as cell_moduli). The macro
-Newton uses the cell operator --tangent (cto: 001 eq. 6, demqo: eq. 20, kruyt: eq. 13,
+Newton uses the cell operator --tangent (perturbation: 001 eq. 6, demqo: eq. 20, kruyt: eq. 13,
 pstlo: appendix B; pstlo_sliding: the same with the contacts on their Coulomb limit sliding)
 and stops at FNORM/RNORM <= --force-rtol (001 section 6). A weak zone
 (--weak-size, --weak-friction: a square at the lower left corner whose cells have less
@@ -152,7 +152,7 @@ def check(args):
     if args.mode == "micropolar" and (args.mu_c is not None or args.l_c is not None):
         raise ValueError("--mu-c and --l-c are hybrid-mode options: in mode micropolar the skew and couple "
                          "stresses come from the cells")
-    if args.packing is not None and getattr(args, "restart", None) is None:
+    if args.packing is not None and args.restart is None:
         ignored = sorted(parser.given_options() & {"particles", "seed"})
         if ignored:           # the file sets the discs: these would be silently without effect
             raise ValueError(f"--packing gives the discs: {', '.join('--' + o for o in ignored)} would have no "

@@ -191,6 +191,11 @@ class QuadratureMap:
             self._tangent_stale[:] = False
         self._write_tangent()
 
+    def invalidate_tangents(self):
+        """Every point's tangent is computed again at the next update_tangent (after the
+        material's tangent operator was changed)."""
+        self._tangent_stale[:] = True
+
     def _write_tangent(self):
         nf = self.material.flux_size
         self.tangent.x.array.reshape(-1, nf * nf)[self.dofs] = self.tangent_values.reshape(-1, nf * nf)

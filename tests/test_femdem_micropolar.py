@@ -120,15 +120,15 @@ def update(material, state, g):
 
 
 @pytest.mark.serial
-@pytest.mark.parametrize("tangent", ["cto", "demqo", "pstlo"])
+@pytest.mark.parametrize("tangent", ["perturbation", "demqo", "pstlo"])
 def test_material_tangent_is_the_derivative_of_its_fluxes(tangent):
     """DemMaterial's 6x6 tangent at one Gauss point against forward differences of the fluxes
     it returns from update() (each solved from the committed state, as in a Newton iteration),
     at a loaded committed state with friction 0.4. Cells relaxed to an unbalanced-force ratio of
     1e-7: each flux is within ~1e-7 |sigma| ~ 1.5e-6 N/m of equilibrium, so the quotient with
     steps of 1e-5 carries ~0.3 N/m of noise on moduli of 3e3 N/m, 1e-4 relative; a contact that
-    slides under a perturbation would add more (cto perturbs like the quotient, demqo and pstlo
-    freeze the contacts). Bound 1e-3. Measured (Frobenius, in stress units): cto 1.3e-5, demqo
+    slides under a perturbation would add more (perturbation perturbs like the quotient, demqo and pstlo
+    freeze the contacts). Bound 1e-3. Measured (Frobenius, in stress units): perturbation 1.3e-5, demqo
     8.7e-5, pstlo 9.6e-5 (1.0e-2 before the network took the change of the force weights of the
     held mean rotation into account); kruyt (the affine estimate, not a tangent) 2.0;
     the demqo tangent without the length_scale factors 1.2e3."""

@@ -22,13 +22,16 @@ import os
 
 import numpy as np
 
-TANGENTS = {"cto": "perturbation", "demqo": "demqo", "kruyt": "kruyt", "pstlo": "pstlo",
-            "pstlo_sliding": "pstlo_sliding"}
+from demcell.tangent import TANGENT_KINDS
+
+#: the cell operators a DemMaterial's Newton may use, by demcell's names (demcell.tangent's
+#: registry: what each computes, micropolar or Cauchy-only, batched, releases the GIL)
+TANGENTS = tuple(TANGENT_KINDS)
 #: the tangents of Cauchy cells only (the classical and hybrid modes)
-CAUCHY_ONLY_TANGENTS = ("pstlo_sliding",)
+CAUCHY_ONLY_TANGENTS = tuple(name for name, kind in TANGENT_KINDS.items() if kind.cauchy_only)
 #: the tangents whose per-point work (scipy's sparse LU) releases the GIL, so a rank's
-#: threads can share it (materials/dem/batched.py)
-GIL_FREE_TANGENTS = ("pstlo", "pstlo_sliding")
+#: threads can share it (materials/dem/stores.py)
+GIL_FREE_TANGENTS = tuple(name for name, kind in TANGENT_KINDS.items() if kind.releases_gil)
 
 
 def check_tangent(tangent, mode):

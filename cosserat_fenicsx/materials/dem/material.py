@@ -1,14 +1,15 @@
 """FEM x DEM: a periodic DEM cell (demcell) at every Gauss point, behind the Gauss-point interface.
 
 One `demcell.DemCell` per Gauss point of the cells this rank owns, created once (copies of
-the zone's reference cell) and resident on the rank for the whole run.
+the zone's reference cell) and resident on the rank for the whole run, in a cell store
+(stores.py: one DemCell per point, or all of them in a demcell cell store, batched=True).
 
 Which state a cell starts from (docs/femdem.md): every update of a point within a load step
 starts its cell from the committed state of the last converged step and loads it to the
 current iterate's F (001 eq. 7 with F_i the committed F): the step's answer depends on the
 committed state and the target only, not on the Newton path or the line search, as for a
 return mapping. The tangent is the chosen operator of the cell at the current iterate
-(cto: 001 eq. 6, four more solves from the committed state; demqo: eq. 20, four frozen-
+(perturbation: 001 eq. 6, four more solves from the committed state; demqo: eq. 20, four frozen-
 contact relaxations from the current equilibrium; kruyt: eq. 13; pstlo: appendix B). Points
 whose gradients did not change are not solved again (`rate_independent`), tangents are
 computed when the Jacobian is assembled (`tangent_on_demand`), commit / rollback reach the
@@ -29,10 +30,9 @@ import time
 import numpy as np
 
 from ...constitutive import Constitutive, PointReport
-from .cells import TANGENTS, check_tangent
-
-STATUS_NO_CONTACTS = 1
-STATUS_NOT_RELAXED, STATUS_BAD_F, STATUS_BROKEN = -1, -2, -3
+from .cells import check_tangent
+from .stores import (STATUS_BAD_F, STATUS_BROKEN, STATUS_NO_CONTACTS, STATUS_NOT_RELAXED,  # noqa: F401
+                     BatchedCells, CellList, cell_outputs)
 
 
 class DemMaterial(Constitutive):
@@ -40,7 +40,10 @@ class DemMaterial(Constitutive):
 
     reference_cells  list of prepared DemCells, one per zone (see cells.reference_cells)
     mode             a mode object of modes.py (classical, hybrid, micropolar)
-    tangent          'cto' | 'demqo' | 'kruyt' | 'pstlo' | 'pstlo_sliding' (Cauchy cells)
+    tangent          a name of cells.TANGENTS (demcell.tangent.TANGENT_KINDS): 'perturbation',
+                     'demqo', 'kruyt', 'pstlo', 'pstlo_sliding' (Cauchy cells)
+    batched          the cells in one demcell cell store (stores.BatchedCells) on `device`
+                     ('cpu' or 'gpu'), else one DemCell per point (stores.CellList)
     """
 
     rate_independent = True
@@ -50,7 +53,8 @@ class DemMaterial(Constitutive):
     state_index = {name: i for i, name in enumerate(state_names)}
     cost_unit = "DEM time steps"
 
-    def __init__(self, reference_cells, mode, tangent="pstlo", max_strain_increment=0.05):
+    def __init__(self, reference_cells, mode, tangent="pstlo", max_strain_increment=0.05, batched=False,
+                 device="cpu"):
         refusal = check_tangent(tangent, mode.name)
         if refusal:
             raise ValueError(refusal)
@@ -62,16 +66,29 @@ class DemMaterial(Constitutive):
                              "reference_cells(..., micropolar=True) makes them)")
         if not (np.isfinite(max_strain_increment) and max_strain_increment > 0):
             raise ValueError(f"max_strain_increment must be positive, got {max_strain_increment!r}")
+        if batched and device not in BatchedCells.DEVICES:
+            raise ValueError(f"unknown cell device {device!r}: one of {', '.join(BatchedCells.DEVICES)}")
         self.max_strain_increment = float(max_strain_increment)
         self.reference_cells = list(reference_cells)
         self.mode = mode
         self.tangent_name = tangent
-        self._kind = TANGENTS[tangent]
+        self.batched, self.device = batched, device
         self.zone = None
-        self.cells = []
+        self.store = CellList([], mode, self.max_strain_increment)
         self._touched = set()
         self._floors = {}
         self.timers = {"solve": 0.0, "homogenize": 0.0, "tangent": 0.0, "commit": 0.0}
+
+    @property
+    def tangent_kind(self):
+        """The demcell.tangent.TangentKind of the cell operator the Newton uses."""
+        from demcell.tangent import tangent_kind
+        return tangent_kind(self.tangent_name)
+
+    @property
+    def cells(self):
+        """The cells, one per point, to read (the store solves them)."""
+        return self.store.cells
 
     # --- set-up ------------------------------------------------------------------------
     def set_zones(self, zone):
@@ -87,10 +104,14 @@ class DemMaterial(Constitutive):
             self.zone = np.zeros(n_points, dtype=np.int64)
         if len(self.zone) != n_points:
             raise RuntimeError("DemMaterial: set_zones needs one entry per Gauss point")
-        self.cells = [self.reference_cells[z].copy() for z in self.zone]
+        cells = [self.reference_cells[z].copy() for z in self.zone]
+        if self.batched:
+            self.store = BatchedCells(cells, self.mode, self.max_strain_increment, self.device)
+        else:
+            self.store = CellList(cells, self.mode, self.max_strain_increment)
         state = np.zeros((n_points, len(self.state_names)))
         for z, ref in enumerate(self.reference_cells):
-            state[self.zone == z] = self._outputs(ref.homogenized(), 0, 0)
+            state[self.zone == z] = cell_outputs(ref.homogenized(), 0, 0)
         return state
 
     def initial_fluxes(self, n_points):
@@ -102,78 +123,31 @@ class DemMaterial(Constitutive):
             out[self.zone == z] = row
         return out
 
-    @staticmethod
-    def _outputs(h, steps, status):
-        return (h.coordination_number, h.anisotropy, h.sliding_fraction, h.stress_ratio,
-                h.n_contacts, steps, status)
-
-    # --- the update ------------------------------------------------------------------------
+    # --- the update --------------------------------------------------------------------
     def update(self, gradients, dt, state_old, flux_out, tangent_out, state_new, points=None):
-        points = np.arange(len(self.cells)) if points is None else np.asarray(points)
+        points = np.arange(len(self.zone)) if points is None else np.asarray(points, dtype=np.int64)
         status = np.zeros(len(points), dtype=np.int32)
         cost = np.zeros(len(points))
-        message, failed = "", False
-        for k, p in enumerate(points):
-            cell = self.cells[p]
-            self._touched.add(int(p))
-            start = time.perf_counter()
-            code, text, steps = self._solve(cell, gradients[p])
-            self.timers["solve"] += time.perf_counter() - start
-            cost[k] = steps
-            status[k] = code
-            if code < 0:
-                if not failed:       # the first failure names the cause, before any flag
-                    message, failed = f"{self.where(p)}: {text}", True
-                continue
-            start = time.perf_counter()
-            h = cell.homogenized()
-            self.mode.fluxes(h, gradients[p], flux_out[p])
-            state_new[p] = self._outputs(h, steps, code)
-            self.timers["homogenize"] += time.perf_counter() - start
-            if code > 0 and not message:
-                message = f"{self.where(p)}: {text}"
+        texts = {}
+        if len(points):
+            self._touched.update(int(p) for p in points)
+            self.store.solve(points, gradients, flux_out, state_new, status, cost, texts, self.timers)
+        # the first failure names the cause, else the first flag
+        failed, flagged = np.flatnonzero(status < 0), np.flatnonzero(status > 0)
+        first = failed[0] if len(failed) else (flagged[0] if len(flagged) else None)
+        message = "" if first is None else f"{self.where(points[first])}: {texts[first]}"
         return PointReport(status=status, cost=cost, message=message, cost_unit=self.cost_unit)
 
-    def _solve(self, cell, gradients):
-        """(status, message, DEM steps) of one solve from the committed state."""
-        import demcell as dc
-        cell.rollback()
-        # |dF| and, in micropolar mode, the change of the rotation jump across the cell
-        jump = self.mode.increment(cell, gradients)
-        if not jump <= self.max_strain_increment:
-            # a cell asked to jump this far is either a load step far too large or a Newton
-            # iterate running away: refuse it (the step is cut) instead of tearing the cell
-            return (STATUS_BAD_F, f"strain increment {jump:.6g} from the committed state exceeds "
-                    f"max_strain_increment = {self.max_strain_increment:g} (load step too large, or "
-                    "the Newton iteration is diverging)", 0)
-        try:
-            self.mode.drive(cell, gradients)
-        except dc.InputError as error:
-            return STATUS_BAD_F, f"inadmissible deformation ({error}): the load step is too large", 0
-        try:
-            result = cell.solve()
-        except dc.SolveError as error:
-            return STATUS_BROKEN, f"micro solve failed: {error}", 0
-        if result.no_contacts:
-            return STATUS_NO_CONTACTS, "the cell lost every contact (zero stress)", result.steps
-        if not result.converged:
-            return (STATUS_NOT_RELAXED, "the cell did not relax within its step budget "
-                    f"(max_steps = {cell.options.max_steps}): {result.message}", result.steps)
-        return 0, "", result.steps
-
     def tangent(self, points, tangent_out):
+        points = np.asarray(points, dtype=np.int64)
         cost = np.zeros(len(points))
         start = time.perf_counter()
-        for k, p in enumerate(points):
-            cell = self.cells[p]
-            if cell.contact_count():
-                self.mode.tangent(cell, None, self._kind, tangent_out[p])
-            else:
-                # a cell without contacts has no stiffness (and pstlo's solve would be
-                # singular); a whole element of such points would make the Jacobian singular,
-                # so it gets 1e-6 of its reference cell's stiffness: the stress stays zero
-                tangent_out[p] = self._floor_tangent(int(self.zone[p]))
-            cost[k] = cell.last_tangent_steps
+        if len(points):
+            # a cell without contacts has no stiffness (and pstlo's solve would be singular); a
+            # whole element of such points would make the Jacobian singular, so it gets 1e-6 of
+            # its reference cell's stiffness: the stress stays zero
+            self.store.tangent(points, self.tangent_kind, tangent_out, cost,
+                               lambda p: self._floor_tangent(int(self.zone[p])))
         self.timers["tangent"] += time.perf_counter() - start
         return PointReport(status=np.zeros(len(points), dtype=np.int32), cost=cost, cost_unit=self.cost_unit)
 
@@ -186,14 +160,14 @@ class DemMaterial(Constitutive):
 
     def commit(self):
         start = time.perf_counter()
-        for p in self._touched:
-            self.cells[p].commit()
+        if self._touched:
+            self.store.commit(np.array(sorted(self._touched), dtype=np.int64))
         self._touched.clear()
         self.timers["commit"] += time.perf_counter() - start
 
     def rollback(self):
-        for p in self._touched:
-            self.cells[p].rollback()
+        if self._touched:
+            self.store.rollback(np.array(sorted(self._touched), dtype=np.int64))
         self._touched.clear()
 
     # --- resident state (checkpoint.py; a load balancer moves cells with the same pair) --
@@ -201,16 +175,14 @@ class DemMaterial(Constitutive):
         """zone and committed cell state of `points` (demcell.state.pack_states arrays)."""
         from demcell.state import pack_states
         points = np.asarray(points, dtype=np.int64)
-        return dict(pack_states(self.cells[p].committed_state for p in points), zone=self.zone[points].copy())
+        return dict(pack_states(self.store.committed_states(points)), zone=self.zone[points].copy())
 
     def import_points(self, points, arrays, rows=None):
         """Cells of `points` continue from exported states (zone included): a copy of the
         zone's reference cell (law, options) restored to the state. rows: which of the
         exported cells (default all)."""
         for p, z, st in self._imported(points, arrays, rows):
-            cell = self.reference_cells[z].copy()
-            cell.restore(st)
-            self.cells[p] = cell
+            self.store.set_cell(p, self.reference_cells[z], st)
 
     def check_exported(self, arrays, rows=None):
         """Every exported cell state consistent (demcell's CellState.check: finite positions,
@@ -251,9 +223,10 @@ class DemMaterial(Constitutive):
     # --- diagnostics ---------------------------------------------------------------------
     def memory_bytes(self):
         """Bytes held by the cells of this rank (current and committed states)."""
-        return sum(c.memory_bytes() for c in self.cells)
+        return self.store.nbytes()
 
     def describe(self):
         """The mode (micropolar: with the cell moduli of the reference state, see
         cells.micropolar_moduli, once the scene has set them), the tangent and the zones."""
-        return dict(self.mode.describe(), tangent=self.tangent_name, n_zones=len(self.reference_cells))
+        return dict(self.mode.describe(), tangent=self.tangent_name, n_zones=len(self.reference_cells),
+                    **self.store.describe())

@@ -1,4 +1,4 @@
-"""Load balancing of Gauss points between ranks (cosserat_fenicsx/balancing.py).
+"""Load balancing of Gauss points between ranks (cosserat_fenicsx/balancing/).
 
 The assignment algorithm on its own (serial): the imbalance falls below the threshold with
 few moves and every point has exactly one worker. On 2 ranks (the MPI pass; skipped on
@@ -253,7 +253,7 @@ def test_passes_move_points_only_where_no_trial_state_is_lost(monkeypatch):
     point left out of a pass keeps a trial state on its worker, which a move would lose (its
     committed value would then come out wrong). Here the odd points are forced to change rank
     at every move; the results and the committed values are the unwrapped material's."""
-    monkeypatch.setattr(balancing, "assign", forced_exchange)
+    monkeypatch.setattr(balancing.material, "assign", forced_exchange)
     n = 12
     rng = np.random.default_rng(7 + COMM.rank)
     wrapped = balancing.BalancedMaterial(COMM, Counter, cost="work", passes=True)
@@ -341,7 +341,7 @@ def test_balanced_run_is_bit_identical(monkeypatch):
     reference = run(False)
     greedy = run(True, balance_threshold=1.0)
     assert_identical(reference, greedy)
-    monkeypatch.setattr(balancing, "assign", forced_exchange)
+    monkeypatch.setattr(balancing.material, "assign", forced_exchange)
     forced = run(True, every_commit=True)
     assert_identical(reference, forced)
     report = forced[0].material.balance_report()
@@ -374,7 +374,7 @@ def test_balancing_between_passes_is_bit_identical(monkeypatch):
     reference = run(False)
     greedy = run(True, balance_threshold=1.0, balance_passes=True)
     assert_identical(reference, greedy)
-    monkeypatch.setattr(balancing, "assign", forced_exchange)
+    monkeypatch.setattr(balancing.material, "assign", forced_exchange)
     forced = run(True, every_commit=True, balance_passes=True)
     assert_identical(reference, forced)
     steps = forced[0].material.balance_report()["steps"]
@@ -390,7 +390,7 @@ def test_failing_guest_cell_cuts_the_step_naming_the_point(monkeypatch):
     dt_min and the run stops on every rank with the message of the worker naming the
     point's coordinates."""
     from cosserat_fenicsx.stepping import LoadSteppingError
-    monkeypatch.setattr(balancing, "assign", forced_exchange)
+    monkeypatch.setattr(balancing.material, "assign", forced_exchange)
     guests = []
 
     def tighten(row):

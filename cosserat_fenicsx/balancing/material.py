@@ -1,141 +1,17 @@
-"""Load balancing of Gauss points whose cost varies (FEM x DEM): points move between ranks.
-
-The mesh partition gives every rank the same number of Gauss points, but in FEM x DEM a
-point's work is its cell's relaxation, and the cells in a band relax far longer than those
-outside it: a rank holding the band finishes its cells late and the others wait for it at
-the next collective (the assembly). `BalancedMaterial` wraps a material and lets another
-rank work on a point: the partition's points of a rank are its *home* points (the
-Gauss-point store keeps their float history, fluxes and tangents), and each home point has
-one *worker* rank whose inner material holds its resident state (the DEM cell) in a *slot*.
-Initially every point is worked on at home; the float history never moves, only the
-resident state does.
-
-Per call (every rank, every time: `collective = True`, quadrature.QuadratureMap then
-calls even a rank with nothing to update):
-
-    update   home -> worker: point index, gradients, committed history row   (Alltoallv)
-             worker: the inner material updates its slots, one point per call (timed)
-             worker -> home: fluxes, trial history row, [tangent], status, cost (Alltoallv)
-    tangent  home -> worker: point index; worker -> home: tangent, status, cost
-    messages (the first failure / flag of each home rank's points, named by the worker's
-             inner material with the point's coordinates) go back with comm.alltoall
-
-Failures stay local until the exchange is complete: the inner material's ConstitutiveError
-becomes a failed status with its message (the store raises it on the home rank after the
-material returned, the solver makes it collective), any other exception of the inner
-material is carried back as a fatal error and raised (RuntimeError) on the home ranks of
-the points of that call, again only after every exchange of the call.
-
-Balancing (after a commit, every `every` commits, when the measured imbalance exceeds
-`threshold`; with `passes=True` instead at the start of every Newton pass, by the costs of
-the pass before, see below): the cost of a point is the wall time its worker spent in the
-inner material's update and tangent for it since the previous commit (`cost='wall'`, the default: the DEM
-time steps a cell reports leave out the tangent's work, e.g. pstlo's linear solve, and the
-cost of a step grows with the contacts: the seconds per DEM step of the points spread by a
-factor 2.5, docs/balancing.md; `cost='work'` uses the reported cost instead). The
-per-point costs are gathered on every rank and `assign` (deterministic, the same on every
-rank) moves points from the most to the least loaded rank, each time the one whose move
-best evens the pair (cost nearest half the gap: the heaviest point that does not overshoot),
-until the predicted slowest / mean is below the threshold. The moved points' resident state
-goes with `export_points` / `import_points` (comm.alltoall of the struct-of-arrays dicts)
-and every rank rebuilds its inner material (`make_material()`) with its new slots, the kept
-ones exported and imported too (a restored cell continues bit for bit). The results do not
-depend on where a point is worked on (tests/test_balancing.py); the imbalance is recorded
-per commit (`balance_report`).
-
-Between Newton passes (`passes=True`): the cells of the band cost more in some passes of a
-step than in others, and a balance made after the commit acts one step late. With this
-option the wrapper measures the imbalance of every pass (its update and tangent calls) and,
-at the start of the next update, moves points by that pass's costs; the commit only
-measures. A pass may move points only when every rank re-solves all its points in that
-update, or none was solved since the last commit or rollback: every update of a point
-starts its cell from the committed state (DemMaterial, 001 eq. 7), so the committed state
-is all that has to move, but a point left out of the update keeps a trial state that a move
-would lose.
-
-On one rank the wrapper is a pass-through (no exchange, no balancing).
-
-export_points / import_points of the wrapper are collective (the home rank asks the
-worker); the exported dict of the inner material must be a struct of arrays whose per-key
-concatenation along axis 0 is the export of the concatenated points (true of
-DemMaterial's pack_states + zone).
-"""
+"""BalancedMaterial: a material whose Gauss points may be worked on by another rank (the
+package docstring: home points, workers, slots; the per-call exchange in exchange.py, the
+choice of workers in assignment.py, the move of resident state in migration.py)."""
 import math
 import time
 
 import numpy as np
-from mpi4py import MPI
 
-from .constitutive import Constitutive, ConstitutiveError, PointReport
+from ..constitutive import Constitutive, PointReport
+from . import exchange
+from .assignment import DEFAULT_THRESHOLD, assign, imbalance
+from .migration import Slots, migrate
 
-#: rebalance when the slowest rank's cell work exceeds the mean by more than 10 %
-DEFAULT_THRESHOLD = 1.10
 COSTS = ("wall", "work")
-STATUS_FAILED = -1
-
-
-def imbalance(loads):
-    """Slowest / mean of per-rank loads (1 when there is no load)."""
-    loads = np.asarray(loads, dtype=float)
-    mean = loads.mean() if loads.size else 0.0
-    return float(loads.max() / mean) if mean > 0 else 1.0
-
-
-def assign(cost, worker, n_ranks, threshold=DEFAULT_THRESHOLD):
-    """New workers of points of cost `cost` now worked on by `worker`: greedy moves from the
-    most to the least loaded rank, each the point whose move best evens the pair (cost
-    nearest half their gap, strictly below the gap so that the pair's maximum drops),
-    until the predicted slowest / mean <= threshold or no move helps. Every move lowers
-    the sum of squared loads, so it ends. Deterministic (ties: lowest index), so every rank
-    computes the same answer from the same gathered costs. Returns a new array."""
-    cost = np.asarray(cost, dtype=float)
-    worker = np.array(worker, dtype=np.int64)
-    loads = np.bincount(worker, weights=cost, minlength=n_ranks).astype(float)
-    for _ in range(len(cost)):
-        if imbalance(loads) <= threshold:
-            break
-        hi, lo = int(np.argmax(loads)), int(np.argmin(loads))
-        gap = loads[hi] - loads[lo]
-        movable = np.flatnonzero((worker == hi) & (cost > 0) & (cost < gap))
-        if not movable.size:
-            break
-        k = movable[np.argmin(np.abs(gap - 2.0 * cost[movable]))]
-        worker[k] = lo
-        loads[hi] -= cost[k]
-        loads[lo] += cost[k]
-    return worker
-
-
-def _offsets(counts):
-    return np.concatenate([[0], np.cumsum(counts)[:-1]]).astype(np.int64)
-
-
-def _alltoallv(comm, rows, send_counts, recv_counts, width):
-    """Rows (float64, `width` columns) grouped by destination rank -> rows grouped by source."""
-    send = np.ascontiguousarray(rows, dtype=np.float64).reshape(-1)
-    recv = np.empty(int(np.sum(recv_counts)) * width, dtype=np.float64)
-    sc, rc = np.asarray(send_counts) * width, np.asarray(recv_counts) * width
-    comm.Alltoallv([send, (sc.tolist(), _offsets(sc).tolist()), MPI.DOUBLE],
-                   [recv, (rc.tolist(), _offsets(rc).tolist()), MPI.DOUBLE])
-    return recv.reshape(-1, width)
-
-
-def _concatenate(parts):
-    """Per-key concatenation of exported struct-of-arrays dicts (in order)."""
-    parts = [p for p in parts if p]
-    if len(parts) == 1:
-        return parts[0]
-    return {key: np.concatenate([np.asarray(p[key]) for p in parts]) for key in parts[0]} if parts else {}
-
-
-def _runs(values):
-    """(start, stop) of the maximal runs of equal values."""
-    if not len(values):
-        return []
-    cuts = np.flatnonzero(np.diff(values)) + 1
-    starts = np.concatenate([[0], cuts])
-    stops = np.concatenate([cuts, [len(values)]])
-    return list(zip(starts.tolist(), stops.tolist()))
 
 
 class BalancedMaterial(Constitutive):
@@ -205,10 +81,10 @@ class BalancedMaterial(Constitutive):
         comm = self.comm
         self.worker = np.full(n_points, comm.rank, dtype=np.int64)
         self.n_homes = np.array(comm.allgather(int(n_points)), dtype=np.int64)
-        self.home_offset = _offsets(self.n_homes)
-        self.slot_global = self.home_offset[comm.rank] + np.arange(n_points, dtype=np.int64)
-        self.slot_zone = self.zone.copy() if self.zone is not None else None
-        self.slot_xy = self.coordinates.copy() if self.coordinates is not None else None
+        self.home_offset = exchange.offsets(self.n_homes)
+        self.slots = Slots(self.home_offset[comm.rank] + np.arange(n_points, dtype=np.int64),
+                           self.zone.copy() if self.zone is not None else None,
+                           self.coordinates.copy() if self.coordinates is not None else None)
         self._slots_changed()
         return state
 
@@ -216,6 +92,19 @@ class BalancedMaterial(Constitutive):
         if self._moved:
             raise RuntimeError("BalancedMaterial.initial_fluxes: only before any point has moved")
         return self.inner.initial_fluxes(n_points)
+
+    @property
+    def slot_global(self):
+        """Global point index of each slot this rank works on."""
+        return self.slots.global_index
+
+    @property
+    def slot_zone(self):
+        return self.slots.zone
+
+    @property
+    def slot_xy(self):
+        return self.slots.xy
 
     def _slots_changed(self):
         """Lookup global point -> slot and the slot work arrays, after the slots changed."""
@@ -233,18 +122,6 @@ class BalancedMaterial(Constitutive):
         self.pass_work = np.zeros(n)
 
     # --- the exchange ---------------------------------------------------------------------
-    def _send(self, points, rows):
-        """Rows of home `points` to their workers. Returns (order, send_counts, received
-        rows, source rank of each received row, recv_counts); rows[:, 0] is the point."""
-        dest = self.worker[points]
-        order = np.argsort(dest, kind="stable")
-        send_counts = np.bincount(dest, minlength=self.comm.size).astype(np.int64)
-        recv_counts = np.array(self.comm.alltoall(send_counts.tolist()), dtype=np.int64)
-        rows = np.column_stack([points[order].astype(np.float64), rows[order]])
-        received = _alltoallv(self.comm, rows, send_counts, recv_counts, rows.shape[1])
-        source = np.repeat(np.arange(self.comm.size), recv_counts)
-        return order, send_counts, received, source, recv_counts
-
     def _slots(self, received, source):
         """Slots of the received points and an error text (a bookkeeping bug: reported as a
         fatal error after the reply, never raised between the two exchanges)."""
@@ -254,96 +131,25 @@ class BalancedMaterial(Constitutive):
             return np.zeros(0, dtype=np.int64), "BalancedMaterial: a point was sent to a rank that does not work on it"
         return slots, ""
 
-    def _reply(self, rows, status, cost, messages, source, send_counts, recv_counts):
-        """Results back to the home ranks; the messages of each home rank's points (first
-        failure, else first flag; a fatal error) with alltoall. Returns (rows, status,
-        cost, failure, flag, fatal) on the home rank, rows in the order sent."""
-        comm = self.comm
-        back = _alltoallv(comm, np.column_stack([rows, status, cost]), recv_counts, send_counts, rows.shape[1] + 2)
-        per_source = [["", "", ""] for _ in range(comm.size)]
-        for k, text in messages.items():
-            entry = per_source[source[k]]
-            slot = 2 if status[k] == -np.inf else (0 if status[k] < 0 else 1)
-            if not entry[slot]:
-                entry[slot] = text
-        got = comm.alltoall(per_source)
-        failure = next((g[0] for g in got if g[0]), "")
-        flag = next((g[1] for g in got if g[1]), "")
-        fatal = next((g[2] for g in got if g[2]), "")
-        status_back = back[:, -2]
-        status_back[np.isinf(status_back)] = STATUS_FAILED
-        return back[:, :-2], status_back.astype(np.int32), back[:, -1], failure, flag, fatal
-
     def _work(self, per_point, all_points, slots, source):
-        """Run the inner material on the received slots: `per_point(k)` for each (timed one
-        by one: the cost of each point), or, for a material that updates every row at once,
-        `all_points()` once (time and cost shared). Returns (status, cost, messages) with
-        status -inf for a fatal error; nothing raises before the reply."""
-        n = len(slots)
-        status, cost, wall, messages = np.zeros(n), np.zeros(n), np.zeros(n), {}
+        """exchange.work on the received slots; their wall time and cost are counted."""
+        done = exchange.work(per_point, all_points, slots, source)
+        reported = np.where(np.isfinite(done.cost), done.cost, 0.0)
+        self.slot_wall[slots] += done.wall
+        self.slot_work[slots] += reported
+        self.pass_wall[slots] += done.wall
+        self.pass_work[slots] += reported
+        return done
 
-        def call(function):
-            try:
-                report = function()
-            except ConstitutiveError as error:
-                return None, STATUS_FAILED, str(error)
-            except Exception as error:   # a bug must not leave the other ranks in the exchange
-                return None, -np.inf, f"{type(error).__name__}: {error}"
-            return report, None, ""
-
-        if per_point is not None:
-            for k in range(n):
-                start = time.perf_counter()
-                report, code, text = call(lambda: per_point(k))
-                wall[k] = time.perf_counter() - start
-                if report is not None:
-                    status[k], cost[k] = report.status[0], report.cost[0]
-                    text = report.message if report.status[0] != 0 else ""
-                elif code is not None:
-                    status[k] = code
-                if text:
-                    messages[k] = text
-                if status[k] == -np.inf:
-                    # the same bug would follow: skip the rest, each home rank concerned told why
-                    status[k:] = -np.inf
-                    for s in np.unique(source[k:]):
-                        messages.setdefault(k + int(np.flatnonzero(source[k:] == s)[0]), text)
-                    break
-        elif n:
-            start = time.perf_counter()
-            report, code, text = call(all_points)
-            wall[:] = (time.perf_counter() - start) / n
-            if report is not None:
-                status[:], cost[:] = np.asarray(report.status)[slots], np.asarray(report.cost)[slots]
-                text = report.message
-            elif code is not None:
-                status[:] = code
-            if text:   # the one message goes to the first point of each home rank it concerns
-                for s in np.unique(source):
-                    ks = np.flatnonzero((source == s) & (status != 0))
-                    if ks.size:
-                        messages[int(ks[0])] = text
-        self.slot_wall[slots] += wall
-        self.slot_work[slots] += np.where(np.isfinite(cost), cost, 0.0)
-        self.pass_wall[slots] += wall
-        self.pass_work[slots] += np.where(np.isfinite(cost), cost, 0.0)
-        return status, cost, messages
-
-    @staticmethod
-    def _fatal(source, error):
-        """(status, cost, messages) of a call that could not run: every point fatal."""
-        n = len(source)
-        return np.full(n, -np.inf), np.zeros(n), {int(np.flatnonzero(source == s)[0]): error for s in np.unique(source)}
-
-    def _finish(self, points, order, status_back, cost_back, failure, flag, fatal):
+    def _finish(self, points, order, back):
         """Status and cost in the order of `points`, the message of the report; a fatal error
         of the inner material raises, now that every exchange of the call is done."""
         status = np.empty(len(points), dtype=np.int32)
         cost = np.empty(len(points))
-        status[order], cost[order] = status_back, cost_back
-        if fatal:
-            raise RuntimeError(f"material failed on the rank working on the point: {fatal}")
-        message = failure if (status < 0).any() else (flag if (status > 0).any() else "")
+        status[order], cost[order] = back.status, back.cost
+        if back.fatal:
+            raise RuntimeError(f"material failed on the rank working on the point: {back.fatal}")
+        message = back.failure if (status < 0).any() else (back.flag if (status > 0).any() else "")
         return PointReport(status=status, cost=cost, message=message, cost_unit=self.cost_unit)
 
     # --- the update -----------------------------------------------------------------------
@@ -358,39 +164,38 @@ class BalancedMaterial(Constitutive):
         self._clean = False
         start = time.perf_counter()
         ng, ns, nf = self.gradient_size, self.state_size, self.flux_size
-        order, send_counts, received, source, recv_counts = self._send(
-            points, np.column_stack([gradients[points], state_old[points]]))
+        sent = exchange.send(self.comm, self.worker, points, np.column_stack([gradients[points], state_old[points]]))
         self._own["exchange"] += time.perf_counter() - start
+        received, source = sent.received, sent.source
         slots, error = self._slots(received, source)
         G, SO, SN, F, T = self._gradients, self._state_old, self._state_new, self._flux, self._tangent
         if not error and not self.rate_independent and len(slots) and len(slots) != len(G):
             error = "BalancedMaterial: a rate-dependent material is updated at every point at once"
         width = nf + ns + (0 if self.tangent_on_demand else nf * nf)
         if error:
-            status, cost, messages = self._fatal(source, error)
+            done = exchange.fatal(source, error)
             rows = np.full((len(source), width), np.nan)
         else:
             G[slots] = received[:, 1:1 + ng]
             SO[slots] = received[:, 1 + ng:1 + ng + ns]
             if self.rate_independent:
-                status, cost, messages = self._work(
-                    lambda k: inner.update(G, dt, SO, F, T, SN, points=slots[k:k + 1]), None, slots, source)
+                done = self._work(lambda k: inner.update(G, dt, SO, F, T, SN, points=slots[k:k + 1]), None,
+                                  slots, source)
             else:
-                status, cost, messages = self._work(None, lambda: inner.update(G, dt, SO, F, T, SN, points=None), slots, source)
+                done = self._work(None, lambda: inner.update(G, dt, SO, F, T, SN, points=None), slots, source)
             columns = [F[slots], SN[slots]]
             if not self.tangent_on_demand:
                 columns.append(T[slots].reshape(len(slots), nf * nf))
             rows = np.column_stack(columns).reshape(len(slots), width)
         start = time.perf_counter()
-        back, status_back, cost_back, failure, flag, fatal = self._reply(
-            rows, status, cost, messages, source, send_counts, recv_counts)
+        back = exchange.reply(self.comm, rows, done, sent)
         self._own["exchange"] += time.perf_counter() - start
-        home = points[order]
-        flux_out[home] = back[:, :nf]
-        state_new[home] = back[:, nf:nf + ns]
+        home = points[sent.order]
+        flux_out[home] = back.rows[:, :nf]
+        state_new[home] = back.rows[:, nf:nf + ns]
         if not self.tangent_on_demand:
-            tangent_out[home] = back[:, nf + ns:].reshape(-1, nf, nf)
-        return self._finish(points, order, status_back, cost_back, failure, flag, fatal)
+            tangent_out[home] = back.rows[:, nf + ns:].reshape(-1, nf, nf)
+        return self._finish(points, sent.order, back)
 
     def tangent(self, points, tangent_out):
         """As the inner material's tangent, each point on its worker (collective)."""
@@ -400,22 +205,21 @@ class BalancedMaterial(Constitutive):
         start = time.perf_counter()
         points = np.asarray(points, dtype=np.int64)
         nf = self.flux_size
-        order, send_counts, received, source, recv_counts = self._send(points, np.zeros((len(points), 0)))
+        sent = exchange.send(self.comm, self.worker, points, np.zeros((len(points), 0)))
         self._own["exchange"] += time.perf_counter() - start
-        slots, error = self._slots(received, source)
+        slots, error = self._slots(sent.received, sent.source)
         T = self._tangent
         if error:
-            status, cost, messages = self._fatal(source, error)
-            rows = np.full((len(source), nf * nf), np.nan)
+            done = exchange.fatal(sent.source, error)
+            rows = np.full((len(sent.source), nf * nf), np.nan)
         else:
-            status, cost, messages = self._work(lambda k: inner.tangent(slots[k:k + 1], T), None, slots, source)
+            done = self._work(lambda k: inner.tangent(slots[k:k + 1], T), None, slots, sent.source)
             rows = T[slots].reshape(len(slots), nf * nf)
         start = time.perf_counter()
-        back, status_back, cost_back, failure, flag, fatal = self._reply(
-            rows, status, cost, messages, source, send_counts, recv_counts)
+        back = exchange.reply(self.comm, rows, done, sent)
         self._own["exchange"] += time.perf_counter() - start
-        tangent_out[points[order]] = back.reshape(-1, nf, nf)
-        return self._finish(points, order, status_back, cost_back, failure, flag, fatal)
+        tangent_out[points[sent.order]] = back.rows.reshape(-1, nf, nf)
+        return self._finish(points, sent.order, back)
 
     def rollback(self):
         self.inner.rollback()
@@ -506,47 +310,12 @@ class BalancedMaterial(Constitutive):
         Called after a commit (the exported states are the committed = current ones) or at
         the start of a pass that re-solves every point from its committed state."""
         comm, old = self.comm, self.inner
-        dest = new_worker[self.slot_global]
-        outgoing = []
-        for rank in range(comm.size):
-            slots = np.flatnonzero(dest == rank) if rank != comm.rank else np.zeros(0, dtype=np.int64)
-            outgoing.append(None if not slots.size else self._slot_block(slots, old.export_points(slots)))
-        incoming = comm.alltoall(outgoing)
-        kept = np.flatnonzero(dest == comm.rank)
-        blocks = [self._slot_block(kept, old.export_points(kept) if kept.size else {})]
-        blocks += [b for b in incoming if b is not None]
-        g = np.concatenate([b["global"] for b in blocks])
-        order = np.argsort(g, kind="stable")                  # slots in global point order
-        position = np.empty_like(order)
-        position[order] = np.arange(len(order))
-        self.slot_global = g[order]
-        if self.slot_zone is not None:
-            self.slot_zone = np.concatenate([b["zone"] for b in blocks])[order]
-        if self.slot_xy is not None:
-            self.slot_xy = np.concatenate([b["xy"] for b in blocks])[order]
         for name, value in old.timers.items():
             self._timers_done[name] = self._timers_done.get(name, 0.0) + value
-        inner = self.make_material()
-        if self.slot_zone is not None:
-            inner.set_zones(self.slot_zone)
-        if self.slot_xy is not None:
-            inner.set_point_coordinates(self.slot_xy)
-        inner.initial_state(len(self.slot_global))
-        offset = 0
-        for b in blocks:
-            n = len(b["global"])
-            if n:
-                inner.import_points(position[offset:offset + n], b["arrays"])
-            offset += n
-        self.inner = inner
+        self.inner, self.slots = migrate(comm, old, self.make_material, self.slots, new_worker[self.slot_global])
         self._slots_changed()
         self.worker = new_worker[self.home_offset[comm.rank]:self.home_offset[comm.rank] + self.n_home].copy()
         self._moved = True
-
-    def _slot_block(self, slots, arrays):
-        return {"global": self.slot_global[slots], "arrays": arrays,
-                "zone": None if self.slot_zone is None else self.slot_zone[slots],
-                "xy": None if self.slot_xy is None else self.slot_xy[slots]}
 
     # --- resident state (checkpoints; collective) ----------------------------------------
     def export_points(self, points):
@@ -557,7 +326,7 @@ class BalancedMaterial(Constitutive):
             return self.inner.export_points(points)
         comm = self.comm
         points = np.asarray(points, dtype=np.int64)
-        runs = _runs(self.worker[points])
+        runs = exchange.runs(self.worker[points])
         requests = [[] for _ in range(comm.size)]
         for start, stop in runs:
             requests[int(self.worker[points[start]])].append(points[start:stop])
@@ -566,7 +335,7 @@ class BalancedMaterial(Constitutive):
                    for rank, runs_of in enumerate(asked)]
         got = [list(a) for a in comm.alltoall(answers)]
         parts = [got[int(self.worker[points[start]])].pop(0) for start, _ in runs]
-        return _concatenate(parts) if parts else self.inner.export_points(np.zeros(0, dtype=np.int64))
+        return exchange.concatenate(parts) if parts else self.inner.export_points(np.zeros(0, dtype=np.int64))
 
     def import_points(self, points, arrays, rows=None):
         """Make `arrays` (rows `rows`, default all in order) the resident state of home

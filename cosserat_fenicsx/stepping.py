@@ -79,7 +79,7 @@ class LoadStepper:
             if not info.converged:
                 problem.rollback()
                 cause = info.failure or f"SNES {info.reason} after {info.iterations} iterations"
-                if getattr(info, "flags", "") and not info.failure:
+                if info.flags and not info.failure:
                     cause += f"; {info.flags}"
                 cuts += 1
                 self.log(f"  cut-back at t={t + dt:.6g} (dt={dt:.3g}): {cause}")

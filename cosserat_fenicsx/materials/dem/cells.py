@@ -178,7 +178,7 @@ def mean_grain_diameter(cell):
 
 
 def micropolar_moduli(C, grain_diameter=None):
-    """Moduli of a 6x6 micropolar tangent in the callback's order and the specimen's units
+    """Moduli of a 6x6 micropolar tangent in the Gauss-point order and the specimen's units
     (rows sigma11, sigma22, sigma12, sigma21, m31, m32; columns eps11, eps22, eps12, eps21,
     kappa31, kappa32), read as the isotropic Cosserat law of the hybrid mode (eq. 2.74):
 

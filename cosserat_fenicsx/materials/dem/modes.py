@@ -1,5 +1,5 @@
 """How the six gradients of a Gauss point drive a cell, and how the cell's answer becomes the
-six fluxes and the 6x6 tangent of the callback (`kinematics.GRADIENT_NAMES`, `FLUX_NAMES`).
+six fluxes and the 6x6 tangent of a Gauss point (`kinematics.GRADIENT_NAMES`, `FLUX_NAMES`).
 
 The macro balance is geometrically linear (as for the Ehlers scenes): the strain is
 eps = Grad u + e phi (2.49) and the cell is driven by F = I + sym(eps) (001 eq. 7 with the
@@ -10,7 +10,7 @@ dilate the cell by w^2 / 2 (0.5-5 %) for nothing; at small strain a rigid rotati
 change the stress.
 
 Cell tensors use demcell's order (11, 12, 21, 22) (001 eq. 11): C[r, c] = d sigma_r / d F_c.
-In the callback's order sigma11 -> 0, sigma22 -> 1, sigma12 -> 2, sigma21 -> 3, and the same
+In the Gauss-point order sigma11 -> 0, sigma22 -> 1, sigma12 -> 2, sigma21 -> 3, and the same
 for eps (F_kl - delta_kl -> eps_kl).
 
 Three modes, one object each, all with the same methods (`deformation`, `increment`,
@@ -25,12 +25,12 @@ Three modes, one object each, all with the same methods (`deformation`, `increme
   F = I + Grad u with the rotation phi, rotated by -phi). It needs a cell with
   `micropolar = True` (demcell rotation_mode='micropolar') answering
   `set_deformation(F, rotation=, curvature=)`, a non-symmetric Cauchy stress, a couple
-  stress and `tangent(kind, measure="micropolar")` (6x6 in the callback's order); curvature
+  stress and `tangent(kind, measure="micropolar")` (6x6 in the Gauss-point order); curvature
   and couple stress are converted between the cell's length unit and the specimen's.
 """
 import numpy as np
 
-#: position of demcell's components (11, 12, 21, 22) in the callback's flux / gradient order
+#: position of demcell's components (11, 12, 21, 22) in the Gauss-point flux / gradient order
 CELL_TO_CALLBACK = np.array([0, 2, 3, 1])
 #: symmetric part of a tensor in demcell's order: P @ t = sym(t)
 SYMMETRISER = np.array([[1.0, 0.0, 0.0, 0.0],
@@ -59,7 +59,7 @@ def deformation_gradients(gradients, symmetric=True):
 
 
 def place_cell_tangent(C, out):
-    """Write a 4x4 demcell tangent into the 6x6 callback block (zeros elsewhere)."""
+    """Write a 4x4 demcell tangent into the 6x6 Gauss-point block (zeros elsewhere)."""
     out[:] = 0.0
     out[np.ix_(CELL_TO_CALLBACK, CELL_TO_CALLBACK)] = C
 
@@ -222,7 +222,7 @@ class MicropolarMode:
         self.place(cell.tangent(kind, measure="micropolar"), out)
 
     def place(self, C, out):
-        """The 6x6 block of the cell's micropolar operator (callback order, cell units)."""
+        """The 6x6 block of the cell's micropolar operator (Gauss-point order, cell units)."""
         out[:] = self._scale * C
 
     def describe(self):

@@ -411,7 +411,7 @@ def local_step(E, dt, Ep, p, params, S_out, C_out, t, with_history,
 
 @njit(cache=True, error_model="numpy")
 def update_batch(grad, dt, state_old, params, flux, tangent, state_new, status):
-    """Batch Gauss-point update: the single compiled entry point used by the FE callback.
+    """Batch Gauss-point update: the single compiled entry point used by EhlersMaterial.update.
 
     grad (n, k) with k = 6, plane strain [eps11, eps22, eps12, eps21, kappa31, kappa32]
     (total eps33 = 0, A.4), or k = 7, generalised order [eps11, eps22, eps33, eps12, eps21,

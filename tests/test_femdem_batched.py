@@ -1,4 +1,4 @@
-"""FEM x DEM with batched cells (--batched: materials/dem/batched.py over demcell.batch) against
+"""FEM x DEM with batched cells (--batched: materials/dem/stores.BatchedCells over demcell.batch) against
 the per-cell material: every written number of the run is the same bit for bit (history but
 its wall times, Gauss-point table, every XDMF dataset), with one or two Numba threads, in the
 three modes, with the batched Kruyt tangent, through failing cells, and on 2 ranks balanced."""

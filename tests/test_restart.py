@@ -118,7 +118,7 @@ def test_femdem_checkpoint_moves_between_rank_counts(demo, tmp_path, ranks_befor
 
 
 def test_balanced_run_restarts_bit_for_bit_on_two_ranks(demo, tmp_path):
-    """With load balancing (cells worked on away from their home rank, balancing.py) a
+    """With load balancing (cells worked on away from their home rank, cosserat_fenicsx/balancing) a
     checkpoint fetches every cell from its worker and a restart puts it back home: on 2 ranks
     (the Newton solver's redundant LU by default: the same bits whatever the load,
     tests/test_reproducible.py) the stopped and restarted run is the straight one to every

@@ -1,4 +1,4 @@
-"""Many periodic cells in one struct of arrays, solved by one Numba call (issue 9 item 1).
+"""Many periodic cells in one struct of arrays, solved by one Numba call.
 
 A FEM x DEM rank holds hundreds to thousands of cells. ``CellBatch`` keeps all of them in
 one store, the layout of ``state.pack_states``: every per-particle array concatenated over

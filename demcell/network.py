@@ -3,7 +3,7 @@
 The micropolar generalization of PSTLO (001 appendix B, ``tangent.pstlo_operator``): the
 current equilibrium is linearized with its contacts frozen (every touching contact persists,
 bilateral, no sliding, no new contact) and the linear equilibrium is solved once (sparse LU).
-Kinematics and fluxes follow the micropolar cell conventions (issue 10):
+Kinematics and fluxes follow the micropolar cell conventions (docs/reference/micropolar_cell.md):
 
 * macro inputs: dF (demcell order 11, 12, 21, 22), micro-rotation dphi [rad], curvature
   dkappa (2,) [1/m];

@@ -1,4 +1,4 @@
-"""The quasi-static solve of one cell as one Numba function (issue 9 item 1).
+"""The quasi-static solve of one cell as one Numba function.
 
 ``solve_cell`` is what ``DemCell.solve`` does without a servo: split the way from the
 current F (and, in a micropolar cell, phi and kappa) to the target into sub-steps of at most

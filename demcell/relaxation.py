@@ -70,7 +70,7 @@ def compute_forces(radius, mass, s, dtheta, force, moment, h, pair_i, pair_j, fn
     stress sigma = (1/|Y|) sum_c f^{j->i} (x) (x_j - x_i) (001 eq. 8, tension positive),
     the potential energy (000 eq. 32), contact counts and the largest overlap / radius.
 
-    Speed (issue 9 item 7, benchmarks/dem/dem_profile.py): the cell matrix and the law are read
+    Speed (benchmarks/dem/dem_profile.py): the cell matrix and the law are read
     into scalars once (the stores into the pair arrays would otherwise make the compiler
     reload them for every pair), pair indices are used as unsigned integers (no negative-index
     wraparound code per array access) and the minimum-image rounding uses np.floor (a float;
@@ -312,7 +312,7 @@ def _plain_pair_forces(radius, s, dtheta, force, moment, h00, h01, h10, h11, pai
     law of every FEM x DEM cell. Returns the sums (s11, s12, s21, s22 before the division by
     the area, epot, ncont, nslide, fsum, maxovl); force and moment must be zero on entry.
 
-    Speed (issue 9 item 7, benchmarks/dem/dem_profile.py): the general loop is one long
+    Speed (benchmarks/dem/dem_profile.py): the general loop is one long
     dependent chain per pair (image, square root, division, law, scatter: some 250
     instructions), too long for the out-of-order window to start the next pair while one
     finishes (on a Zen 3 core it ran at about 40 ns per pair). Here it is split into three

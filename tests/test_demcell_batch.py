@@ -1,4 +1,4 @@
-"""demcell.batch.CellBatch against DemCells solved one by one (issue 9 item 1): the same
+"""demcell.batch.CellBatch against DemCells solved one by one: the same
 compiled solve (quasistatic.solve_cell) on slices of one struct of arrays must give every bit
 of every state array, with one thread or two, through sub-steps, lattice reduction, a
 micropolar cell's rotation and curvature, and the growth of full pair arrays."""

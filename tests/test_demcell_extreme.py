@@ -1,4 +1,4 @@
-"""demcell stiff and extreme cases (issue 4, item 11) and bad input (errors before any work)."""
+"""demcell stiff and extreme cases and bad input (errors before any work)."""
 import math
 
 import numpy as np

@@ -1,4 +1,4 @@
-"""The micropolar periodic cell (issue 10; docs/micropolar_cell.md) against references
+"""The micropolar periodic cell (docs/reference/micropolar_cell.md) against references
 nobody here wrote.
 
 * regular hexagonal packing, grain rotations prescribed by the held mean rotation (every disc

@@ -1,4 +1,4 @@
-"""demcell verification against references nobody here wrote (issue 4, item 9).
+"""demcell verification against references nobody here wrote.
 
 * hexagonal packing: closed-form moduli K = sqrt(3) kn / 2, G = sqrt(3) (kn + kt) / 4
   (affine deformation is exact on a monodisperse triangular lattice; e.g. Kruyt &

@@ -1,4 +1,4 @@
-"""Stiff and extreme cases at the Gauss-point level (issue 3 item 8), input validation,
+"""Stiff and extreme cases at the Gauss-point level, input validation,
 purity of the update and the import-lightness of the materials package."""
 import math
 import subprocess

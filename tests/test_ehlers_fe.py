@@ -1,4 +1,4 @@
-"""The Ehlers model at the Gauss points of the FE solver (issue 3 items 1, 3): elastic
+"""The Ehlers model at the Gauss points of the FE solver: elastic
 limit, homogeneous biaxial against the material-point driver, the yield condition after
 the update, and the quadratic convergence of the global Newton in plastic steps.
 

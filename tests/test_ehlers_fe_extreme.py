@@ -1,4 +1,4 @@
-"""Stiff and extreme cases of the FE Ehlers model (issue 3 item 8), on small meshes: each
+"""Stiff and extreme cases of the FE Ehlers model, on small meshes: each
 one converges, or stops with a LoadSteppingError whose message names the cause; never a
 NaN, never a hang. In-process, so they also run under `mpirun -n 2`, where a failure on
 one rank must stop both ranks with the same message."""

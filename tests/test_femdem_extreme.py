@@ -1,4 +1,4 @@
-"""FEM x DEM stiff and extreme cases end cleanly (issue item 9).
+"""FEM x DEM stiff and extreme cases end cleanly.
 
 Every case either converges, cuts the step, or stops with a LoadSteppingError whose message
 names the cause; no NaN reaches the outputs (fluxes, history rows, fields); and under MPI a

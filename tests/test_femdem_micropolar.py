@@ -1,4 +1,4 @@
-"""FEM x DEM in micropolar mode (issue 10 item 4): every flux and tangent block from a
+"""FEM x DEM in micropolar mode: every flux and tangent block from a
 micropolar cell (demcell rotation_mode='micropolar').
 
 References are independent of the code under test: finite differences of the fluxes (through

@@ -1,4 +1,4 @@
-"""Identification (issue 11): error analysis against SciPy and statistics, data checks,
+"""Identification: error analysis against SciPy and statistics, data checks,
 the objective's bookkeeping, and bad input refused before any model run."""
 import json
 import os

@@ -1,4 +1,4 @@
-"""The skew stress a decoupled shear band costs, kernel against closed form (issue 11 item 6).
+"""The skew stress a decoupled shear band costs, kernel against closed form.
 
 docs/regularisation.md ("Why a large k_sigma does not regularise"): a point sheared with the
 Cosserat rotation frozen (band shear in the skew strain) flows plastically on the yield

@@ -1,4 +1,4 @@
-"""Material-point driver: one Gauss point, no mesh, no dolfinx (issue 3 item 4).
+"""Material-point driver: one Gauss point, no mesh, no dolfinx.
 
 Homogeneous tests of the thesis (A.1, A.2, section 6.1.2) with mixed control.  The
 point is driven through the *generalised* 7-component path of the kernel

@@ -130,7 +130,7 @@ class EhlersParameters:
         if self.mu_c is None:
             object.__setattr__(self, "mu_c", self.mu if self.micropolar else 0.0)
         if not self.micropolar:
-            # classical continuum: micropolar terms off (spec 10.9, issue item 5)
+            # classical continuum: micropolar terms off (spec 10.9)
             object.__setattr__(self, "mu_c", 0.0)
             object.__setattr__(self, "k_sigma", 0.0)
             object.__setattr__(self, "k_mu", 0.0)

@@ -2,8 +2,9 @@
 
 ``relaxation.compute_forces`` sends a cell whose law has no bond, dashpot, rolling spring,
 frozen contact or image spin through ``_plain_pair_forces`` (three short loops);
-``plain_path=False`` forces the general loop. Both must give the same bits: forces, moments, contact history and the sums (stress, energy, counts) over a sequence of random
-moves in which contacts slide, open and close. For the other laws the dispatcher must keep
+``plain_path=False`` forces the general loop. Both must give the same bits: forces, moments,
+contact history and the sums (stress, energy, counts) over a sequence of random moves
+in which contacts slide, open and close. For the other laws the dispatcher must keep
 the general loop (a law it wrongly took as plain would lose its bonds or dashpots and differ).
 """
 import math

@@ -132,8 +132,8 @@ class NewtonSolver:
                     merged.pop(key, None)
         for key, value in merged.items():
             opts[prefix + key] = value
-        self.snes.setFunction(self._residual, self.b)
-        self.snes.setJacobian(self._jacobian, self.A)
+        self.snes.setFunction(self.residual, self.b)
+        self.snes.setJacobian(self.jacobian, self.A)
         self.snes.setFromOptions()
         self._force_ratios = []
         if force_rtol is not None:
@@ -184,7 +184,8 @@ class NewtonSolver:
         if self.accept_rtol is not None and self._residual_calls > 1 and ratio < self._best[0]:
             self._best = (float(ratio), self._x_now.array_r.copy())
 
-    def _residual(self, snes, x, b):
+    def residual(self, snes, x, b):
+        """The SNES function callback: b = F(x), the material updated first."""
         start, material = time.perf_counter(), self.timers["material"]
         try:
             self._assemble_residual(x, b)
@@ -247,7 +248,8 @@ class NewtonSolver:
             return True
         return False
 
-    def _jacobian(self, snes, x, A, P):
+    def jacobian(self, snes, x, A, P):
+        """The SNES Jacobian callback: A = dF/dx with the material's tangents."""
         failed = self._material_step(self.problem.before_jacobian)
         start = time.perf_counter()
         A.zeroEntries()
@@ -291,7 +293,7 @@ class NewtonSolver:
             self.x.array[:] = self._best[1]
             self.x.ghostUpdate(addv=PETSc.InsertMode.INSERT, mode=PETSc.ScatterMode.FORWARD)
             self._first_residual = False
-            self._residual(self.snes, self.x, self.b)
+            self.residual(self.snes, self.x, self.b)
             self.problem.w.x.scatter_forward()
             converged = accepted = not self._failure and self._force_ratios[-1] <= self.accept_rtol
             reason = "ACCEPTED_AT_STAGNATION"

@@ -38,7 +38,7 @@ def main():
     solver = test.solver.solver
     cb_owner = test.problem
     timers = {"residual_total": 0.0, "jacobian_assembly": 0.0, "callback_update": 0.0}
-    original_residual, original_jacobian = solver._residual, solver._jacobian
+    original_residual, original_jacobian = solver.residual, solver.jacobian
     original_before = cb_owner.before_residual
 
     def timed(name, fn):

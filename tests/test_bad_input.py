@@ -81,13 +81,15 @@ def test_both_or_neither_material(square):
     ("biaxial", ["--weak-size", "0.2"], "weak_size must be in [0, 0.05), got 0.2"),
     ("biaxial", ["--k-sigma", "-1"], "argument --k-sigma: must be >= 0, got -1"),
     ("biaxial", ["--cell-size", "1e-4"], "gives 1e+06 triangles in a 0.05 x 0.1 m rectangle; at most 5e+05"),
-    ("femdem_biaxial", ["--mesh", "1000x1000"], "needs about 684 GB for its cells; at most 16 GB"),
+    ("femdem_biaxial", ["--mesh", "1000x1000"], "needs about 684 GB for its cells; at most 15.5 GB (0.6 of the 25.8 GB of memory)"),
     ("femdem_biaxial", ["--max-dem-steps", "1e300"], "argument --max-dem-steps: must be an integer in [1, 1e+09]"),
     ("dem_cell", ["--increment", "1e-300"], "at most a million increments"),
     ("material_point", ["--dt", "nan"], "argument --dt: must be > 0, got nan"),
     ("biaxial", ["--classical", "--mu-c", "0", "--eta", "inf"], "argument --eta: must be >= 0, got inf"),
 ])
-def test_demo_rejects_bad_options_before_work(demo, tmp_path, demo_name, args, message):
+def test_demo_rejects_bad_options_before_work(demo, tmp_path, monkeypatch, demo_name, args, message):
+    # the size limits follow the memory (resources.memory_bytes): the messages are those of 24 GiB
+    monkeypatch.setenv("COSSERAT_MEMORY_BYTES", str(24 * 2**30))
     proc = demo(demo_name, *args, "--out", tmp_path / "out", check=False, timeout=60)
     assert proc.returncode == 2
     assert message in proc.stderr

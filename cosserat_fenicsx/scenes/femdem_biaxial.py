@@ -43,6 +43,7 @@ from .. import meshes
 from ..balancing import COSTS
 from ..materials.dem.cells import TANGENTS
 from ..materials.dem.modes import MODES
+from ..resources import memory_bytes
 from ..shear_band import fit_band_collective
 from ..snes import NewtonSolver
 from ..validation import (AXIAL_STRAIN, COUNT, DEGREE, FRACTION, NON_NEGATIVE, POSITIVE, STEPS, Range,
@@ -54,10 +55,11 @@ DEFAULT_SOLVER_OPTIONS = {"snes_linesearch_type": "basic"}   # full Newton steps
 
 #: Gauss points (one cell each) of one NXxNY rectangle: two triangles of 3 points
 CELL_POINTS_PER_RECTANGLE = 6
-#: memory of a cell per disc (114 kB for 228 discs, docs/femdem.md) and the most the cells of
-#: one run may take on this 24 GiB machine
+#: memory of a cell per disc (114 kB for 228 discs, docs/reference/femdem.md)
 BYTES_PER_DISC = 500
-MAX_CELL_BYTES = 16e9
+#: the share of the machine's memory (resources.memory_bytes) the cells of one run may take;
+#: the rest is the FE problem's, MPI's and Python's
+CELL_MEMORY_SHARE = 0.6
 
 
 @dataclass
@@ -159,9 +161,12 @@ class FemDemSettings:
             raise ValueError(f"femdem: cell_threads = {self.cell_threads} exceeds NUMBA_NUM_THREADS = "
                              f"{numba.config.NUMBA_NUM_THREADS} (set the environment variable, or use fewer)")
         cells_bytes = CELL_POINTS_PER_RECTANGLE * self.nx * self.ny * BYTES_PER_DISC * self.cell.particles
-        if not cells_bytes <= MAX_CELL_BYTES:
+        memory = memory_bytes()
+        max_cell_bytes = CELL_MEMORY_SHARE * memory
+        if not cells_bytes <= max_cell_bytes:
             raise ValueError(f"femdem: a {self.nx}x{self.ny} mesh of {self.cell.particles}-disc cells needs about "
-                             f"{cells_bytes / 1e9:.3g} GB for its cells; at most {MAX_CELL_BYTES / 1e9:g} GB")
+                             f"{cells_bytes / 1e9:.3g} GB for its cells; at most {max_cell_bytes / 1e9:.3g} GB "
+                             f"({CELL_MEMORY_SHARE:g} of the {memory / 1e9:.3g} GB of memory)")
 
 
 def reference_moduli(mode, cell, tangent, grain_diameter):

@@ -1,4 +1,4 @@
-"""Closed-form solutions used to verify the solver (derivations in docs/verification.md).
+"""Closed-form solutions used to verify the solver (derivations in docs/reference/verification.md).
 
 Everything here is independent of the finite-element code: plain numpy/scipy.
 """

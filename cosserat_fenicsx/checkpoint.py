@@ -1,4 +1,4 @@
-"""Checkpoint and restart of a load-stepped run, as batch queues need (docs/restart.md).
+"""Checkpoint and restart of a load-stepped run, as batch queues need (docs/reference/restart.md).
 
 After a converged step (every `every` steps, and at `stop_after`) a run writes DIR/checkpoint/:
 

@@ -111,13 +111,13 @@ RUN_CONTROL = ("restart", "checkpoint_every", "stop_after")
 
 
 def add_checkpoint_options(parser, label, solver_options=()):
-    """--checkpoint-every N, --stop-after K, --restart DIR (checkpoint.py, docs/restart.md);
+    """--checkpoint-every N, --stop-after K, --restart DIR (checkpoint.py, docs/reference/restart.md);
     `label` names the demo in its checkpoints. `solver_options` (dests) steer how a step is
     solved, not what is solved (Newton tolerances, the Newton operator): a restart may change
     them, as a run that stalls is continued with another rule; the change is reported."""
     parser.checkpoint_label = label
     parser.restart_solver_options = tuple(solver_options)
-    g = parser.add_argument_group("checkpoint and restart (batch queues; docs/restart.md)")
+    g = parser.add_argument_group("checkpoint and restart (batch queues; docs/reference/restart.md)")
     g.add_argument("--checkpoint-every", type=number(COUNT), default=None, metavar="N",
                    help="write a checkpoint to OUT/checkpoint after every N-th converged step")
     g.add_argument("--stop-after", type=number(COUNT), default=None, metavar="K",

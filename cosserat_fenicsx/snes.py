@@ -24,7 +24,7 @@ material stagnates near the peak at a floor set by the cells' slips, and a step 
 converged as the cells allow. With `stagnation_its` = k as well, such a solve does not wait for
 snes_max_it: it ends as soon as its best FNORM/RNORM is <= accept_rtol and has improved by less
 than 10 % over the last k iterations (past the peak a DEM-backed step otherwise spends most of
-its cap wandering at its floor: docs/femdem.md, "Past the peak").
+its cap wandering at its floor: docs/reference/femdem.md, "Past the peak").
 """
 from dataclasses import dataclass, field
 import time
@@ -52,7 +52,7 @@ DEFAULT_OPTIONS = {
 #: redundant preconditioner). MUMPS distributed over the ranks picks its slave processes by
 #: their load while it factors, so the same system gives other round-off under another
 #: machine load, and Newton, the cells and the load steps amplify it into another run
-#: (docs/robustness.md, "The same numbers"); redundant LU gives the same bits whatever the
+#: (docs/reference/robustness.md, "The same numbers"); redundant LU gives the same bits whatever the
 #: load. `-pc_type lu` (on the command line or in the options) restores the distributed
 #: factorisation, faster for large meshes on many ranks.
 PARALLEL_OPTIONS = {

@@ -1,5 +1,5 @@
 """Data-only encoding of a run's state (history rows, Newton records, a demo's own lists) as
-strict JSON plus numpy arrays, for checkpoints (checkpoint.py, docs/restart.md).
+strict JSON plus numpy arrays, for checkpoints (checkpoint.py, docs/reference/restart.md).
 
 Why not pickle: reading a pickle runs whatever code its author put in it, so a checkpoint
 directory received from someone else could run anything on restart. What this module reads

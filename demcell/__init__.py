@@ -11,11 +11,11 @@ Main entry points:
 * ``homogenize`` / ``Homogenized``    homogenization.py (000 eqs. 14, 16, 38-40; 001 eq. 8)
 * tangents                             tangent.py (001 eqs. 6, 13, 20)
 * micropolar cell: ``DemCell(..., rotation_mode="micropolar")`` takes a micro-rotation and a
-  curvature (docs/micropolar_cell.md); its frozen contact network solved exactly and the
+  curvature (docs/reference/micropolar_cell.md); its frozen contact network solved exactly and the
   uniform-field operator in network.py; closed forms and paper 003's moduli in estimates.py
 
 Conventions: tension positive, (Grad u)_ij = du_i/dX_j, t_i = sigma_ij n_j, 2D quantities
-per unit thickness (stress in N/m). See docs/demcell.md.
+per unit thickness (stress in N/m). See docs/reference/demcell.md.
 """
 import os as _os
 

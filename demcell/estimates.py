@@ -1,6 +1,6 @@
 """Closed forms and estimates of the micropolar moduli of a DEM cell (numpy only).
 
-Theory and conventions: docs/micropolar_cell.md. 2D, per unit thickness, tension positive.
+Theory and conventions: docs/reference/micropolar_cell.md. 2D, per unit thickness, tension positive.
 Isotropic micropolar law written in the FE callback order (cosserat_fenicsx/kinematics.py:
 rows sigma11, sigma22, sigma12, sigma21, m31, m32; columns eps11, eps22, eps12, eps21,
 kappa31, kappa32; eps = Grad u + e phi, thesis 004 eq 2.49):
@@ -84,7 +84,7 @@ def hexagonal_moduli(kn, ks, kr, radius, cell=None):
 def periodic_bending_estimate(B0, mu_c, G, width):
     """Bending modulus of a periodic micropolar cell of width L under uniform curvature.
 
-    Continuum model of the cell (docs/micropolar_cell.md, "Why the couple-stress moduli of a
+    Continuum model of the cell (docs/reference/micropolar_cell.md, "Why the couple-stress moduli of a
     periodic cell depend on its size"): kappa along x1, fields depending on x1 only, rotation
     theta = kappa x1 + periodic, displacement fluctuation periodic. Force balance eliminates
     the displacement fluctuation and leaves the skew strain G theta / (G + mu_c), so
@@ -127,7 +127,7 @@ def cosserat_moduli_003(n_contacts, radius, volume, kn, ks, kr=0.0, k_omega=0.0,
     TANGENTIAL ROLLING FORCE stiffness (Li & Chu's model; no counterpart in demcell: 0),
     k_omega [N m/rad] the rolling MOMENT stiffness = demcell's ContactLaw.kr.
     003 cites Eringen (1999) and Bardet & Vardoulakis (2001) for them and assumes a uniform
-    strain (no fluctuation) and an isotropic fabric. Their origin (docs/micropolar_cell.md):
+    strain (no fluctuation) and an isotropic fabric. Their origin (docs/reference/micropolar_cell.md):
     lambda is the 2D isotropic average exactly; G_c = N l^2 k_s / (6V) (l = 2r) is the 3D
     one (2/3 of the 2D N l^2 k_s / (4V)); in G the combination 2 k_N + 3 k_s is the 3D one
     while the prefactor N r^2 / (2V) is the 2D one; the L^2 k_s term of l_c is the affine

@@ -14,7 +14,7 @@ t_i = sigma_ij n_j; couple stress mu_3j with couple traction m_3 = mu_3j n_j.
   about each centre (tangential force times lever arm, plus the rolling moment) and x_i
   measured from the cell centre. At equilibrium it is independent of that origin. For a
   cell under a homogeneous F (no imposed curvature) it is a fluctuation around zero.
-  In a micropolar cell (docs/micropolar_cell.md) the positions are the reference lever
+  In a micropolar cell (docs/reference/micropolar_cell.md) the positions are the reference lever
   positions X = h_ref (s - c) and branch vectors D = h_ref (s_j - s_i + n), of the copy of
   each contact whose contact point lies in the cell: the couple stress
   is then the work conjugate of the imposed curvature, m = (1/|Y|) dW/dkappa (Hill-Mandel),

@@ -43,7 +43,7 @@ from . import slots
 #: how the grains of a cell rotate: 'free' (rotations follow the contact moments, the macro spin
 #: is added: symmetric stress at equilibrium), 'locked' (no grain rotation, 000 section 4.3.2),
 #: 'micropolar' (mean rotation held at the imposed phi, curvature kappa as a rotation jump across
-#: the periodic images: skew stress and couple stress, docs/micropolar_cell.md)
+#: the periodic images: skew stress and couple stress, docs/reference/micropolar_cell.md)
 ROTATION_MODES = ("free", "locked", "micropolar")
 
 

@@ -36,7 +36,7 @@ def branch_vector(h, s, i, j):
 
 @njit(cache=True)
 def contact_copy(s, i, a, b, lever):
-    """Which periodic copy of a contact a micropolar cell counts (docs/micropolar_cell.md):
+    """Which periodic copy of a contact a micropolar cell counts (docs/reference/micropolar_cell.md):
     the two copies of a contact crossing the cell's side differ in rotation by kappa . Y, and
     the one counted is the copy whose contact point s_i + lever (a, b) lies in the cell
     (lever = a_i / |d|, (a, b) the fractional branch): both its discs are shifted by -m lattice

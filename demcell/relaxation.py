@@ -63,7 +63,7 @@ def compute_forces(radius, mass, s, dtheta, force, moment, h, pair_i, pair_j, fn
     increments are those of the last step (d - d_prev, dtheta). In a micropolar cell
     (law[ROTATIONS] == 2) the image of j shifted by n = -round(s_j - s_i) lattice vectors turned
     by dtheta_j + g . n in the last step, g = (image_g0, image_g1) = dkappa^T h_ref: the rotation
-    jump kappa . Y across the periodic images (docs/micropolar_cell.md). The two periodic copies
+    jump kappa . Y across the periodic images (docs/reference/micropolar_cell.md). The two periodic copies
     of a contact crossing the cell's side differ in rotation by kappa . Y, so the one counted is
     the copy whose contact point lies in the cell (shifted by -floor(s_contact)): a rule that
     does not depend on how the pair is labelled. Also fills the Cauchy
@@ -490,7 +490,7 @@ def constrain_moments(moment, weight, inv_i, pair_i, pair_j, touching, fn, n_pai
     sum_p w_p dtheta~_p = 0 with w_p the sum of the normal forces on disc p
     (``contact_weights``): the rotation fluctuation of the discs, averaged with the forces they
     carry, (1/2 sum_c |fn_c|) sum_c |fn_c| (dth~_i + dth~_j), stays zero
-    (docs/micropolar_cell.md). Its reaction is a couple lambda w_p on disc p,
+    (docs/reference/micropolar_cell.md). Its reaction is a couple lambda w_p on disc p,
     lambda = -sum(w_p M_p / I_p) / sum(w_p^2 / I_p), added to the contact moments, so that
     ``moment`` then holds the net moments. Fills ``weight``; returns (lambda [m], the couple per
     newton of contact force, 1 / sum(w_p^2 / I_p), 0 when no disc carries a force). The sums
@@ -528,7 +528,7 @@ def contact_weights(weight, inv_i, pair_i, pair_j, touching, fn, n_pairs):
 @njit(cache=True, nogil=True)
 def leapfrog_micropolar(force, moment, v, s, omega, dtheta, theta, inv_m, inv_i, weight, inv_s2,
                         hinv00, hinv01, hinv10, hinv11, dt, damp, dphi, gk0, gk1, gd0, gd1):
-    """``leapfrog`` for a micropolar cell (docs/micropolar_cell.md): the net moments (contact
+    """``leapfrog`` for a micropolar cell (docs/reference/micropolar_cell.md): the net moments (contact
     + constraint reaction, ``constrain_moments``) drive the rotation fluctuation, whose rates are
     projected back onto sum_p w_p omega_p = 0 (the local damping is not linear, so the
     constrained accelerations alone would let the mean drift); the total rotation increment of

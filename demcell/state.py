@@ -56,7 +56,7 @@ class CellState:
     n_pairs : number of valid pairs; forces_current : 1 if force/fn/fs match the positions
     time : simulated time [s]
     phi : imposed micro-rotation [rad] and kappa : imposed curvature (2,) [1/m] of a micropolar
-        cell (rotation_mode='micropolar', docs/micropolar_cell.md); 0 for the other modes
+        cell (rotation_mode='micropolar', docs/reference/micropolar_cell.md); 0 for the other modes
     """
 
     radius: np.ndarray

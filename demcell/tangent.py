@@ -21,7 +21,7 @@ total-Lagrangian FE code needs.
   plasticity; its stiffness on symmetric strains floored at STIFFNESS_FLOOR of its largest
   eigenvalue (floor_stiffness), so that a cell at its peak is not a mechanism. Not in 001;
   its elastic operators miss the sliding, which is what makes the macro Newton converge
-  linearly where cells slide (docs/femdem.md, "Newton operators").
+  linearly where cells slide (docs/reference/femdem.md, "Newton operators").
 
 ``TANGENT_KINDS`` declares each kind once (``TangentKind``: what it computes, whether a
 micropolar cell has it, whether a cell store batches it, whether its work releases the GIL);
@@ -58,7 +58,7 @@ SLIP_RATIO = 0.95
 #: and 3.2 % (friction 0.4 and 0.2) CTO's smallest eigenvalue is -330 and -530 N/m against a
 #: largest of 8,900-9,300, and pstlo_sliding's 3 and 35. A macro Newton on such points
 #: diverges (strain increments of 5 % to 2,000 at single Gauss points past the peak of the
-#: 4x8 biaxial, docs/femdem.md). PSTLO's ratio is 0.28-0.33 on the same states; 0.05 leaves
+#: 4x8 biaxial, docs/reference/femdem.md). PSTLO's ratio is 0.28-0.33 on the same states; 0.05 leaves
 #: every pre-peak state measured there untouched (0.05-0.21).
 STIFFNESS_FLOOR = 0.05
 

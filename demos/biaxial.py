@@ -8,10 +8,10 @@ vertical stress (platen reaction / width) rises, peaks, and drops when the band 
 `--classical` switches the micropolar terms off. The defaults are the spec's reference set
 (l_c = 3 mm, mu_c = mu, k_sigma = 10); with it the band is as thin as the classical one and
 follows the mesh, because the plastic skew strain that k_sigma > 0 allows decouples the
-rotation (docs/regularisation.md). A band whose thickness does not depend on the mesh needs
+rotation (docs/results/regularisation.md). A band whose thickness does not depend on the mesh needs
 k_sigma = 0 and an l_c small against the specimen, e.g. the last command below. The set-up
 and every choice the thesis leaves open are in cosserat_fenicsx/scenes/biaxial.py and
-docs/biaxial.md.
+docs/results/ehlers_biaxial.md.
 
 At the final state the band is measured as in section 4.4: the norm of the total strain
 at every Gauss point is fitted with e0 + A exp(-d^2 / 2 H^2) (eq 4.22), d the distance
@@ -35,7 +35,7 @@ and by 'plastic' to see the unloaded wedges outside it (section 6.2.1, Fig. 6.7)
     mpirun -n 2 python3 demos/biaxial.py --k-sigma 0 --l-c 2e-4 --width 0.025 --height 0.05 \
         --cell-size 1.25e-3 --axial-strain 0.08 --steps 80 --out results/biaxial_regularised
 
-Batch queues (docs/restart.md): --checkpoint-every N writes OUT/checkpoint every N steps,
+Batch queues (docs/reference/restart.md): --checkpoint-every N writes OUT/checkpoint every N steps,
 --stop-after K stops cleanly after step K, --restart OUT continues the run from its checkpoint
 (on any number of ranks; on the same number the history is the straight run's, bit for bit):
 

@@ -23,8 +23,8 @@ energy tolerance E_kin/E_pot <= 1e-3 (000 eq. 31).
    two controls differ by about 1-2 % in the stress ratio before the peak).
    Each increment is a quasi-static solve (loading ramp, 001 eq. 7, then dynamic relaxation).
 
-Micropolar loadings (``--test shear`` / ``--test curvature``, docs/demcell.md and
-docs/micropolar_cell.md): after the same packing and isotropic stage, the prepared state
+Micropolar loadings (``--test shear`` / ``--test curvature``, docs/reference/demcell.md and
+docs/reference/micropolar_cell.md): after the same packing and isotropic stage, the prepared state
 (re-referenced: F = I, sigma = -p0 I, as demcell.reference_cell) becomes a micropolar cell
 (rotation_mode "micropolar"): its force-weighted mean grain rotation is held at the imposed
 micro-rotation phi and a curvature kappa = grad phi turns the periodic images. Its stress is
@@ -216,7 +216,7 @@ def plot(history, path):
     plt.close(fig)
 
 
-# ----- micropolar loadings (--test shear / curvature), docs/demcell.md and docs/micropolar_cell.md
+# ----- micropolar loadings (--test shear / curvature), docs/reference/demcell.md and docs/reference/micropolar_cell.md
 SHEAR_COLUMNS = ["shear_strain", "sigma11", "sigma22", "sigma12", "sigma21", "skew_stress", "m31", "m32",
                  "coordination_number", "sliding_fraction"]
 CURVATURE_COLUMNS = ["rotation_jump", "kappa31", "m31", "m32", "skew_stress", "sliding_fraction"]

@@ -54,18 +54,18 @@ contacts_0000.vtk coloured by normal_force.
     mpirun -n 2 python3 demos/femdem_biaxial.py --mesh 2x4 --out results/femdem_biaxial
     mpirun -n 2 python3 demos/femdem_biaxial.py --mode classical --mesh 4x8 --weak-size 2.5e-3 --weak-friction 0.8
 
-Load balancing (docs/balancing.md): with --balance the cells move between ranks after a step
+Load balancing (docs/results/balancing.md): with --balance the cells move between ranks after a step
 whose cell work was uneven (a band: its cells relax far longer), results unchanged; with
 --balance --balance-passes at the start of every Newton pass, by the pass before.
 
-Batch queues (docs/restart.md): --checkpoint-every N writes OUT/checkpoint (every cell's
+Batch queues (docs/reference/restart.md): --checkpoint-every N writes OUT/checkpoint (every cell's
 contact state included) every N steps, --stop-after K stops cleanly after step K, --restart OUT
 continues from the checkpoint, on the same or another number of ranks:
 
     mpirun -n 2 python3 demos/femdem_biaxial.py --mesh 2x4 --checkpoint-every 5 --stop-after 50 --out run
     mpirun -n 2 python3 demos/femdem_biaxial.py --restart run
 
-What it costs (docs/femdem.md): the cells take 99.6 % of the time, about 0.06 CPU s per cell
+What it costs (docs/reference/femdem.md): the cells take 99.6 % of the time, about 0.06 CPU s per cell
 update at 228 discs; a 2x4 mesh (48 cells) to 3 % in 30 steps without a weak zone is a few
 CPU minutes. Past the peak, and from the start in a classical run with a weak zone, the
 elastic operators make the Newton converge slowly (up to 25 iterations per step, steps
@@ -115,11 +115,11 @@ g.add_argument("--no-rotation", action="store_true", help="lock particle rotatio
 g.add_argument("--relaxation-tol", type=number(UNIT_OPEN), default=1e-3, help="cell relaxation tolerance of --criterion (default 1e-3: 001 section 2, 000 Table 3)")
 g.add_argument("--criterion", choices=("energy", "force"), default="force",
                help="cell convergence test: unbalanced-force ratio (001, default) or E_kin/E_pot (000 eq. 31; "
-                    "near the peak it leaves a residual floor above --force-rtol, docs/femdem.md)")
+                    "near the peak it leaves a residual floor above --force-rtol, docs/reference/femdem.md)")
 g.add_argument("--max-dem-steps", type=number(low=1, high=1e9, integer=True), default=200_000, help="DEM steps allowed per cell solve (default %(default)s)")
 g.add_argument("--cell-option", type=cli.key_value, action="append", default=[], metavar="KEY=VALUE",
                help="a further demcell.RelaxationOptions of the cells, e.g. method=fire, dt_safety=0.5, "
-                    "strain_rate=1e-5 (repeat for more; docs/femdem.md, 'Cheaper cells')")
+                    "strain_rate=1e-5 (repeat for more; docs/reference/femdem.md, 'Cheaper cells')")
 g = parser.add_argument_group("coupling")
 cli.add_settings(g, FemDemSettings, COUPLING)
 g.add_argument("--accept-rtol", type=number(NON_NEGATIVE), default=3e-2,

@@ -18,7 +18,7 @@ Data: one CSV per test in the material-point driver's format (its history.csv):
 tension positive; optional ``<quantity>_std`` columns (scatter, eq. 4.26).  Give each as
 ``--data KIND:CONFINING:FILE`` (KIND hydrostatic, isotropic_plane_strain, triaxial,
 biaxial; CONFINING in Pa, empty for hydrostatic: the file's largest pressure), or all of
-them in a JSON --config (see docs/identification.md).  Without data the demo runs the
+them in a JSON --config (see docs/results/identification.md).  Without data the demo runs the
 re-identification of section 6.2.3: virtual data from the Hostun set (the five tests of
 6.1), the named parameters disturbed by --disturb, then recovered.
 

@@ -2,7 +2,7 @@
 """Homogeneous material-point tests of the micropolar Ehlers model (one Gauss point, no mesh).
 
 Tests of the thesis (Scholz 2007, A.1, A.2, section 6.1.2), Hostun sand by default
-(Tables 6.1, 6.4 under reading H1, see docs/ehlers.md):
+(Tables 6.1, 6.4 under reading H1, see docs/reference/ehlers.md):
 
   hydrostatic  sig11 = sig22 = sig33 = -P, P increased to --confining
   triaxial     isotropic consolidation to -P, then axial strain eps11 decreased at

@@ -37,7 +37,7 @@ BASELINES = {
     "femdem_biaxial": ["--mesh", "1x1", "--particles", "40", "--axial-strain", "0.002", "--steps", "2"],
     "identify": ["--steps", "20", "--every", "2", "--max-iterations", "4"],
 }
-#: [s] a SIGTERM is heard when the current C call returns (docs/robustness.md); the longest
+#: [s] a SIGTERM is heard when the current C call returns (docs/reference/robustness.md); the longest
 #: one a valid cheap case can make is a MUMPS factorisation of a mesh near MAX_ELEMENTS
 GRACE = 180.0
 SPECIAL_VALUES = (math.nan, math.inf, -math.inf, 0.0, -1.0, 1e300, -1e300, 1e-300, 1e-9, 1e9, 0.5, 2.0, 7.0)

@@ -21,7 +21,7 @@ def test_demo_outputs_and_band(demo, tmp_path):
     s = read_summary(tmp_path)
     for key in ("peak_vertical_stress", "band_thickness", "band_inclination_deg"):
         assert np.isfinite(s[key])
-    # peak near the homogeneous plane-strain value -0.69 MN/m^2 (docs/ehlers.md), lowered by
+    # peak near the homogeneous plane-strain value -0.69 MN/m^2 (docs/reference/ehlers.md), lowered by
     # the imperfection; a post-peak drop from the band
     assert -0.72e6 < s["peak_vertical_stress"] < -0.6e6
     assert s["final_vertical_stress"] > 0.9 * s["peak_vertical_stress"]

@@ -1,4 +1,4 @@
-"""The run state of a checkpoint (docs/restart.md) is data only: run.json (strict JSON) and
+"""The run state of a checkpoint (docs/reference/restart.md) is data only: run.json (strict JSON) and
 run_arrays.npz (read without pickle), through cosserat_fenicsx.state_codec. What a restart
 hands the scene equals what it saved, types included (a float stays a float, a tuple a tuple,
 an array keeps its dtype and bits); a value that cannot be stored is refused at write time

@@ -56,7 +56,7 @@ def test_demo_default_run(tmp_path):
     assert data[-1, 2] > 0.0 and summary["increments_not_converged"] == 0
 
 
-# ----- micropolar loadings (docs/demcell.md "Micropolar loadings of demos/dem_cell.py")
+# ----- micropolar loadings (docs/reference/demcell.md "Micropolar loadings of demos/dem_cell.py")
 SHEAR_COLUMNS = ["shear_strain", "sigma11", "sigma22", "sigma12", "sigma21", "skew_stress", "m31", "m32",
                  "coordination_number", "sliding_fraction"]
 CURVATURE_COLUMNS = ["rotation_jump", "kappa31", "m31", "m32", "skew_stress", "sliding_fraction"]

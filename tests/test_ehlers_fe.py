@@ -96,7 +96,7 @@ def test_homogeneous_fe_reproduces_material_point(homogeneous):
     assert np.allclose(fe_stress, ref["axial_stress"][1:], rtol=1e-5)
     assert np.allclose([r["volumetric_strain"] for r in phase2], ref["volumetric_strain"][1:], atol=1e-6)
     i = int(np.argmin(fe_stress))
-    assert fe_stress[i] == pytest.approx(-0.6915e6, rel=0.01)     # docs/ehlers.md H1 table
+    assert fe_stress[i] == pytest.approx(-0.6915e6, rel=0.01)     # docs/reference/ehlers.md H1 table
     assert abs(fe_strain[i]) == pytest.approx(0.046, abs=0.004)
 
 

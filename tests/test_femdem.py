@@ -172,7 +172,7 @@ def test_one_and_two_ranks_give_the_same_history(demo, tmp_path):
     """The partition changes the order of the assembly sums and of the linear solve only
     (round-off in the macro fields, 1e-16); a cell turns that into a difference only when it
     moves a relaxation decision (the step at which the unbalanced-force check passes), and such a
-    difference is bounded by the relaxation tolerance (1e-3 of the stress: docs/femdem.md).
+    difference is bounded by the relaxation tolerance (1e-3 of the stress: docs/reference/femdem.md).
     Measured: 1 rank run twice is identical in all written digits; 1 against 2 ranks
     differ by 1e-7 of the stress ratio after one step, 1e-4 after four (checks moved). A partition error (a point missing, a ghost added twice, a rank's
     cells driven by another's gradients) gives differences of order 1."""

@@ -1,4 +1,4 @@
-"""Checkpoint and restart as a batch queue uses them (docs/restart.md): a run stopped with
+"""Checkpoint and restart as a batch queue uses them (docs/reference/restart.md): a run stopped with
 --stop-after K (or killed after its last --checkpoint-every checkpoint) and continued with
 --restart DIR writes the history and the fields of the uninterrupted run, bit for bit on one
 rank; a checkpoint written on 1 rank continues on 2 and the reverse. Bad restarts are refused

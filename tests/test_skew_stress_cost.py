@@ -1,6 +1,6 @@
 """The skew stress a decoupled shear band costs, kernel against closed form.
 
-docs/regularisation.md ("Why a large k_sigma does not regularise"): a point sheared with the
+docs/results/regularisation.md ("Why a large k_sigma does not regularise"): a point sheared with the
 Cosserat rotation frozen (band shear in the skew strain) flows plastically on the yield
 surface (2.76) for every k_sigma > 0, with sigma_skw = (psi1 / k_sigma) S12 (flow rule 2.79 with
 the potential 2.78), and carries the traction sigma12 = f T, f = (1 + psi1/k_sigma) /

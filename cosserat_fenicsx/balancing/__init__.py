@@ -32,7 +32,7 @@ the pass before, see below): the cost of a point is the wall time its worker spe
 inner material's update and tangent for it since the previous commit (`cost='wall'`, the default: the DEM
 time steps a cell reports leave out the tangent's work, e.g. pstlo's linear solve, and the
 cost of a step grows with the contacts: the seconds per DEM step of the points spread by a
-factor 2.5, docs/balancing.md; `cost='work'` uses the reported cost instead). The
+factor 2.5, docs/results/balancing.md; `cost='work'` uses the reported cost instead). The
 per-point costs are gathered on every rank and `assign` (deterministic, the same on every
 rank) moves points from the most to the least loaded rank, each time the one whose move
 best evens the pair (cost nearest half the gap: the heaviest point that does not overshoot),

@@ -1,7 +1,7 @@
 """The identification's JSON inputs checked against their schema before any work: the
 `--config` file (tests, stages, base and start values, bounds) and a `--bounds` file.
 
-A shape that is not the documented one (docs/identification.md, "Data and configuration")
+A shape that is not the documented one (docs/results/identification.md, "Data and configuration")
 is refused in one line naming the file and the field -- a list where an object belongs, a
 bound that is not a pair of numbers, a confining pressure that is a list, an unknown key
 (a typo would otherwise be ignored).  The values themselves (parameter names, ranges, test

@@ -15,7 +15,7 @@ BFGS (4.14, the thesis' choice).  Three SciPy solvers are offered:
 ``SLSQP`` (used when a nonlinear constraint (4.2) applies)
     Kraft's SQP: active-set QP subproblems (4.2.2), BFGS Hessian (4.14), line search (4.10);
     the thesis' method.  Measured on the 14-parameter re-identification
-    (docs/identification.md): f 0.22 -> 6e-7 in 83 iterations with parameters still off by up
+    (docs/results/identification.md): f 0.22 -> 6e-7 in 83 iterations with parameters still off by up
     to 11 % (BFGS cannot learn a condition number of 5e3 in 14 dimensions), where trf reaches
     5e-9 in 20 evaluations.
 ``trust-constr``

@@ -34,7 +34,7 @@ material eta / step_time and the solver works in nominal steps. A study of the t
 at a fixed loading rate keeps steps x step_time constant. The Perzyna time (2.81) of this
 scene is eta = 0.1 s, not the 1e-4 s of the material-point driver: with 1e-4 s the band forms by a snap (the platen force drops
 by several per cent within a platen displacement of 1e-5 H) that displacement control
-cannot follow, and the global Newton stalls at dt -> 0 (measured; docs/biaxial.md). With
+cannot follow, and the global Newton stalls at dt -> 0 (measured; docs/results/ehlers_biaxial.md). With
 0.1 s the overstress sigma_ref eta Lambda stays about 1-2 % of the stress in the band and
 under 0.3 % before the peak; eta, sigma_ref and r are regularisation devices, not
 material data (thesis footnote to 3.32). eta is an option.

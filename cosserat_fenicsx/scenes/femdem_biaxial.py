@@ -27,7 +27,7 @@ Imperfection: a square of side `weak_size` at the lower left corner whose cells 
 contact friction multiplied by `weak_friction_factor` (a weaker cell) triggers the band; 000
 has none (the band there comes from the noise of the cells).
 
-Newton and the cells' tolerance (docs/femdem.md): the macro Newton stops on the force ratio
+Newton and the cells' tolerance (docs/reference/femdem.md): the macro Newton stops on the force ratio
 FNORM/RNORM <= force_rtol (001 section 6), 1e-2 by default, above the floor that cells relaxed
 to 1e-3 leave in the residual; near the peak that floor rises, and a step whose iteration
 stagnates ends at its best iterate if that reached accept_rtol (3e-2), reported as accepted,
@@ -79,7 +79,7 @@ class FemDemSettings:
                              "micropolar: every flux and tangent block from a micropolar cell")
     tangent: str = setting("pstlo", choices=TANGENTS,
                            help="cell operator of the macro Newton (pstlo_sliding: PSTLO with the contacts on their "
-                                "Coulomb limit sliding, not for mode micropolar; docs/femdem.md)")
+                                "Coulomb limit sliding, not for mode micropolar; docs/reference/femdem.md)")
     mu_c: float = setting(None, POSITIVE, "Cosserat modulus [N/m] (hybrid; default: the cell's initial shear modulus)")
     l_c: float = setting(None, NON_NEGATIVE, "internal length [m] (hybrid; default: --grain-diameter)")
     grain_diameter: float = setting(2.5e-4, POSITIVE, "mean grain diameter in the specimen's units [m] (W / 40)")
@@ -98,7 +98,7 @@ class FemDemSettings:
     solver_options: dict = field(default_factory=dict)
     cell: object = None                # materials.dem.CellOptions
     balance: bool = setting(False, help="move cells between ranks so that the ranks finish their cells together "
-                                        "(docs/balancing.md)")
+                                        "(docs/results/balancing.md)")
     balance_threshold: float = setting(1.10, Range(low=1.0, infinite=True),
                                        "... when the slowest rank's cell work / the mean exceeds this (inf: measure "
                                        "the imbalance only)")
@@ -106,14 +106,14 @@ class FemDemSettings:
                                 help="... cell work measured in wall seconds or in DEM steps (work: the same moves "
                                      "in every run, whatever the machine's load)")
     balance_passes: bool = setting(False, help="... at the start of every Newton pass, by the cell work of the pass "
-                                               "before, instead of after every step (docs/balancing.md)")
+                                               "before, instead of after every step (docs/results/balancing.md)")
     batched: bool = setting(False, help="the rank's cells in one struct of arrays, solved by one Numba call (same "
-                                        "results; docs/femdem.md)")
+                                        "results; docs/reference/femdem.md)")
     cell_threads: int = setting(1, COUNT, "Numba threads per rank over the cells, with --batched "
                                           "(ranks x threads <= cores)")
     cell_device: str = setting("cpu", choices=("cpu", "gpu"),
                                help="where a rank's cells live: cpu or gpu, its CUDA device (rank r on GPU r mod the "
-                                    "GPUs; batched; docs/gpu.md); refused without a GPU and Numba's CUDA target")
+                                    "GPUs; batched; docs/results/gpu.md); refused without a GPU and Numba's CUDA target")
 
     def check(self):
         """Raises ValueError naming the setting; called before any cell is created."""
@@ -303,7 +303,7 @@ class FemDemBiaxial(PlatenTest):
         """Gaussian fit of thesis eq 4.22 to the equivalent strain since the start of phase 2,
         over the Gauss points outside the imperfection: the weak cells strain more than the
         rest whether or not a band forms, and a bell fitted through them describes the weak
-        corner, not the band that leaves it (docs/femdem.md, regularisation study)."""
+        corner, not the band that leaves it (docs/reference/femdem.md, regularisation study)."""
         keep = ~self.in_imperfection
         return fit_band_collective(self.comm, self.points[keep], self.equivalent_strain(self.gradients_start)[keep])
 

@@ -7,7 +7,7 @@ with the methods of ``demcell.batch.CellBatch`` (Numba's CUDA target).
 
 Nothing here is imported by ``import demcell``: the CUDA target loads only when a GPU batch is
 asked for. ``NUMBA_ENABLE_CUDASIM=1`` runs the same kernels in Numba's CUDA simulator on the
-CPU (slowly): the tests compare them there with CellBatch bit for bit. docs/gpu.md says how
+CPU (slowly): the tests compare them there with CellBatch bit for bit. docs/results/gpu.md says how
 to run on a GPU and what it gives.
 """
 

@@ -30,7 +30,7 @@ from .relaxation import advance
 #: code of a cell after a launch: waiting, solved, waiting for larger pair slots
 PENDING, SOLVED, FULL = 0, 1, 2
 #: registers per thread of the solve kernel: 168 (three 128-thread blocks per multiprocessor,
-#: a few spilled values) ran 18 % faster than the compiler's 182 on an H200 (docs/gpu.md);
+#: a few spilled values) ran 18 % faster than the compiler's 182 on an H200 (docs/results/gpu.md);
 #: DEMCELL_GPU_MAX_REGISTERS=0 leaves the choice to the compiler
 MAX_REGISTERS = int(os.environ.get("DEMCELL_GPU_MAX_REGISTERS", "168"))
 KERNEL_OPTIONS = {} if config.ENABLE_CUDASIM or not MAX_REGISTERS else {"max_registers": MAX_REGISTERS}

@@ -1,4 +1,4 @@
-"""FEM x DEM: a demcell periodic DEM cell at every Gauss point (docs/femdem.md).
+"""FEM x DEM: a demcell periodic DEM cell at every Gauss point (docs/reference/femdem.md).
 
 The only part of cosserat_fenicsx that imports demcell; importing this subpackage loads
 demcell's Numba kernels, the parent package `cosserat_fenicsx.materials` does not.

@@ -66,7 +66,7 @@ class CellOptions:
     ks: float = 2.0e3                # [N/m]
     rotation: bool = True            # False: particle rotations locked (000 section 4.3.2)
     relaxation_tol: float = 1e-3     # E_kin/E_pot (energy) or unbalanced-force ratio (force)
-    criterion: str = "force"          # 001: max unbalanced force / mean contact force (docs/femdem.md)
+    criterion: str = "force"          # 001: max unbalanced force / mean contact force (docs/reference/femdem.md)
     max_steps: int = 200_000         # DEM steps allowed per solve after the loading ramp
     extra: dict = field(default_factory=dict)   # further demcell.RelaxationOptions
 

@@ -4,7 +4,7 @@ One `demcell.DemCell` per Gauss point of the cells this rank owns, created once 
 the zone's reference cell) and resident on the rank for the whole run, in a cell store
 (stores.py: one DemCell per point, or all of them in a demcell cell store, batched=True).
 
-Which state a cell starts from (docs/femdem.md): every update of a point within a load step
+Which state a cell starts from (docs/reference/femdem.md): every update of a point within a load step
 starts its cell from the committed state of the last converged step and loads it to the
 current iterate's F (001 eq. 7 with F_i the committed F): the step's answer depends on the
 committed state and the target only, not on the Newton path or the line search, as for a

@@ -159,7 +159,7 @@ class HybridMode(_SymmetricDrive):
 
 class MicropolarMode:
     """Every flux from a micropolar cell (rotation and curvature imposed on the grains; demcell
-    rotation_mode='micropolar', docs/micropolar_cell.md).
+    rotation_mode='micropolar', docs/reference/micropolar_cell.md).
 
     The cell is driven by F = I + eps (eps = Grad u + e phi, 2.49, not symmetrised), rotation 0
     and curvature kappa: at small strain the cell at (I + Grad u, phi) seen in axes turned by

@@ -27,7 +27,7 @@ class EhlersMaterial(Constitutive):
     Elasticity (2.70)-(2.74) with the compression point, yield function (2.76)/(2.77),
     potential (2.78), flow (2.79), Perzyna (2.81), hardening/softening (2.82) under
     reading H1 of the spec (Table 6.4 delta, epsilon are Ehlers' original parameters,
-    the thesis uses their reciprocals; uniform sign in 2.82; see docs/ehlers.md),
+    the thesis uses their reciprocals; uniform sign in 2.82; see docs/reference/ehlers.md),
     solved per point as the system of Table 3.1.
 
     Parameters are SI keyword arguments, see :class:`EhlersParameters` (defaults:

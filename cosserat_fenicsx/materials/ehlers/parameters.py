@@ -8,7 +8,7 @@ does the conversion.
 
 Hostun sand defaults (Scholz 2007, Tables 6.1 and 6.4, spec section 6)
 -----------------------------------------------------------------------
-Reading **H1** of the spec (section 4.6), settled in ``docs/ehlers.md``:
+Reading **H1** of the spec (section 4.6), settled in ``docs/reference/ehlers.md``:
 
 * Table 6.4 prints delta and epsilon in m^2/MN, the units of Ehlers' *original*
   parameters (delta_orig^2 I^4, epsilon_orig I^2 have stress units), whereas the
@@ -21,7 +21,7 @@ Reading **H1** of the spec (section 4.6), settled in ``docs/ehlers.md``:
   with the C constants of Table 6.4 unchanged.  Table 3.1 writes the delta and
   epsilon rows as (p - p*)(...); that reading is available as
   ``hardening_rows="table3.1"`` for the evidence runs but it cannot consolidate
-  the Hostun sand beyond ~0.1-0.15 MN/m^2 (see docs/ehlers.md).
+  the Hostun sand beyond ~0.1-0.15 MN/m^2 (see docs/reference/ehlers.md).
 
 Micropolar defaults (spec section 6, re-identification reference set, T6.6):
 l_c = 3 mm, mu_c = mu, k_sigma = 10, k_mu = 0.

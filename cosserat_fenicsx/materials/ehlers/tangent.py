@@ -24,7 +24,7 @@ def solve_nx(A, B, nrhs):
     A and B (NX x >= nrhs) are overwritten (B by the solution). Returns False if a pivot
     vanishes (singular local Jacobian). `nrhs` is made a compile-time literal, so each call
     site (1 for the Newton step, 7 for the tangent) gets a version with constant loop bounds
-    (3-15 % faster than runtime bounds, docs/ehlers.md). The row updates run over the full
+    (3-15 % faster than runtime bounds, docs/reference/ehlers.md). The row updates run over the full
     width (fixed trip count): columns < k+1 of the rows below the pivot are dead storage,
     never read again, so the solution is that of the triangular loop bit for bit.
     """

@@ -12,7 +12,7 @@ A scene's settings (a dataclass) declare each value's range once, on the field
 cli.add_settings makes the same fields command-line options whose type carries that range.
 The command-line side (`Parser`, `number`) declares the range on the option itself, so
 argparse refuses the value while parsing and the property tests can read every numeric
-option of a demo and its range from the parser (`describe_options`; a demo run with
+option of a demo and its range from the parser (`Parser.describe_options`; a demo run with
 COSSERAT_DESCRIBE_OPTIONS=1 prints them as JSON and exits). `Parser.error` prints
 one line (no usage block), on rank 0 only, and exits with status 2 on every rank.
 """
@@ -154,7 +154,7 @@ def field_default(f):
 
 class Number:
     """argparse `type` of a numeric option with its allowed range; the parser keeps it, so
-    `describe_options(parser)` lists every numeric option with its range."""
+    `Parser.describe_options()` lists every numeric option with its range."""
 
     def __init__(self, allowed=ANY):
         self.allowed = allowed
@@ -197,13 +197,6 @@ def key_value(text):
 DESCRIBE_OPTIONS = "COSSERAT_DESCRIBE_OPTIONS"
 
 
-def describe_options(parser):
-    """{option: {low, high, low_open, high_open, integer, infinite, default}} of every
-    numeric option (printed by a demo run with COSSERAT_DESCRIBE_OPTIONS=1)."""
-    return {a.option_strings[-1]: dict(vars(a.type.allowed), default=a.default)
-            for a in parser._actions if isinstance(a.type, Number) and a.option_strings}
-
-
 def _rank():
     """The MPI rank without importing mpi4py (a dolfinx-free demo must stay light)."""
     for key in ("OMPI_COMM_WORLD_RANK", "PMI_RANK", "PMIX_RANK"):
@@ -234,9 +227,15 @@ class Parser(argparse.ArgumentParser):
         if os.environ.get(DESCRIBE_OPTIONS):
             # for tools and the property tests: the numeric options and their ranges, no run
             if _rank() == 0:
-                print(json.dumps(describe_options(self)))
+                print(json.dumps(self.describe_options()))
             sys.exit(0)
         return super().parse_known_args(args, namespace)
+
+    def describe_options(self):
+        """{option: {low, high, low_open, high_open, integer, infinite, default}} of every
+        numeric option (printed by a demo run with COSSERAT_DESCRIBE_OPTIONS=1)."""
+        return {a.option_strings[-1]: dict(vars(a.type.allowed), default=a.default)
+                for a in self._actions if isinstance(a.type, Number) and a.option_strings}
 
     def error(self, message):
         if _rank() == 0:

@@ -15,7 +15,8 @@ on the same state (Numba wrappers loop inside compiled code, so no Python per ca
 * periodic images + gathers: a loop over the listed pairs computing only the minimum-image
   branch vector (``branch_vector``), and the same without the rounding (floor) to the
   nearest image: the difference is the cost of the periodic images;
-* neighbour list: ``build_pairs`` + ``merge_history`` called K times; with the number of
+* neighbour list: ``relaxation.rebuild_neighbours`` (``build_pairs``, ``merge_history`` and the
+  copy back) called K times; with the number of
   rebuilds counted in the timed run this gives the rebuild share;
 * integration: ``relaxation.leapfrog``, the integration of ``advance``, run K times at fixed forces;
 * other: the rest (full step - the above; cell update, loop control, and whatever the kernels
@@ -47,9 +48,8 @@ import numpy as np
 from numba import njit
 
 import demcell as dc
-from demcell.neighbours import build_pairs, merge_history
 from demcell.periodic_cell import branch_vector
-from demcell.relaxation import compute_forces, leapfrog, run
+from demcell.relaxation import compute_forces, leapfrog, rebuild_neighbours, run
 from demcell.slots import N_OUT, NO_CHECK
 
 KN, PRESSURE, FRICTION, DAMPING = 1.0e4, 10.0, 0.4, 0.7
@@ -132,21 +132,13 @@ def _images_k(k, h, s, pair_i, pair_j, n_pairs, rounding):
 
 
 @njit
-def _rebuild_k(k, n, h, s, radius, skin, n_pairs, pair_i, pair_j, fs, mr, bonded, touching, d_prev, fn):
-    cap = pair_i.shape[0]
+def _rebuild_k(k, h, s, radius, skin, s_build, h_build, pair_i, pair_j, fn, fs, mr, bonded, touching, d_prev,
+               n_pairs):
     lost = 0
     for _ in range(k):
-        new_i = np.empty(cap, np.int64)
-        new_j = np.empty(cap, np.int64)
-        m = build_pairs(h, s, radius, skin, new_i, new_j)
-        t_fs = np.empty(cap)
-        t_mr = np.empty(cap)
-        t_bd = np.empty(cap, np.uint8)
-        t_to = np.empty(cap, np.uint8)
-        t_dp = np.empty((cap, 2))
-        t_fn = np.empty(cap)
-        lost += merge_history(n, n_pairs, pair_i, pair_j, m, new_i, new_j, fs, mr, bonded, touching,
-                              d_prev, fn, t_fs, t_mr, t_bd, t_to, t_dp, t_fn)
+        n_pairs, bonds_lost = rebuild_neighbours(h, s, radius, skin, s_build, h_build, pair_i, pair_j, fn, fs, mr,
+                                                 bonded, touching, d_prev, n_pairs)
+        lost += bonds_lost
     return lost
 
 
@@ -198,8 +190,8 @@ def breakdown(state, law, dt, nsteps, skin):
     t_integ = cpu_of(_integrate_k, k, *iargs) / k
     kr = max(20, nsteps // 20)
     w = st.copy()
-    rargs = (st.n_particles, w.h, w.s, w.radius, skin, w.n_pairs, w.pair_i, w.pair_j, w.fs, w.mr,
-             w.bonded, w.touching, w.d_prev, w.fn)
+    rargs = (w.h, w.s, w.radius, skin, w.s_build, w.h_build, w.pair_i, w.pair_j, w.fn, w.fs, w.mr,
+             w.bonded, w.touching, w.d_prev, w.n_pairs)
     _rebuild_k(1, *rargs)
     t_rebuild = cpu_of(_rebuild_k, kr, *rargs) / kr
     step = cpu / nsteps

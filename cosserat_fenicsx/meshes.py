@@ -20,21 +20,27 @@ BYTES_PER_ELEMENT = 2.0e4
 #: by the out-of-memory killer after 9 minutes (the factorisation's peak is above the
 #: measured resident size), 4.2e5 ran
 MEMORY_SHARE = 0.4
-#: more elements than this do not fit a direct solve on this machine (resources.memory_bytes):
-#: refused before gmsh or dolfinx is asked for them; about 5e5 on a 24 GiB machine
-MAX_ELEMENTS = int(MEMORY_SHARE * memory_bytes() / BYTES_PER_ELEMENT)
+
+
+def max_elements():
+    """The most elements a direct solve fits in the memory of this machine
+    (resources.memory_bytes), about 5e5 on a 24 GiB machine: more are refused before gmsh or
+    dolfinx is asked for them. Read when a mesh is checked, so that a malformed
+    COSSERAT_MEMORY_BYTES is refused in one line there, not raised by an import."""
+    return int(MEMORY_SHARE * memory_bytes() / BYTES_PER_ELEMENT)
 
 
 def rectangle_divisions(width, height, cell_size):
     """(nx, ny) squares of about `cell_size` in a width x height rectangle; InputError when
-    that is more than MAX_ELEMENTS (e.g. a cell size of 1e-300 m)."""
+    that is more than max_elements() (e.g. a cell size of 1e-300 m)."""
     check("width", width, RECTANGLE_LENGTH)
     check("height", height, RECTANGLE_LENGTH)
     check("cell_size", cell_size, POSITIVE)
     nx, ny = (max(1.0, float(np.ceil(extent / cell_size - 1e-9))) for extent in (width, height))   # floats: inf, not OverflowError
-    if not 2 * nx * ny <= MAX_ELEMENTS:       # counted as triangles, two a square
+    limit = max_elements()
+    if not 2 * nx * ny <= limit:              # counted as triangles, two a square
         raise InputError(f"cell size {cell_size:g} m gives {2 * nx * ny:.3g} triangles in a {width:g} x {height:g} m "
-                         f"rectangle; at most {MAX_ELEMENTS:.0e}")
+                         f"rectangle; at most {limit:.0e}")
     return int(nx), int(ny)
 
 
@@ -47,11 +53,12 @@ def check_node_at_centre(nx, degree, what="the pin at the bottom centre"):
 
 
 def check_element_count(area, cell_size, what="the mesh"):
-    """InputError when about area / cell_size^2 elements exceed MAX_ELEMENTS."""
+    """InputError when about area / cell_size^2 elements exceed max_elements()."""
     count = area / (cell_size * cell_size) if cell_size * cell_size > 0 else math.inf   # inf, not OverflowError
-    if not count <= MAX_ELEMENTS:
+    limit = max_elements()
+    if not count <= limit:
         raise InputError(f"element size {cell_size:g} m gives about {count:.3g} elements in {what}; "
-                         f"at most {MAX_ELEMENTS:.0e}")
+                         f"at most {limit:.0e}")
 
 
 #: lengths of a geometry [m] whose areas and Jacobians stay well inside double precision
@@ -65,7 +72,7 @@ HOLE_RATIO = Range(1e-4, 1.0, high_open=True)
 
 def check_hole_plate(radius, half_side, cell_size, hole_cell_size):
     """InputError unless the hole plate can be meshed: lengths in LENGTH, radius / half side
-    in HOLE_RATIO, element sizes no coarser than the plate, at most MAX_ELEMENTS elements."""
+    in HOLE_RATIO, element sizes no coarser than the plate, at most max_elements() elements."""
     check("radius", radius, LENGTH)
     check("half_side", half_side, LENGTH)
     if not half_side > radius:

@@ -1,5 +1,5 @@
 """What the machine the code runs on can hold: the memory that sizes the refusals of
-problems too large to solve (meshes.MAX_ELEMENTS, the FEM x DEM cells' memory).
+problems too large to solve (meshes.max_elements, the FEM x DEM cells' memory).
 
 The memory is the machine's physical memory, or the environment variable
 COSSERAT_MEMORY_BYTES where a job has less than the machine (a batch scheduler's

@@ -38,7 +38,7 @@ BASELINES = {
     "identify": ["--steps", "20", "--every", "2", "--max-iterations", "4"],
 }
 #: [s] a SIGTERM is heard when the current C call returns (docs/reference/robustness.md); the longest
-#: one a valid cheap case can make is a MUMPS factorisation of a mesh near MAX_ELEMENTS
+#: one a valid cheap case can make is a MUMPS factorisation of a mesh near meshes.max_elements()
 GRACE = 180.0
 SPECIAL_VALUES = (math.nan, math.inf, -math.inf, 0.0, -1.0, 1e300, -1e300, 1e-300, 1e-9, 1e9, 0.5, 2.0, 7.0)
 

@@ -51,7 +51,6 @@ class QuadratureMap:
     flux_values (n, 6), tangent_values (n, 6, 6)  current fluxes and tangents
     state_old, state_new (n, state_size)  committed and trial float history
     status  (n,) int  status of the last update of each point (0 ok, > 0 flagged)
-     (n,) int  status of the last update of each point (0 ok, > 0 flagged)
     cost    (n,)      work spent on each point since the last commit (material's unit)
     step_cost (n,)    the same for the last converged step (what a load balancer reads)
     timers  wall seconds in gradient evaluation, material update, material tangent
@@ -108,14 +107,6 @@ class QuadratureMap:
         if self._coordinates is None:
             self._coordinates = gauss_point_coordinates(self.mesh, self.degree)
         return self._coordinates
-
-    def set_initial_fluxes(self, values):
-        """Current and committed fluxes (n_points, flux_size) before the first solve, in
-        place of the material's initial_fluxes (read when the store was built); the flux
-        Function follows."""
-        self.flux_values[:] = values
-        self._flux_committed[:] = self.flux_values
-        self.flux.x.array.reshape(-1, self.material.flux_size)[self.dofs] = self.flux_values
 
     # --- UFL views used by the forms -----------------------------------------------
     def stress(self):

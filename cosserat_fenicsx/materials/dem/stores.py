@@ -1,9 +1,10 @@
 """Where a DemMaterial's cells live: one protocol, two stores.
 
-`CellStore` is what DemMaterial asks of the cells of a rank's Gauss points (cell p is the
-cell of point p): solve a set of points at their gradients (fluxes, history rows, statuses,
-DEM steps), their tangents, commit / rollback, their committed states and a cell replaced
-by an imported state. Two stores implement it with the same statuses, messages and bits
+`PointCells` is what DemMaterial asks of the cells of a rank's Gauss points (cell p is the
+cell of point p; demcell.batch.CellStore is the other level, the protocol of the batches
+that `BatchedCells` holds): solve a set of points at their gradients (fluxes, history
+rows, statuses, DEM steps), their tangents, commit / rollback, their committed states and a
+cell replaced by an imported state. Two stores implement it with the same statuses, messages and bits
 (tests/test_femdem_batched.py):
 
 * `CellList`: one demcell.DemCell per point, solved one after the other;
@@ -39,7 +40,7 @@ def cell_outputs(h, steps, status):
             h.n_contacts, steps, status)
 
 
-class CellStore(abc.ABC):
+class PointCells(abc.ABC):
     """The cells of a rank's Gauss points (module docstring). `points` are int64 arrays of
     point indices; `status`, `cost` (n_points given,) and `texts` ({position in points:
     words}) are filled in place by solve and tangent."""
@@ -90,7 +91,7 @@ class CellStore(abc.ABC):
         return {}
 
 
-class CellList(CellStore):
+class CellList(PointCells):
     """One DemCell per point, solved one by one."""
 
     def __init__(self, cells, mode, max_strain_increment):
@@ -173,7 +174,7 @@ class CellList(CellStore):
         return sum(c.memory_bytes() for c in self._cells)
 
 
-class BatchedCells(CellStore):
+class BatchedCells(PointCells):
     """The cells in a demcell cell store: device 'cpu' (a CellBatch on the rank's Numba
     threads) or 'gpu' (a DeviceCellBatch on the rank's CUDA device)."""
 

@@ -99,11 +99,8 @@ class BalancedMaterial(Constitutive):
         return self.slots.global_index
 
     @property
-    def slot_zone(self):
-        return self.slots.zone
-
-    @property
     def slot_xy(self):
+        """x, y [m] of the point in each slot (None when no coordinates were given)."""
         return self.slots.xy
 
     def _slots_changed(self):

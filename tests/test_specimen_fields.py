@@ -268,6 +268,13 @@ def test_sliding_fraction_and_void_ratio():
                    excluded=perimeter, sliding=sliding)
     expect = np.bincount(np.concatenate([i[sliding], j[sliding]]), minlength=len(x)) / f.coordination
     assert np.allclose(f.sliding_fraction, expect)
+    # the engine's int8 flags are accepted as they are
+    g = rev_fields(x, radius, np.zeros_like(x), np.zeros(len(x)), i, j, fn, fs, external_force=ext,
+                   excluded=perimeter.astype(np.int8), sliding=sliding.astype(np.int8),
+                   touching=np.ones(i.size, np.int8))
+    assert np.array_equal(g.valid, f.valid) and np.allclose(g.sliding_fraction, f.sliding_fraction)
+    with pytest.raises(InputError, match="excluded"):
+        rev_fields(x, radius, np.zeros_like(x), np.zeros(len(x)), i, j, fn, fs, excluded=np.full(len(x), 2))
     assert np.allclose(f.void_ratio[f.valid], 2.0 * math.sqrt(3.0) / math.pi - 1.0, rtol=1e-4)
 
 

@@ -31,7 +31,7 @@ from numba import njit, prange
 from .. import checks
 from ..checks import POSITIVE, Range
 from ..errors import InputError
-from .rev import RevFields, contact_geometry, rev_fields  # noqa: F401 (public here)
+from .rev import RevFields, contact_geometry, flags, rev_fields  # noqa: F401 (public here)
 
 __all__ = ["RevFields", "rev_fields", "patch_gradient", "patch_divergence", "moment_balance", "MomentBalance",
            "coarse_grain", "coarse_grained_stress"]
@@ -194,8 +194,7 @@ def patch_gradient(position, values, valid, neighbours, periodic_width=None):
     raw = np.asarray(values)
     single = raw.ndim == 1
     values = _values(raw, n, single)
-    valid = checks.array("valid", valid, (n,), dtype=bool)
-    valid &= np.all(np.isfinite(values), axis=1)
+    valid = flags("valid", valid, n) & np.all(np.isfinite(values), axis=1)
     offsets, index = _neighbour_csr(neighbours, n)
     width = checks.optional("periodic_width", periodic_width, POSITIVE) or 0.0
     out = np.full((n, values.shape[1], 2), np.nan)
@@ -325,7 +324,7 @@ def coarse_grain(points, values, grid_x, grid_y, width, valid=None, periodic_wid
     gy = _grid("grid_y", grid_y)
     keep = np.all(np.isfinite(values), axis=1)
     if valid is not None:
-        keep &= checks.array("valid", valid, (n,), dtype=bool)
+        keep &= flags("valid", valid, n)
     period = checks.optional("periodic_width", periodic_width, POSITIVE) or 0.0
     num = np.zeros((gy.size, gx.size, values.shape[1]))
     den = np.zeros((gy.size, gx.size))

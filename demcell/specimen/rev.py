@@ -116,44 +116,35 @@ def _visit_cells(position, radius, factor, width, cell, order, start, ncx, ncy, 
             offsets[c] = k
 
 
-@njit(cache=True)
 def _distance_neighbours(position, radius, factor, width):
     """Members by distance: for each disc the discs b != c with |x_b - x_c| <= factor (r_b +
-    r_c), by a cell list (cells of side factor * 2 r_max). Returns CSR (offsets, index)."""
+    r_c), by a cell list (cells of side factor * 2 r_max). Returns CSR (offsets, index).
+    Plain Python around the parallel kernel: a cached kernel that calls a parallel one can
+    crash when Numba reloads it from its cache."""
     n = position.shape[0]
-    rmax = radius.max()
-    side = 2.0 * factor * rmax
-    xmin = position[:, 0].min()
-    ymin = position[:, 1].min()
+    side = 2.0 * factor * float(radius.max())
+    ymin = float(position[:, 1].min())
     if width > 0.0:
-        xmin = 0.0
         ncx = max(1, int(math.floor(width / side)))
+        x = position[:, 0] - width * np.floor(position[:, 0] / width)
         side_x = width / ncx
     else:
-        ncx = int((position[:, 0].max() - xmin) / side) + 1
+        x = position[:, 0] - float(position[:, 0].min())
+        ncx = int(x.max() / side) + 1
         side_x = side
-    ncy = int((position[:, 1].max() - ymin) / side) + 1
-    cell = np.empty(n, np.int64)
-    for p in range(n):
-        x = position[p, 0] - xmin
-        if width > 0.0:
-            x -= width * math.floor(x / width)
-        cx = min(int(x / side_x), ncx - 1)
-        cy = min(int((position[p, 1] - ymin) / side), ncy - 1)
-        cell[p] = cy * ncx + cx
-    order = np.argsort(cell)
+    ncy = int((float(position[:, 1].max()) - ymin) / side) + 1
+    cx = np.minimum((x / side_x).astype(np.int64), ncx - 1)
+    cy = np.minimum(((position[:, 1] - ymin) / side).astype(np.int64), ncy - 1)
+    cell = cy * ncx + cx
+    order = np.argsort(cell, kind="stable").astype(np.int64)
     start = np.zeros(ncx * ncy + 1, np.int64)
-    for p in range(n):
-        start[cell[p] + 1] += 1
-    for q in range(ncx * ncy):
-        start[q + 1] += start[q]
+    np.cumsum(np.bincount(cell, minlength=ncx * ncy), out=start[1:])
     # x cells to visit: the 3 around (all of them when fewer than 3, so none is visited twice)
     wrap_all = width > 0.0 and ncx < 3
     count = np.zeros(n, np.int64)
     _visit_cells(position, radius, factor, width, cell, order, start, ncx, ncy, wrap_all, count, count, False)
     offsets = np.zeros(n + 1, np.int64)
-    for p in range(n):
-        offsets[p + 1] = offsets[p] + count[p]
+    np.cumsum(count, out=offsets[1:])
     index = np.empty(offsets[n], np.int64)
     _visit_cells(position, radius, factor, width, cell, order, start, ncx, ncy, wrap_all, offsets, index, True)
     return offsets, index
@@ -489,6 +480,17 @@ def contact_geometry(position, radius, pair_i, pair_j, fn, fs, mr=None, periodic
     return d, dist, overlap, force_j, moment_i, moment_j
 
 
+def flags(name, value, n):
+    """A per-item flag array (bool, or integers 0/1 such as the engine's int8 ``touching``,
+    ``on_wall``, ``on_boundary``) as bool of length n, else InputError."""
+    raw = np.asarray(value)
+    if raw.dtype.kind in "iu" and raw.ndim == 1 and raw.size and not np.isin(raw, (0, 1)).all():
+        raise InputError(f"{name} must hold booleans or 0/1, got {raw[~np.isin(raw, (0, 1))][0]!r}")
+    if raw.dtype.kind in "iu":
+        raw = raw.astype(bool)
+    return checks.array(name, raw, (n,), dtype=bool)
+
+
 def _check_inputs(position, radius, displacement, rotation, pair_i, pair_j, fn, fs, mr, external_force,
                   external_moment, excluded, touching, sliding, periodic_width):
     position = checks.array("position", position, (None, 2))
@@ -511,9 +513,9 @@ def _check_inputs(position, radius, displacement, rotation, pair_i, pair_j, fn, 
                       else checks.array("external_force", external_force, (n, 2)))
     external_moment = (np.zeros(n) if external_moment is None
                        else checks.array("external_moment", external_moment, (n,)))
-    excluded = np.zeros(n, bool) if excluded is None else checks.array("excluded", excluded, (n,), dtype=bool)
-    touching = None if touching is None else checks.array("touching", touching, (m,), dtype=bool)
-    sliding = None if sliding is None else checks.array("sliding", sliding, (m,), dtype=bool)
+    excluded = np.zeros(n, bool) if excluded is None else flags("excluded", excluded, n)
+    touching = None if touching is None else flags("touching", touching, m)
+    sliding = None if sliding is None else flags("sliding", sliding, m)
     width = checks.optional("periodic_width", periodic_width, POSITIVE) or 0.0
     return (position, radius, displacement, rotation, pair_i, pair_j, fn, fs, mr, external_force,
             external_moment, excluded, touching, sliding, width)
@@ -534,7 +536,8 @@ def rev_fields(position, radius, displacement, rotation, pair_i, pair_j, fn, fs,
     external_moment (n,) [N m] (None: 0); excluded (n,) bool: discs whose REV is invalid
     (free boundary, wall contact); periodic_width [m]: x-periodic specimen (minimum image);
     touching (m,) bool: which pairs are contacts (None: overlap > 0); sliding (m,) bool: the
-    sliding contacts (gives sliding_fraction).
+    sliding contacts (gives sliding_fraction). Flag arrays may be 0/1 integers (the engine's
+    int8 ``touching``; ``excluded = on_boundary | on_wall``).
 
     neighbours: "contacts" (004's REV) or "distance" (all discs within (r_b + r_c)(1 +
     distance_tolerance)); rotation_normalisation: "solid" (sum v, default) or "literal" (V_R,

@@ -240,6 +240,66 @@ def test_h4_per_rev_moment_identity_with_tangential_forces(boundary_contacts):
     assert np.allclose(g.m3x[ok], f.m3x[ok], rtol=1e-8, atol=1e-8 * scale)
 
 
+def brute_force_rev(c, x, radius, i, j, fn, fs, mr, ext, ext_m, shared):
+    """T and M of disc c's REV straight from 7.18, 7.31 and 7.38 (centroid origin), pair by pair."""
+    ring = sorted(set(j[i == c]) | set(i[j == c]), key=lambda b: math.atan2(*(x[b] - x[c])[::-1]))
+    members = ring + [c]
+    poly = x[ring] - x[c]
+    cross = poly[:, 0] * np.roll(poly[:, 1], -1) - np.roll(poly[:, 0], -1) * poly[:, 1]
+    area = 0.5 * cross.sum()
+    centroid = ((poly + np.roll(poly, -1, axis=0)) * cross[:, None]).sum(axis=0) / (6.0 * area)
+    T = np.zeros((2, 2))
+    M = np.zeros(2)
+    for b in members:
+        f = ext[b].copy()
+        m = ext_m[b]
+        for k in np.nonzero((i == b) | (j == b))[0]:
+            other = j[k] if i[k] == b else i[k]
+            weight = 1.0
+            if other in members:
+                weight = 0.0
+                if shared and b != c and other != c:
+                    gap = abs(ring.index(b) - ring.index(other))
+                    weight = 0.5 if gap in (1, len(ring) - 1) else 0.0
+            d = x[j[k]] - x[i[k]]
+            dist = np.hypot(*d)
+            n = d / dist
+            fj = fn[k] * n + fs[k] * np.array([-n[1], n[0]])
+            a = radius[b] - 0.5 * (radius[i[k]] + radius[j[k]] - dist)
+            if b == j[k]:
+                f += weight * fj
+                m += weight * (-a * fs[k] + mr[k])
+            else:
+                f -= weight * fj
+                m += weight * (-a * fs[k] - mr[k])
+        T += np.outer(f, x[b] - x[c]) / area
+        M += m * (x[b] - x[c] - centroid) / area
+    return T, M
+
+
+@pytest.mark.parametrize("shared", [True, False], ids=["shared", "internal"])
+def test_stress_and_couple_stress_against_pair_by_pair_sums(shared):
+    """The kernel's T and M of a disordered set with tangential and rolling forces (out of
+    equilibrium, external loads on some discs) equal the pair-by-pair sums of 7.18, 7.31 and
+    7.38 with the centroid origin."""
+    x, radius, i, j, rng = disordered(seed=5, nx=7, ny=7)
+    fn = rng.uniform(10.0, 60.0, i.size)
+    fs = rng.uniform(-20.0, 20.0, i.size)
+    mr = rng.uniform(-2.0, 2.0, i.size)
+    ext = rng.normal(0.0, 5.0, x.shape)
+    ext_m = rng.normal(0.0, 1.0, len(x))
+    f = rev_fields(x, radius, np.zeros_like(x), np.zeros(len(x)), i, j, fn, fs, mr, external_force=ext,
+                   external_moment=ext_m, touching=np.ones(i.size, bool),
+                   boundary_contacts="shared" if shared else "internal")
+    checked = 0
+    for c in np.nonzero(f.valid)[0]:
+        T, M = brute_force_rev(c, x, radius, i, j, fn, fs, mr, ext, ext_m, shared)
+        assert np.allclose(f.stress()[c], T, rtol=1e-12, atol=1e-12 * np.abs(T).max())
+        assert np.allclose([f.m3x[c], f.m3y[c]], M, rtol=1e-12, atol=1e-12 * np.abs(M).max())
+        checked += 1
+    assert checked >= 20
+
+
 def test_invalid_revs_counted():
     """< 3 members, centre outside its polygon, excluded disc -> NaN and counted."""
     x = np.array([[0.0, 0.0], [2.0, 0.0], [-1.0, 1.7], [-1.0, -1.7], [4.0, 0.0], [1.0, 1.7], [1.0, -1.7]])

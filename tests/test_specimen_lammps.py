@@ -68,6 +68,8 @@ def test_table_7_1_mapping():
     assert xi == pytest.approx(0.399, abs=1e-3)
     by_ratio = L.lammps_law(law.with_(normal_damping=xi), MASS / 2.0)
     assert by_ratio.gamma_n == pytest.approx(ll.gamma_n, rel=1e-14)
+    # the wall's dashpot coefficient is the disc-disc one, also from a ratio (004 eq. 7.43)
+    assert by_ratio.wall_gamma_n == pytest.approx(ll.wall_gamma_n, rel=1e-14)
 
 
 @pytest.mark.parametrize("clipped", [False, True])
@@ -111,8 +113,8 @@ def test_small_specimen_round_trip(tmp_path):
     np.testing.assert_array_equal(d["position"][0], discs.position)
     # the platens moved as prescribed and pushed the discs
     assert w["timestep"].tolist() == list(range(n_steps + 1))
-    np.testing.assert_allclose(w["wall_position"][-1], np.array(walls.position) + np.array(walls.velocity) * n_steps * dt,
-                               rtol=0, atol=1e-12)
+    moved = np.array(walls.position) + np.array(walls.velocity) * n_steps * dt
+    np.testing.assert_allclose(w["wall_position"][-1], moved, rtol=0, atol=1e-12)
     bottom, top = w["wall_force"][:, 0, 1], w["wall_force"][:, 1, 1]
     assert bottom[-1] > 0.0 and top[-1] < 0.0 and w["contacts"][-1, 0] >= 6
     assert np.mean(bottom[-50:]) == pytest.approx(-np.mean(top[-50:]), rel=0.2)

@@ -38,8 +38,11 @@ The law, ours -> LAMMPS ``gran/hooke/history kn kt gamma_n gamma_t xmu dampflag`
   the one given is scaled by its m_eff / m_eff(given) (documented approximation);
 * gamma_t [1/s] likewise from D_t or xi_t (dampflag 1); LAMMPS puts the tangential dashpot
   inside the Coulomb-limited force, ours adds it only while the contact sticks;
-* disc-wall: the same kn and D_n (004 eq. 7.43), gamma_n,wall = D_n / m_i (m_eff = m_i); smooth
-  platens (kt = 0, xmu = 0) as 004 unless a wall friction is asked for;
+* disc-wall: the same kn and dashpot coefficient D_n as two discs (004 eq. 7.43; from a ratio,
+  that of two copies of the disc, as demcell.specimen.walls), so gamma_n,wall = D_n / m_i
+  (LAMMPS's m_eff against a wall is m_i); smooth platens (kt = 0, xmu = 0) as 004 unless a
+  wall friction is asked for. demcell's frictional wall slips by v.t - r omega with the
+  law's ks and no tangential dashpot; LAMMPS's wall/gran the same with its own history;
 * clipping: LAMMPS's normal force kn overlap - m_eff gamma_n v_n is NOT clipped by default
   (the dashpot may pull during separation: the unclipped closed form, t_c = 0.04294 s and
   e = 0.2549 for Table 7.1); the ``limit_damping`` keyword clips it at zero (t_c = 0.03172 s,
@@ -133,7 +136,8 @@ def lammps_law(law, mass_eff, normal_dashpot=None, tangential_dashpot=None, clip
     """The ``LammpsLaw`` of a demcell ``ContactLaw`` (see the module docstring).
 
     mass_eff [kg/m]: the m_eff of a disc-disc pair (m/2 for equal discs); wall_mass [kg/m]:
-    the m_eff of a disc-wall pair (the disc's mass; None: 2 mass_eff);
+    the m_eff of a disc-wall pair (the disc's mass; None: 2 mass_eff); the wall dashpot
+    coefficient is the disc-disc one, c = D_n or 2 xi_n sqrt(mass_eff kn);
     normal_dashpot, tangential_dashpot [N s/m]: D_n, D_t of 004 eqs. 7.4 and 7.8 (the thesis'
     coefficients; None: from the law's damping ratios xi_n, xi_t); the walls get the same
     coefficients (004 eq. 7.43); clip_normal: LAMMPS ``limit_damping``;
@@ -148,20 +152,20 @@ def lammps_law(law, mass_eff, normal_dashpot=None, tangential_dashpot=None, clip
                          "use rolling_stiffness = 0 and no cohesion for a LAMMPS run")
     if not law.rotations:
         raise InputError("a LAMMPS run integrates the rotations (fix nve/sphere): use ContactLaw(rotations=True)")
+    # dashpot coefficients [N s/m]; a wall has the disc-disc coefficient (004 eq. 7.43), as
+    # demcell.specimen.walls (from a ratio: that of two copies of the disc, m_eff = m/2)
     if normal_dashpot is None:
         c_n = 2.0 * law.normal_damping * math.sqrt(mass_eff * law.kn)
-        c_n_wall = 2.0 * law.normal_damping * math.sqrt(wall_mass * law.kn)
     else:
-        c_n = c_n_wall = normal_dashpot
+        c_n = normal_dashpot
     if tangential_dashpot is None:
         c_t = 2.0 * law.tangential_damping * math.sqrt(mass_eff * law.ks)
-        c_t_wall = 2.0 * law.tangential_damping * math.sqrt(wall_mass * law.ks)
     else:
-        c_t = c_t_wall = tangential_dashpot
+        c_t = tangential_dashpot
     smooth = wall_friction == 0.0
     return LammpsLaw(kn=law.kn, kt=law.ks, friction=law.friction, gamma_n=c_n / mass_eff, gamma_t=c_t / mass_eff,
                      wall_kt=0.0 if smooth else law.ks, wall_friction=wall_friction,
-                     wall_gamma_n=c_n_wall / wall_mass, wall_gamma_t=0.0 if smooth else c_t_wall / wall_mass,
+                     wall_gamma_n=c_n / wall_mass, wall_gamma_t=0.0 if smooth else c_t / wall_mass,
                      limit_damping=bool(clip_normal))
 
 
@@ -175,8 +179,9 @@ class LammpsWalls:
     active: tuple = (True, True, False, False)
 
     def __post_init__(self):
-        object.__setattr__(self, "position", tuple(float(v) for v in checks.array("walls.position", self.position, (4,))))
-        object.__setattr__(self, "velocity", tuple(float(v) for v in checks.array("walls.velocity", self.velocity, (4,))))
+        for name in ("position", "velocity"):
+            values = checks.array(f"walls.{name}", getattr(self, name), (4,))
+            object.__setattr__(self, name, tuple(float(v) for v in values))
         active = checks.array("walls.active", self.active, (4,), dtype=bool)
         object.__setattr__(self, "active", tuple(bool(a) for a in active))
         if not (self.active[0] and self.active[1]):

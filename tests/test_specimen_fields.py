@@ -422,6 +422,16 @@ def test_coarse_grain_normalised_weights_and_nan_far_away():
     two = coarse_grain(x, vals, gx, gy, 1.0)
     assert two.shape == (33, 36, 2)
     assert np.allclose(two[near, 1][np.isfinite(two[near, 1])], 1.0)
+    # x-periodic: a disc moved by whole periods (unwrapped positions) weighs the same, and a
+    # node near x = 0 sees the discs near x = width through the seam
+    width = 16.0
+    xs = x.copy()
+    xs[::3, 0] += 2.0 * width
+    gp = np.linspace(0.0, width, 17)
+    a = coarse_grain(x, x[:, 1], gp, gy, 1.0, periodic_width=width)
+    b = coarse_grain(xs, x[:, 1], gp, gy, 1.0, periodic_width=width)
+    assert np.allclose(a, b, equal_nan=True, rtol=1e-13)
+    assert np.allclose(a[:, 0], a[:, -1], equal_nan=True, rtol=1e-12)
 
 
 def test_bad_input_refused_in_one_line():

@@ -312,7 +312,9 @@ def coarse_grain(points, values, grid_x, grid_y, width, valid=None, periodic_wid
     phi(X) = sum_i w_i v_i / sum_i w_i, w_i = exp(-|X - x_i|^2 / (2 width^2)), over the points
     with valid (default all) and finite values within cutoff * width of X (default 3 widths:
     NaN where none). points (n,2) [m]; values (n,) or (n,k); width [m] the kernel's standard
-    deviation (a user option: about one to two disc diameters). Returns (ny, nx) or (ny, nx, k)."""
+    deviation (a user option: about one to two disc diameters); periodic_width [m]: x-periodic
+    (the grid within [0, periodic_width]). Returns (ny, nx) or (ny, nx, k), the layout of
+    files.GridSeries."""
     points = checks.array("points", points, (None, 2))
     n = points.shape[0]
     raw = np.asarray(values)
@@ -326,6 +328,11 @@ def coarse_grain(points, values, grid_x, grid_y, width, valid=None, periodic_wid
     if valid is not None:
         keep &= flags("valid", valid, n)
     period = checks.optional("periodic_width", periodic_width, POSITIVE) or 0.0
+    if period > 0.0:
+        # unwrapped positions (a LAMMPS dump's xu) back into [0, period): the kernel adds the
+        # images at -period and +period only
+        points = points.copy()
+        points[:, 0] -= period * np.floor(points[:, 0] / period)
     num = np.zeros((gy.size, gx.size, values.shape[1]))
     den = np.zeros((gy.size, gx.size))
     near = np.zeros((gy.size, gx.size), bool)

@@ -132,11 +132,19 @@ def contact_update(overlap, d_overlap, d_ut, d_theta_r, fs_old, mr_old, bonded,
 
 @njit(cache=True)
 def contact_update_params(overlap, d_overlap, d_ut, d_theta_r, fs_old, mr_old, bonded,
-                          kn, ks, mu, kr, eta_r, xi_n, xi_t, coh_n, coh_t, m_eff, r_eff, dt):
+                          kn, ks, mu, kr, eta_r, xi_n, xi_t, coh_n, coh_t, m_eff, r_eff, dt,
+                          clip_normal=False, limit_on_total=False):
     """``contact_update`` with the law parameters as scalars (kn, ks [N/m], mu [-], kr [N m/rad],
     eta_r [-], xi_n, xi_t [-], cohesions [N]): the force loop reads the law array once per
     call instead of once per contact (the stores into the pair arrays otherwise force the
-    compiler to reload it, as it cannot prove that they do not alias). Same arithmetic."""
+    compiler to reload it, as it cannot prove that they do not alias). Same arithmetic.
+
+    clip_normal: the total normal force (spring + dashpot) is clipped at >= 0, so that the
+    dashpot never pulls two separating discs together (dns-spec A2; the contact then ends
+    when the force vanishes, before the overlap does). limit_on_total: the Coulomb and rolling
+    limits use that total normal force, as 004 eq. 7.11 reads, instead of the elastic part
+    kn h. Both off (the defaults, the periodic cell's law): the same operations as before
+    the flags existed."""
     fn_el = kn * overlap
     if bonded == 1 and fn_el < -coh_n:
         bonded = 0
@@ -145,17 +153,20 @@ def contact_update_params(overlap, d_overlap, d_ut, d_theta_r, fs_old, mr_old, b
     fn = fn_el
     if xi_n > 0.0:
         fn += 2.0 * xi_n * math.sqrt(m_eff * kn) * d_overlap / dt
+    if clip_normal and fn < 0.0:
+        fn = 0.0
+    fn_lim = fn if limit_on_total else fn_el
     # tangential spring, Coulomb limit (000 eq. 10)
     fs = fs_old - ks * d_ut
     # (inf * 0 is avoided: a contact without normal force carries no friction)
-    limit = mu * fn_el if fn_el > 0.0 else 0.0
+    limit = mu * fn_lim if fn_lim > 0.0 else 0.0
     if bonded == 1:
         limit += coh_t
     sliding = 0
     if abs(fs) > limit:
         if bonded == 1:
             bonded = 0
-            limit = mu * fn_el if fn_el > 0.0 else 0.0
+            limit = mu * fn_lim if fn_lim > 0.0 else 0.0
         if abs(fs) > limit:
             fs = math.copysign(limit, fs)
             sliding = 1
@@ -166,7 +177,7 @@ def contact_update_params(overlap, d_overlap, d_ut, d_theta_r, fs_old, mr_old, b
     mr = 0.0
     if kr > 0.0:
         mr = mr_old - kr * d_theta_r
-        mlim = eta_r * r_eff * fn_el if fn_el > 0.0 else 0.0
+        mlim = eta_r * r_eff * fn_lim if fn_lim > 0.0 else 0.0
         if math.isinf(eta_r) and bonded == 1:
             mlim = math.inf
         if abs(mr) > mlim:

@@ -1,0 +1,536 @@
+"""The time loop of a bounded disc specimen: ``Specimen(state, law, options).run(...)``.
+
+Each step (inside Numba, in chunks of ``options.boundary_interval`` steps):
+  1. the law on every listed pair (contacts.pair_forces, 004 eqs. 7.3-7.14);
+  2. the walls (walls.wall_forces, 004 eq. 7.43) and, for a membrane specimen, the confining
+     pressure on the outside arcs of the free-side discs and the membrane between them
+     (boundary.pressure_forces / membrane_forces, 004 eqs. 7.44-7.46) into external_force;
+  3. gather and leapfrog (integrate.step_discs, 004 eqs. 7.15-7.17);
+  4. the walls move (prescribed velocity or stress servo, walls.move_walls);
+  5. the neighbour list is stale when 2 max |u| > skin (or max |u| + the wall motion > skin):
+     the chunk returns and Python rebuilds it (contacts.build_pairs, history merged).
+Between chunks Python finds the free-side chains again (boundary.boundary_loop and
+side_chains, dns-spec A6), measures the specimen (``Measurement``) and checks it: a non-finite
+value or a disc outside the walls or pushed through the membrane stops the run with a
+``LostDiscsError`` naming the discs; an inertial number above 1e-3 is warned about once.
+"""
+import math
+import time as _time
+import warnings
+from dataclasses import dataclass
+
+import numpy as np
+from numba import njit, prange
+
+from .. import checks
+from ..checks import NON_NEGATIVE, POSITIVE, Range
+from ..contact_law import ContactLaw
+from ..errors import InputError, SolveError
+from .contacts import (P_CLIP, P_DT, P_ETA, P_KN, P_KR, P_KS, P_MEFF, P_MU, P_PAIRMASS, P_PARALLEL_MIN, P_PERIOD,
+                       P_ROT, P_TOTAL, P_WALL_DN, P_WALL_RATIO, P_XIN, P_XIT, _one_pair, build_pairs, elastic_energy,
+                       law_vector, merge_history, pairs_of_j, spatial_order)
+from .integrate import block, n_blocks
+from .state import SpecimenOptions, SpecimenState
+from .walls import WALL_AXIS, WALL_SIGN, WallControl, move_walls, programme_arrays, wall_candidates, wall_forces
+
+try:     # the free-side kernels (004 eqs. 7.44-7.46) live beside this module
+    from .boundary import membrane_forces, pressure_forces
+    _HAVE_BOUNDARY = True
+except ImportError:      # pragma: no cover - only while boundary.py is being written
+    _HAVE_BOUNDARY = False
+
+    @njit(cache=True)
+    def pressure_forces(position, radius, chain, chain_start, pressure, out):
+        return np.zeros((chain_start.shape[0] - 1, 2))
+
+    @njit(cache=True)
+    def membrane_forces(position, radius, chain, chain_start, stiffness, out):
+        return np.zeros(chain_start.shape[0] - 1)
+
+DONE, REBUILD, NONFINITE = range(3)
+#: inertial number above which a run is no longer quasi-static (warned once)
+INERTIAL_LIMIT = 1.0e-3
+# slots of the control vector of the chunk kernel
+(C_GX, C_GY, C_DAMP, C_SKIN, C_PRESSURE, C_EM, C_WIDTH, C_LATERAL, C_WALL_MU, N_CTRL) = range(10)
+
+
+class LostDiscsError(SolveError):
+    """Discs left the specimen (through a wall or the membrane) or their state is not finite."""
+
+
+@njit(cache=True)
+def lateral_forces(position, radius, chain, chain_start, pressure, stiffness, out):
+    """Pressure arcs and membrane of the free sides ADDED into out (n, 2) (boundary.py's
+    kernels, 004 eqs. 7.44-7.46)."""
+    if chain.shape[0] > 0:
+        pressure_forces(position, radius, chain, chain_start, pressure, out)
+        if stiffness > 0.0:
+            membrane_forces(position, radius, chain, chain_start, stiffness, out)
+
+
+@njit(cache=True, parallel=True)
+def advance(n_steps, position, velocity, rotation, spin, radius, mass, inertia, external_force, external_moment,
+            on_wall, pair_i, pair_j, touching, sliding, fn, fs, mr, work, row, jstart, jcol, cand_disc, cand_wall,
+            cand_fs, chain, chain_start, build_position, build_wall, wall_position, wall_velocity, wall_active,
+            wall_force, mode, velocity_prog, target, gain, vmax, par, ctrl, block_max):
+    """Up to n_steps steps (module docstring); returns (steps done, status): DONE, REBUILD
+    (the neighbour list is stale) or NONFINITE.
+
+    The two parallel loops (pairs, then blocks of discs) are written here rather than called
+    (contacts.pair_forces, integrate.block are their bodies): a cached Numba kernel calling
+    another parallel kernel crashed when loaded from the cache (Numba 0.56). Below
+    par[P_PARALLEL_MIN] pairs both run serially (a parallel region costs microseconds);
+    either way every sum has the same order, so the result does not depend on the threads."""
+    dt = par[P_DT]
+    kn = par[P_KN]
+    ks = par[P_KS]
+    mu = par[P_MU]
+    kr = par[P_KR]
+    eta_r = par[P_ETA]
+    xi_n = par[P_XIN]
+    xi_t = par[P_XIT]
+    meff = par[P_MEFF]
+    pair_mass = par[P_PAIRMASS] > 0.5
+    clip = par[P_CLIP] > 0.5
+    total = par[P_TOTAL] > 0.5
+    rot = par[P_ROT] > 0.5
+    period = par[P_PERIOD]
+    wall_dn = par[P_WALL_DN]
+    wall_ratio = par[P_WALL_RATIO]
+    n_pairs = pair_i.shape[0]
+    parallel = n_pairs >= par[P_PARALLEL_MIN]
+    nb = block_max.shape[0]
+    gx = ctrl[C_GX]
+    gy = ctrl[C_GY]
+    damp = ctrl[C_DAMP]
+    skin = ctrl[C_SKIN]
+    pressure = ctrl[C_PRESSURE]
+    stiffness = ctrl[C_EM]
+    width = ctrl[C_WIDTH]
+    membrane = ctrl[C_LATERAL] > 0.5
+    wall_mu = ctrl[C_WALL_MU]
+    for s in range(n_steps):
+        # 1. contact law per pair
+        if parallel:
+            for k in prange(n_pairs):
+                _one_pair(k, position, velocity, spin, radius, mass, pair_i, pair_j, touching, sliding, fn, fs, mr,
+                          work, kn, ks, mu, kr, eta_r, xi_n, xi_t, meff, pair_mass, clip, total, rot, dt, period)
+        else:
+            for k in range(n_pairs):
+                _one_pair(k, position, velocity, spin, radius, mass, pair_i, pair_j, touching, sliding, fn, fs, mr,
+                          work, kn, ks, mu, kr, eta_r, xi_n, xi_t, meff, pair_mass, clip, total, rot, dt, period)
+        # 2. external loads: only the discs that may carry one are reset
+        for c in range(cand_disc.shape[0]):
+            p = cand_disc[c]
+            external_force[p, 0] = 0.0
+            external_force[p, 1] = 0.0
+            external_moment[p] = 0.0
+            on_wall[p] = 0
+        for c in range(chain.shape[0]):
+            external_force[chain[c], 0] = 0.0
+            external_force[chain[c], 1] = 0.0
+        wall_forces(cand_disc, cand_wall, cand_fs, position, velocity, spin, radius, mass, wall_position,
+                    wall_velocity, kn, ks, wall_dn, wall_ratio, clip, wall_mu, dt, external_force, external_moment,
+                    wall_force, on_wall)
+        if membrane:
+            lateral_forces(position, radius, chain, chain_start, pressure, stiffness, external_force)
+        # 3. gather and leapfrog, the staleness bound reduced over the blocks in order
+        if parallel:
+            for b in prange(nb):
+                block_max[b] = block(b, row, jstart, jcol, work, position, velocity, rotation, spin, mass, inertia,
+                                     external_force, external_moment, gx, gy, damp, dt, rot, build_position)
+        else:
+            for b in range(nb):
+                block_max[b] = block(b, row, jstart, jcol, work, position, velocity, rotation, spin, mass, inertia,
+                                     external_force, external_moment, gx, gy, damp, dt, rot, build_position)
+        u2 = 0.0
+        for b in range(nb):
+            if block_max[b] > u2:
+                u2 = block_max[b]
+        umax = math.sqrt(u2)
+        # 4. walls
+        move_walls(wall_position, wall_velocity, wall_active, wall_force, mode, velocity_prog, target, gain, vmax,
+                   width, dt)
+        if not (umax < math.inf):
+            return s + 1, NONFINITE
+        wmax = 0.0
+        for w in range(4):
+            wmax = max(wmax, abs(wall_position[w] - build_wall[w]))
+        if 2.0 * umax > skin or umax + wmax > skin:
+            return s + 1, REBUILD
+    return n_steps, DONE
+
+
+@dataclass
+class Measurement:
+    """The specimen at the end of an interval. Stresses tension positive [N/m]."""
+    time: float
+    step: int
+    wall_position: np.ndarray       # (4,) [m]
+    wall_velocity: np.ndarray       # (4,) [m/s]
+    wall_force: np.ndarray          # (4, 2) [N] force of each wall on the discs
+    wall_stress: np.ndarray         # (4,) [N/m] normal stress each wall carries (nan: no wall)
+    kinetic_energy: float           # [J/m]
+    elastic_energy: float           # [J/m] contact springs and wall springs
+    coordination: float             # 2 N_contacts / N_discs
+    sliding_fraction: float         # sliding contacts / contacts
+    max_overlap: float              # largest overlap / smaller radius
+    n_contacts: int
+    inertial_number: float          # |strain rate| d / sqrt(p / rho) of the platens (0 if at rest)
+    width: float                    # [m] loaded width of the platens
+    height: float                   # [m] platen gap
+    rebuilds: int                   # neighbour builds so far
+
+    def as_dict(self):
+        return {k: (v.tolist() if isinstance(v, np.ndarray) else v) for k, v in self.__dict__.items()}
+
+
+class Specimen:
+    """A bounded 2D disc specimen and its time loop.
+
+    state: SpecimenState (copied: the engine owns its arrays; read them from ``.state``);
+    law: demcell ContactLaw (kn = E_n, ks = E_t, friction = mu, rolling, damping ratios);
+    options: SpecimenOptions. With options.reorder the discs are renumbered along a
+    Morton curve (``.order[k]`` is the original index of disc k).
+    """
+
+    def __init__(self, state, law, options=None):
+        checks.instance("state", state, SpecimenState)
+        checks.instance("law", law, ContactLaw)
+        options = SpecimenOptions() if options is None else checks.instance("options", options, SpecimenOptions)
+        state.check()
+        expected = (1, 1, 1, 1) if options.lateral == "walls" else (1, 1, 0, 0)
+        if tuple(int(a) for a in state.wall_active) != expected:
+            raise InputError(f"state.wall_active {tuple(int(a) for a in state.wall_active)} does not match "
+                             f"lateral={options.lateral!r} (expected {expected})")
+        if options.lateral == "periodic" and not state.period > 0.0:
+            raise InputError("lateral='periodic' needs state.period > 0 (the x period of the specimen) [m]")
+        if options.lateral != "periodic" and state.period > 0.0:
+            raise InputError(f"state.period = {state.period:g} m but lateral={options.lateral!r}: set period 0")
+        if options.lateral == "membrane" and not _HAVE_BOUNDARY:
+            raise InputError("lateral='membrane' needs demcell/specimen/boundary.py (pressure arcs and membrane)")
+        rmax = float(np.max(state.radius))
+        if state.period > 0.0 and state.period < 2.0 * (2.0 * rmax + (options.skin or 0.3 * rmax)):
+            raise InputError(f"period {state.period:g} m must be at least twice 2 r_max + skin (minimum image)")
+        self.law = law
+        self.options = options
+        self.skin = options.skin if options.skin is not None else 0.3 * rmax
+        self.gap_tolerance = options.boundary_gap if options.boundary_gap is not None else 0.5 * float(
+            np.mean(state.radius))
+        if options.lateral == "membrane" and self.skin < self.gap_tolerance:
+            self.skin = self.gap_tolerance     # the boundary loop reads its candidate edges from the list
+        if options.reorder and state.n_discs > 1:
+            self.order = spatial_order(state.position, state.radius, self.skin)
+            history = state.n_pairs > 0
+            state = state.permuted(self.order)
+            if history:
+                warnings.warn("Specimen(reorder=True) renumbered the discs: the contact history of the "
+                              "state was dropped", stacklevel=2)
+        else:
+            self.order = np.arange(state.n_discs)
+            state = SpecimenState.from_dict(state.to_dict())
+        self.state = state
+        self.par = law_vector(law, options, state.period)
+        self.pressure = options.pressure
+        self.controls = [None, None, None, None]
+        if options.lateral == "walls" and options.pressure > 0.0:
+            self.controls[2] = self.controls[3] = WallControl("stress", stress=-options.pressure)
+        self.rebuilds = 0
+        self.chain = np.zeros(0, np.int64)
+        self.chain_start = np.zeros(3, np.int64)
+        self.loop = np.zeros(0, np.int64)
+        self.external_moment = np.zeros(state.n_discs)
+        self.block_max = np.zeros(n_blocks(state.n_discs))
+        self._warned_inertial = False
+        self._warned_sides = False
+        self.history = []
+        self.cpu_seconds = 0.0
+        self.wall_seconds = 0.0
+        self.pair_updates = 0
+        self._rebuild()
+
+    # ------------------------------------------------------------------ neighbours
+    def _check_finite(self):
+        st = self.state
+        bad = np.flatnonzero(~(np.isfinite(st.position).all(axis=1) & np.isfinite(st.velocity).all(axis=1)
+                               & np.isfinite(st.spin)))
+        if bad.size:
+            raise LostDiscsError(f"non-finite position or velocity of {bad.size} disc(s) at t = {st.time:g} s "
+                                 f"(first: {self._names(bad)}): time step too large for the stiffness?")
+
+    def _names(self, idx, k=8):
+        """Original indices (before the spatial renumbering) of the first k discs of idx."""
+        idx = np.asarray(idx)
+        text = ", ".join(str(int(self.order[i])) for i in idx[:k])
+        return text + (", ..." if idx.size > k else "")
+
+    def _rebuild(self):
+        """New Verlet list (history merged), disc-wall candidates, CSR of the pairs by j."""
+        self._check_finite()
+        st = self.state
+        x0 = float(np.min(st.position[:, 0])) if st.period > 0.0 else 0.0
+        new_i, new_j, row = build_pairs(st.position, st.radius, self.skin, st.period, x0)
+        touching, sliding, fn, fs, mr = merge_history(st.pair_i, st.pair_j, st.touching, st.sliding, st.fn, st.fs,
+                                                      st.mr, new_i, new_j)
+        st.pair_i, st.pair_j, st.touching, st.sliding, st.fn, st.fs, st.mr = new_i, new_j, touching, sliding, fn, fs, mr
+        self.row = row
+        self.jstart, self.jcol = pairs_of_j(st.n_discs, new_j)
+        self.work = np.zeros((new_i.shape[0], 4))
+        old = getattr(self, "cand_disc", None)
+        disc, wall = wall_candidates(st.position, st.radius, st.wall_position, st.wall_active, self.skin)
+        cand_fs = np.zeros(disc.shape[0])
+        if old is not None and self.options.wall_friction > 0.0:
+            prev = {(int(p), int(w)): f for p, w, f in zip(old, self.cand_wall, self.cand_fs)}
+            cand_fs = np.array([prev.get((int(p), int(w)), 0.0) for p, w in zip(disc, wall)])
+        self.cand_disc, self.cand_wall, self.cand_fs = disc, wall, cand_fs
+        self.build_position = st.position.copy()
+        self.build_wall = st.wall_position.copy()
+        st.external_force[:] = 0.0
+        self.external_moment[:] = 0.0
+        st.on_wall[:] = 0
+        self.rebuilds += 1
+
+    # ------------------------------------------------------------------ boundary
+    def _lateral_width(self):
+        st = self.state
+        if st.period > 0.0:
+            return st.period
+        if st.wall_active[2] and st.wall_active[3]:
+            return float(st.wall_position[3] - st.wall_position[2])
+        return float(np.max(st.position[:, 0] + st.radius) - np.min(st.position[:, 0] - st.radius))
+
+    def _update_boundary(self):
+        """The free-side chains again (dns-spec A6; every boundary_interval steps)."""
+        if self.options.lateral != "membrane" or (self.pressure == 0.0 and self.options.membrane_stiffness == 0.0):
+            return
+        from .boundary import boundary_loop, escaped_discs, side_chains
+        st = self.state
+        self._contact_on_wall()
+        loop = boundary_loop(st.position, st.radius, st.pair_i, st.pair_j, self.gap_tolerance)
+        try:
+            chain, chain_start = side_chains(loop, st.on_wall, st.position)
+        except InputError as exc:
+            # no platen contact (a loose cloud): nothing anchors the membrane
+            if not self._warned_sides:
+                self._warned_sides = True
+                warnings.warn(f"t = {st.time:g} s: {exc}; no pressure or membrane acts until a platen touches",
+                              stacklevel=3)
+            chain, chain_start = np.zeros(0, np.int64), np.zeros(3, np.int64)
+        out = escaped_discs(st.position, st.radius, loop)
+        if out.size:
+            raise LostDiscsError(f"{out.size} disc(s) pushed through the membrane at t = {st.time:g} s "
+                                 f"(original indices {self._names(out)})")
+        st.external_force[self.chain] = 0.0
+        self.loop = loop
+        self.chain = np.ascontiguousarray(chain, np.int64)
+        self.chain_start = np.ascontiguousarray(chain_start, np.int64)
+        st.on_boundary[:] = 0
+        st.on_boundary[self.chain] = 1
+
+    def _contact_on_wall(self):
+        """on_wall of the current positions (the kernel's flags are those of the last step)."""
+        st = self.state
+        on = np.zeros(st.n_discs, np.int8)
+        for w in range(4):
+            if st.wall_active[w]:
+                a = WALL_AXIS[w]
+                gap = WALL_SIGN[w] * (st.position[:, a] - st.wall_position[w]) - st.radius
+                on[gap < 0.0] = 1
+        st.on_wall[:] = on
+
+    # ------------------------------------------------------------------ measurements
+    def measure(self):
+        """A ``Measurement`` of the current state (and the lost-disc checks)."""
+        st = self.state
+        self._check_finite()
+        self._check_walls()
+        width = self._lateral_width()
+        height = float(st.wall_position[1] - st.wall_position[0])
+        lengths = np.array([width, width, height, height])
+        stress = np.full(4, np.nan)
+        for w in range(4):
+            if st.wall_active[w]:
+                stress[w] = -WALL_SIGN[w] * st.wall_force[w, WALL_AXIS[w]] / lengths[w]
+        law = self.law
+        e_el = elastic_energy(st.position, st.radius, st.pair_i, st.pair_j, st.touching, st.fs, st.mr, law.kn,
+                              law.ks, law.rolling_stiffness, st.period)
+        for w in range(4):
+            if st.wall_active[w]:
+                a = WALL_AXIS[w]
+                h = st.radius - WALL_SIGN[w] * (st.position[:, a] - st.wall_position[w])
+                e_el += 0.5 * law.kn * float(np.sum(h[h > 0.0] ** 2))
+        e_kin = float(0.5 * np.dot(st.mass, np.einsum("ij,ij->i", st.velocity, st.velocity))
+                      + 0.5 * np.dot(st.inertia, st.spin ** 2))
+        nc = int(np.count_nonzero(st.touching))
+        nsl = int(np.count_nonzero(st.sliding & st.touching))
+        ovl = 0.0
+        if nc:
+            k = np.flatnonzero(st.touching)
+            i, j = st.pair_i[k], st.pair_j[k]
+            d = st.position[j] - st.position[i]
+            if st.period > 0.0:
+                d[:, 0] -= st.period * np.floor(d[:, 0] / st.period + 0.5)
+            h = st.radius[i] + st.radius[j] - np.hypot(d[:, 0], d[:, 1])
+            ovl = float(np.max(h / np.minimum(st.radius[i], st.radius[j])))
+        m = Measurement(time=st.time, step=st.step, wall_position=st.wall_position.copy(),
+                        wall_velocity=st.wall_velocity.copy(), wall_force=st.wall_force.copy(), wall_stress=stress,
+                        kinetic_energy=e_kin, elastic_energy=e_el, coordination=2.0 * nc / st.n_discs,
+                        sliding_fraction=nsl / nc if nc else 0.0, max_overlap=ovl, n_contacts=nc,
+                        inertial_number=self._inertial_number(stress, height), width=width, height=height,
+                        rebuilds=self.rebuilds)
+        if m.inertial_number > INERTIAL_LIMIT and not self._warned_inertial:
+            self._warned_inertial = True
+            warnings.warn(f"inertial number {m.inertial_number:.3g} > {INERTIAL_LIMIT:g} at t = {st.time:g} s: "
+                          f"the platens move too fast for a quasi-static test", stacklevel=3)
+        return m
+
+    def _inertial_number(self, stress, height):
+        """I = |strain rate of the platens| d_mean / sqrt(p / rho_s), p the mean platen
+        pressure (or the confining pressure), rho_s the grains' density per area."""
+        st = self.state
+        rate = abs(st.wall_velocity[1] - st.wall_velocity[0]) / height if height > 0 else 0.0
+        if rate == 0.0:
+            return 0.0
+        p = np.nanmean(-stress[:2])
+        p = max(p, self.pressure)
+        if not p > 0.0:
+            return math.inf
+        rho = float(np.sum(st.mass) / np.sum(np.pi * st.radius ** 2))
+        return rate * 2.0 * float(np.mean(st.radius)) / math.sqrt(p / rho)
+
+    def _check_walls(self):
+        st = self.state
+        for w, name in enumerate(("bottom", "top", "left", "right")):
+            if st.wall_active[w]:
+                a = WALL_AXIS[w]
+                out = np.flatnonzero(WALL_SIGN[w] * (st.position[:, a] - st.wall_position[w]) < 0.0)
+                if out.size:
+                    raise LostDiscsError(f"{out.size} disc(s) passed through the {name} wall at t = {st.time:g} s "
+                                         f"(original indices {self._names(out)})")
+
+    # ------------------------------------------------------------------ running
+    def set_walls(self, bottom=None, top=None, left=None, right=None):
+        """Wall programme: a WallControl per wall (None: fixed). Absent walls (membrane or
+        periodic sides) must stay None."""
+        controls = [bottom, top, left, right]
+        for w, c in enumerate(controls):
+            if c is not None:
+                checks.instance(f"wall {w}", c, WallControl)
+                if not self.state.wall_active[w]:
+                    raise InputError(f"wall {w} does not exist for lateral={self.options.lateral!r}")
+        self.controls = controls
+
+    def _default_speed(self):
+        """Cap of a servo without max_speed: the platen speed giving an inertial number of
+        1e-4 at the confining pressure (or the law's kn / 1000 as a stress scale)."""
+        st = self.state
+        p = self.pressure if self.pressure > 0.0 else 1e-3 * self.law.kn
+        rho = float(np.sum(st.mass) / np.sum(np.pi * st.radius ** 2))
+        height = float(st.wall_position[1] - st.wall_position[0])
+        return 1e-4 * height * math.sqrt(p / rho) / (2.0 * float(np.mean(st.radius)))
+
+    def run(self, duration=None, n_steps=None, on_interval=None, every=1, stop=None):
+        """Advance by `duration` [s] or `n_steps` steps (one of them). Every `every` intervals
+        of options.boundary_interval steps the specimen is measured (``Measurement``, appended
+        to ``.history``) and `on_interval(specimen, measurement)` is called; `stop(specimen,
+        measurement)` returning True ends the run early. Returns the last measurement."""
+        opt = self.options
+        if (duration is None) == (n_steps is None):
+            raise InputError("run needs exactly one of duration [s] or n_steps")
+        if n_steps is None:
+            duration = checks.number("duration", duration, NON_NEGATIVE)
+            n_steps = int(round(duration / opt.dt))
+        n_steps = checks.number("n_steps", n_steps, Range(0, checks.MAX_BUDGET, integer=True))
+        every = checks.number("every", every, Range(1, integer=True))
+        if opt.threads is not None:
+            import numba
+            numba.set_num_threads(min(opt.threads, numba.config.NUMBA_NUM_THREADS))
+        st = self.state
+        mode, vel, target, gain, vmax = programme_arrays(self.controls, self._default_speed())
+        ctrl = np.zeros(N_CTRL)
+        ctrl[C_GX], ctrl[C_GY] = opt.gravity
+        ctrl[C_DAMP] = opt.local_damping
+        ctrl[C_SKIN] = self.skin
+        ctrl[C_PRESSURE] = self.pressure
+        ctrl[C_EM] = opt.membrane_stiffness
+        ctrl[C_LATERAL] = 1.0 if opt.lateral == "membrane" else 0.0
+        ctrl[C_WALL_MU] = opt.wall_friction
+        interval = opt.boundary_interval
+        if opt.lateral == "membrane" and self.chain.size == 0:
+            self._update_boundary()
+        last = None
+        left = n_steps
+        intervals = 0
+        since = st.step % interval
+        while left > 0:
+            ctrl[C_WIDTH] = self._lateral_width()
+            k = min(left, interval - since)
+            c0, w0 = _time.process_time(), _time.perf_counter()
+            done, status = advance(k, st.position, st.velocity, st.rotation, st.spin, st.radius, st.mass, st.inertia,
+                                   st.external_force, self.external_moment, st.on_wall, st.pair_i, st.pair_j,
+                                   st.touching, st.sliding, st.fn, st.fs, st.mr, self.work, self.row, self.jstart,
+                                   self.jcol, self.cand_disc, self.cand_wall, self.cand_fs, self.chain,
+                                   self.chain_start, self.build_position, self.build_wall, st.wall_position,
+                                   st.wall_velocity, st.wall_active, st.wall_force, mode, vel, target, gain, vmax,
+                                   self.par, ctrl, self.block_max)
+            self.cpu_seconds += _time.process_time() - c0
+            self.wall_seconds += _time.perf_counter() - w0
+            self.pair_updates += done * st.n_pairs
+            st.step += done
+            st.time += done * opt.dt
+            left -= done
+            since = (since + done) % interval
+            if status == NONFINITE:
+                self._check_finite()
+                raise LostDiscsError(f"non-finite state at t = {st.time:g} s (time step too large?)")
+            if status == REBUILD:
+                self._rebuild()
+            if since == 0 or left == 0:
+                if since == 0:
+                    self._update_boundary()
+                    intervals += 1
+                if intervals % every == 0 or left == 0:
+                    last = self.measure()
+                    self.history.append(last)
+                    if on_interval is not None:
+                        on_interval(self, last)
+                    if stop is not None and stop(self, last):
+                        break
+        if last is None:
+            last = self.measure()
+        return last
+
+    def isotropic_stage(self, pressure, stress_tolerance=1e-3, energy_tolerance=1e-6, max_time=30.0,
+                        max_speed=None, gain=None):
+        """Stress-controlled isotropic stage (dns-spec A7 phase 0): every wall servo-controlled
+        to the stress -pressure [N/m] (and the free sides under that confining pressure) until
+        |sigma_w + p| < stress_tolerance p on every wall and E_kin / E_el < energy_tolerance,
+        at most max_time [s]. The walls then stop; returns (converged, last measurement)."""
+        pressure = checks.number("pressure", pressure, POSITIVE)
+        stress_tolerance = checks.number("stress_tolerance", stress_tolerance, POSITIVE)
+        energy_tolerance = checks.number("energy_tolerance", energy_tolerance, POSITIVE)
+        max_time = checks.number("max_time", max_time, POSITIVE)
+        self.pressure = pressure
+        control = WallControl("stress", stress=-pressure, gain=gain, max_speed=max_speed)
+        active = self.state.wall_active
+        self.set_walls(*[control if active[w] else None for w in range(4)])
+
+        def converged(spec, m):
+            servo = np.array([bool(a) for a in active])
+            ok = np.all(np.abs(m.wall_stress[servo] + pressure) < stress_tolerance * pressure)
+            return bool(ok and m.elastic_energy > 0.0 and m.kinetic_energy < energy_tolerance * m.elastic_energy)
+
+        last = self.run(duration=max_time, stop=converged)
+        done = converged(self, last)
+        self.set_walls()
+        self.state.wall_velocity[:] = 0.0
+        return done, last
+
+    def throughput(self):
+        """Pair updates per CPU second and per wall second of the time loop so far."""
+        return (self.pair_updates / self.cpu_seconds if self.cpu_seconds > 0 else 0.0,
+                self.pair_updates / self.wall_seconds if self.wall_seconds > 0 else 0.0)
+
+    def save(self, path):
+        """Checkpoint of the state (.npz; the original disc order in `order`)."""
+        np.savez(path, order=self.order, **self.state.to_dict())

@@ -101,6 +101,51 @@ def test_loop_ignores_holes_and_detached_discs():
     assert np.array_equal(escaped_discs(pos, rad, loop), np.arange(len(keep), len(pos)))
 
 
+def components(n, pi, pj):
+    """Component label (its lowest disc) of each disc of the graph (pi, pj)."""
+    label = np.arange(n)
+    changed = True
+    while changed:
+        low = np.minimum(label[pi], label[pj])
+        before = label.copy()
+        np.minimum.at(label, pi, low)
+        np.minimum.at(label, pj, low)
+        label = label[label]
+        changed = not np.array_equal(label, before)
+    return label
+
+
+@pytest.mark.parametrize("seed", range(4))
+def test_loop_of_disordered_packing_encloses_its_component(seed):
+    """Polydisperse discs jittered about a hexagonal lattice, a third of them removed: an
+    irregular boundary with holes, dangling chains and detached islands. The loop walks
+    graph edges, each directed edge once, counter-clockwise, with every disc of the largest
+    component on it or inside it and no other disc on it."""
+    rng = np.random.default_rng(seed)
+    position, _ = hexagonal(30, 30)
+    radius = rng.uniform(0.75, 1.0, len(position))
+    position += rng.uniform(-0.1, 0.1, position.shape)
+    keep = rng.random(len(position)) > 0.33
+    position, radius = position[keep], radius[keep]
+    gap = 0.5 * radius.mean()
+    pi, pj = candidate_pairs(position, 2 * radius.max() + gap + 0.5)
+    loop = boundary_loop(position, radius, pi, pj, gap)
+    linked = np.linalg.norm(position[pj] - position[pi], axis=1) <= radius[pi] + radius[pj] + gap
+    edges = set(zip(pi[linked].tolist(), pj[linked].tolist()))
+    steps = list(zip(loop.tolist(), np.roll(loop, -1).tolist()))
+    assert all((min(a, b), max(a, b)) in edges for a, b in steps)
+    assert len(set(steps)) == len(steps)
+    assert signed_area(position, loop) > 0
+    label = components(len(position), pi[linked], pj[linked])
+    main = np.bincount(label).argmax()
+    assert np.all(label[loop] == main)
+    component = np.flatnonzero(label == main)
+    assert len(np.intersect1d(escaped_discs(position, radius, loop), component)) == 0
+    for extreme in (np.argmin, np.argmax):
+        for axis in (0, 1):
+            assert component[extreme(position[component, axis])] in loop
+
+
 def test_dangling_chain_is_walked_out_and_back():
     nx, ny = 6, 6
     position, radius = hexagonal(nx, ny)

@@ -203,7 +203,9 @@ def boundary_loop(position, radius, pair_i, pair_j, gap_tolerance, periodic_widt
     true for equal discs with g < 0.83 r) this is the outer face, the exterior on the right.
 
     Parameters: position (n, 2) [m] centres; radius (n,) [m]; pair_i, pair_j (m,) int
-    candidate pairs (the Verlet list: its skin must be >= gap_tolerance, else edges are lost);
+    candidate pairs (the Verlet list: its skin must be >= gap_tolerance, else edges are lost;
+    with skin == gap_tolerance a pair that closes in between two list rebuilds is missed until
+    the next rebuild, which may move the loop by one disc for that while);
     gap_tolerance [m] >= 0; periodic_width [m]: 0 for a bounded specimen, else the period in x
     (minimum-image edges; the loop is then the lower surface of the strip walked over one
     period in +x, since the start disc has the exterior below it).

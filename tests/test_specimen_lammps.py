@@ -175,3 +175,46 @@ def test_failed_run_names_lammps_error(tmp_path):
         f.write("not_a_lammps_command 1\n")
     with pytest.raises(L.LammpsError, match="ERROR"):
         L.run_lammps(tmp_path)
+
+
+def test_contact_forces_balance_and_feed_the_rev_fields(tmp_path):
+    """The pair dump in demcell's convention (fn rebuilt with the step's half-step velocities,
+    fs from LAMMPS's shear history): every disc off the walls is in force balance with its
+    contacts (the dump's total force) to round-off, the torques are those of fs with LAMMPS's
+    arm r, the remainder of the wall discs sums to the platens' forces; the snapshot goes
+    through the REV homogenisation."""
+    from demcell.specimen.rev import rev_fields
+    discs = thesis_lattice(nx=12, ny=20, perturbation=0.02, seed=3)
+    law = L.lammps_law(ContactLaw(kn=KN, ks=100.0, friction=0.8), MASS / 2.0, normal_dashpot=DN)
+    b = discs.box
+    walls = L.LammpsWalls(position=(b[2], b[3], b[0], b[1]), velocity=(0.3, -0.3, 0.0, 0.0),
+                          active=(True, True, True, True))
+    dt = 2.0e-3
+    L.write_lammps_input(tmp_path, discs.position, discs.radius, discs.mass, law, walls, dt, 400, 20, contacts=True,
+                         thermo_every=400)
+    run = L.run_lammps(tmp_path)
+    d, c, w = run["dump"], run["contacts"], run["walls"]
+    r = d["radius"]
+    sliding_seen = 0
+    for k in range(1, len(d["timestep"])):
+        f = L.lammps_contact_forces(d, c, k, law, dt)
+        step = int(d["timestep"][k])
+        x, wp = d["position"][k], w["wall_position"][step]
+        on_wall = ((x[:, 1] - r < wp[0]) | (x[:, 1] + r > wp[1]) | (x[:, 0] - r < wp[2]) | (x[:, 0] + r > wp[3]))
+        scale = np.max(np.abs(f["fn"]))
+        assert np.all(f["fn"] >= 0.0) and np.all(f["pair_i"] < f["pair_j"])
+        assert np.max(np.abs(f["external_force"][~on_wall])) < 1e-11 * scale
+        np.testing.assert_allclose(f["external_force"][on_wall].sum(axis=0), w["wall_force"][step].sum(axis=0),
+                                   rtol=1e-12, atol=1e-11 * scale)
+        torque = np.zeros(r.size)
+        np.add.at(torque, f["pair_i"], -r[f["pair_i"]] * f["fs"])
+        np.add.at(torque, f["pair_j"], -r[f["pair_j"]] * f["fs"])
+        np.testing.assert_allclose(torque, d["torque"][k], rtol=0, atol=1e-11 * scale)
+        assert np.all(np.abs(f["fs"]) <= 0.8 * f["fn"] * (1 + 1e-12))
+        sliding_seen += int(np.count_nonzero(np.abs(f["fs"]) >= 0.8 * f["fn"] * (1 - 1e-9)))
+    assert sliding_seen > 0
+    k = len(d["timestep"]) - 1
+    f = L.lammps_contact_forces(d, c, k, law, dt)
+    fields = rev_fields(d["position"][k], r, d["position"][k] - d["position"][0], d["rotation"][k], f["pair_i"],
+                        f["pair_j"], f["fn"], f["fs"], external_force=f["external_force"], excluded=on_wall)
+    assert fields.valid.any() and np.all(np.isfinite(fields.txx[fields.valid]))

@@ -89,6 +89,7 @@ INPUT_FILE = "in.specimen"
 DUMP_FILE = "specimen.dump"
 WALL_FILE = "walls.txt"
 LOG_FILE = "log.lammps"
+CONTACT_FILE = "contacts.dump"
 
 WALL_NAMES = ("bottom", "top", "left", "right")
 LATERAL = ("walls", "periodic")
@@ -205,7 +206,8 @@ def _g(x):
 
 
 def write_lammps_input(directory, position, radius, mass, law, walls, dt, n_steps, dump_every, lateral="walls",
-                       period=None, velocity=None, spin=None, wall_every=1, skin=None, thermo_every=None):
+                       period=None, velocity=None, spin=None, wall_every=1, skin=None, thermo_every=None,
+                       contacts=False):
     """Write a LAMMPS data file and input script of a 2D disc specimen into `directory`.
 
     position (n, 2) [m], radius (n,) [m], mass (n,) [kg per m depth]: the discs, written with
@@ -216,9 +218,12 @@ def write_lammps_input(directory, position, radius, mass, law, walls, dt, n_step
     lateral: "walls" (x non-periodic, side walls where active, else free) or "periodic"
     (x periodic with period `period` [m] starting at walls.position[2]; None: right - left);
     wall_every: steps between two rows of the wall-force file; skin [m]: neighbour skin (None:
-    0.3 times the largest radius); thermo_every: steps between thermo lines (None: dump_every).
+    0.3 times the largest radius); thermo_every: steps between thermo lines (None: dump_every);
+    contacts: also dump the touching pairs with their tangential force at every dump
+    (``compute pair/local``; ``lammps_contact_forces`` turns them into demcell's pair arrays).
 
-    Returns a dict of the file paths (data, input, dump, walls, log) and the run length."""
+    Returns a dict of the file paths (data, input, dump, walls, log, contacts) and the run
+    length."""
     checks.instance("law", law, LammpsLaw)
     checks.instance("walls", walls, LammpsWalls)
     position = checks.array("position", position, (None, 2))
@@ -264,7 +269,7 @@ def write_lammps_input(directory, position, radius, mass, law, walls, dt, n_step
     os.makedirs(directory, exist_ok=True)
     paths = {key: os.path.join(directory, name) for key, name in
              (("data", DATA_FILE), ("input", INPUT_FILE), ("dump", DUMP_FILE), ("walls", WALL_FILE),
-              ("log", LOG_FILE))}
+              ("log", LOG_FILE), ("contacts", CONTACT_FILE))}
     # LAMMPS converts the data file's density with the sphere volume, also in 2D
     density = mass / (4.0 / 3.0 * math.pi * radius ** 3)
     ids = np.arange(1, n + 1)
@@ -328,6 +333,18 @@ def write_lammps_input(directory, position, radius, mass, law, walls, dt, n_step
         f"dump specimen all custom {dump_every} {DUMP_FILE} "
         + " ".join(DUMP_COLUMNS),
         "dump_modify specimen sort id format float %.17g",
+    ]
+    if contacts:
+        lines += [
+            # pairs within the cutoff, their ids and the tangential force on patom1 (pair
+            # single(): p1 p2 = fs_x, fs_y); the normal force is rebuilt by the reader
+            "compute pair_ids all property/local patom1 patom2",
+            "compute pair_force all pair/local dist p1 p2",
+            f"dump contacts all local {dump_every} {CONTACT_FILE} c_pair_ids[1] c_pair_ids[2] c_pair_force[1] "
+            "c_pair_force[2] c_pair_force[3]",
+            "dump_modify contacts format float %.17g",
+        ]
+    lines += [
         "thermo_style custom step time ke cpu " + " ".join(c for c in columns if c.startswith("c_") and
                                                           c.endswith("[3]")),
         "thermo_modify format float %.10g",
@@ -571,7 +588,7 @@ def run_lammps(directory, ranks=1, executable="lmp", read=True, wall_order=None,
     script = os.path.join(directory, INPUT_FILE)
     if not os.path.isfile(script):
         raise InputError(f"no LAMMPS input script in {directory} (write_lammps_input writes {INPUT_FILE})")
-    for name in (LOG_FILE, DUMP_FILE, WALL_FILE):
+    for name in (LOG_FILE, DUMP_FILE, WALL_FILE, CONTACT_FILE):
         p = os.path.join(directory, name)
         if os.path.exists(p):
             os.remove(p)
@@ -603,4 +620,124 @@ def run_lammps(directory, ranks=1, executable="lmp", read=True, wall_order=None,
             wall_order = tuple(WALL_NAMES.index(name) for name in re.findall(r"^fix w_(\w+) ", script_text, re.M))
         out["dump"] = read_lammps_dump(os.path.join(directory, DUMP_FILE), dt=dt)
         out["walls"] = read_lammps_walls(os.path.join(directory, WALL_FILE), wall_order)
+        if os.path.isfile(os.path.join(directory, CONTACT_FILE)):
+            out["contacts"] = read_lammps_contacts(os.path.join(directory, CONTACT_FILE))
     return out
+
+
+def read_lammps_contacts(path):
+    """The pair dump of ``write_lammps_input(contacts=True)``: a list of one dict per snapshot,
+    timestep; id1, id2 (k,) int64 the atoms of each pair; fs_on_1 (k, 2) [N] the tangential
+    force on atom id1 (LAMMPS's single(): -kt * shear, see ``lammps_contact_forces``)."""
+    try:
+        with open(path) as f:
+            text = f.read()
+    except OSError as exc:
+        raise InputError(f"cannot read the LAMMPS pair dump {path}: {checks.one_line(exc)}") from None
+    out = []
+    for block in text.split("ITEM: TIMESTEP\n")[1:]:
+        head, _, body = block.partition("ITEM: ENTRIES ")
+        lines = head.split("\n")
+        try:
+            step = int(lines[0])
+            count = int(lines[lines.index("ITEM: NUMBER OF ENTRIES") + 1])
+        except (ValueError, IndexError):
+            raise InputError(f"{path}: a corrupt pair dump header near timestep {lines[0][:20]!r}") from None
+        names, _, rows = body.partition("\n")
+        values = np.array(rows.split(), dtype=float).reshape(-1, len(names.split())) if count else np.zeros((0, 5))
+        if values.shape[0] != count:
+            raise InputError(f"{path}: timestep {step} has {values.shape[0]} pairs, expected {count}")
+        out.append({"timestep": step, "id1": values[:, 0].astype(np.int64), "id2": values[:, 1].astype(np.int64),
+                    "fs_on_1": values[:, 3:5].copy()})
+    if not out:
+        raise InputError(f"{path} holds no LAMMPS pair dump snapshot")
+    return out
+
+
+def lammps_contact_forces(dump, contacts, snapshot, law, dt, period=0.0):
+    """The contacts of dump snapshot `snapshot` in demcell's convention, for ``fields``:
+    pair_i < pair_j (indices = LAMMPS id - 1), n = (x_j - x_i)/|x_j - x_i|, t = (-n_y, n_x),
+    fn (m,) [N] total normal force on j along n (> 0 repulsive), fs (m,) [N] tangential force
+    on j along t, and external_force (n, 2) [N] = the dump's total force minus the contact
+    forces (the walls' share).
+
+    dump: ``read_lammps_dump``; contacts: ``read_lammps_contacts`` (same dump interval);
+    law: the ``LammpsLaw`` of the run; dt [s]; period [m]: x period (0: none).
+
+    The normal force is rebuilt exactly as LAMMPS computed it at that step: kn overlap -
+    m_eff gamma_n (v_i - v_j).(x_i - x_j)/r with the half-step velocities v_n - F_n dt / 2m
+    that velocity Verlet used (the dump holds v_n), clipped at zero under limit_damping.
+    The tangential force is LAMMPS's single() at the dump time: -kt * shear (the stored,
+    already Coulomb-limited displacement; plus m_eff gamma_t v_t at the full-step velocity,
+    which differs from the step's when gamma_t > 0). single() limits it again with its own
+    normal force (full-step damping); where that cut it, the forces are solved from the
+    discs' torques (exact for smooth walls; with frictional walls they are left at the cut).
+    Exact to round-off without dashpots, and with the normal dashpot and gamma_t = 0 on
+    smooth walls (tests/test_specimen_lammps.py checks the force and torque balance)."""
+    checks.instance("law", law, LammpsLaw)
+    k = checks.number("snapshot", snapshot, Range(0, len(dump["timestep"]) - 1, integer=True))
+    c = contacts[k]
+    if c["timestep"] != int(dump["timestep"][k]):
+        raise InputError(f"pair dump timestep {c['timestep']} differs from the dump's {int(dump['timestep'][k])}")
+    x = dump["position"][k]
+    n = x.shape[0]
+    m = dump["mass"]
+    v_half = dump["velocity"][k] - dump["force"][k] * dt / (2.0 * m[:, None])
+    a = np.minimum(c["id1"], c["id2"]) - 1
+    b = np.maximum(c["id1"], c["id2"]) - 1
+    # under MPI with newton off a pair across two ranks is listed by both
+    key = np.unique(a * n + b, return_index=True)[1]
+    a, b = a[key], b[key]
+    fs_on_1 = c["fs_on_1"][key]
+    first_is_i = (np.minimum(c["id1"], c["id2"]) == c["id1"])[key]
+    d = x[b] - x[a]
+    if period > 0.0:
+        d[:, 0] -= period * np.floor(d[:, 0] / period + 0.5)
+    dist = np.hypot(d[:, 0], d[:, 1])
+    r = dump["radius"]
+    overlap = r[a] + r[b] - dist
+    touch = overlap > 0.0
+    a, b, d, dist, overlap, fs_on_1, first_is_i = (a[touch], b[touch], d[touch], dist[touch], overlap[touch],
+                                                  fs_on_1[touch], first_is_i[touch])
+    nvec = d / dist[:, None]
+    tvec = np.stack([-nvec[:, 1], nvec[:, 0]], -1)
+    m_eff = m[a] * m[b] / (m[a] + m[b])
+    approach = -np.einsum("ij,ij->i", v_half[b] - v_half[a], nvec)
+    fn = law.kn * overlap + m_eff * law.gamma_n * approach
+    if law.limit_damping:
+        fn = np.maximum(fn, 0.0)
+    # tangential force on j: -fs_on_1 when atom 1 is i, +fs_on_1 when atom 1 is j
+    on_j = np.where(first_is_i[:, None], -fs_on_1, fs_on_1)
+    fs = np.einsum("ij,ij->i", on_j, tvec)
+    if law.gamma_n > 0.0 and law.friction < 1.0e4:
+        # single()'s own limit, with the full-step velocities of the dump
+        v_full = dump["velocity"][k]
+        approach_full = -np.einsum("ij,ij->i", v_full[b] - v_full[a], nvec)
+        single_fn = law.kn * overlap + m_eff * law.gamma_n * approach_full
+        single_limit = law.friction * (np.maximum(single_fn, 0.0) if law.limit_damping else np.abs(single_fn))
+        limit = law.friction * fn
+        fs = np.where(np.abs(fs) > limit, np.copysign(limit, fs), fs)
+        # where single() cut the force to its own smaller limit the stored value lies between
+        # that limit and mu fn: those few forces are solved from the discs' torques (LAMMPS's
+        # arm is the radius; smooth walls add none), which the dump holds exactly
+        cut = (np.abs(fs) >= (1.0 - 1e-9) * single_limit) & (single_limit < limit)
+        if cut.any() and law.wall_kt == 0.0:
+            torque = dump["torque"][k].copy()
+            keep = ~cut
+            np.add.at(torque, a[keep], r[a[keep]] * fs[keep])
+            np.add.at(torque, b[keep], r[b[keep]] * fs[keep])
+            q = np.flatnonzero(cut)
+            rows = np.unique(np.concatenate([a[q], b[q]]))
+            where = {int(p): e for e, p in enumerate(rows)}
+            matrix = np.zeros((rows.size, q.size))
+            for col, e in enumerate(q):
+                matrix[where[int(a[e])], col] = -r[a[e]]
+                matrix[where[int(b[e])], col] = -r[b[e]]
+            solved = np.linalg.lstsq(matrix, torque[rows], rcond=None)[0]
+            fs[q] = np.clip(solved, -limit[q], limit[q])
+    force_j = fn[:, None] * nvec + fs[:, None] * tvec
+    contact_force = np.zeros((n, 2))
+    np.add.at(contact_force, b, force_j)
+    np.add.at(contact_force, a, -force_j)
+    return {"pair_i": a.astype(np.int64), "pair_j": b.astype(np.int64), "fn": fn, "fs": fs,
+            "external_force": dump["force"][k] - contact_force}

@@ -22,7 +22,8 @@ Two comparisons, written as JSON and a markdown table under --out (nothing is co
    70 x 143, 114 x 263), Table 7.1 law, lattice pre-compressed to the overlap of 004's
    isotropic state (5.77e-3 m, every lattice contact loaded), platens closing: LAMMPS on 1 and
    2 MPI ranks (the log's loop time x ranks x its CPU %), demcell on 1 and 2 Numba threads
-   (process CPU time of ``Specimen.run``); wall seconds beside.
+   (process CPU time of ``Specimen.run``, after 50 warm-up steps); wall seconds beside; the
+   median of 3 rounds of --timing-steps steps each.
 
 Run from the repository root (the machine is shared: run nothing else meanwhile):
 
@@ -123,10 +124,25 @@ def window_measures(f_l, f_e, a, b):
     d = f_l[a:b] - f_e[a:b]
     ref_max = float(np.max(np.abs(f_e[a:b])))
     ref_mean = float(np.mean(np.abs(f_e[a:b])))
+    std = float(np.std(f_e[a:b]))
     return {"steps": [int(a), int(b)],
             "max_rel": float(np.max(np.abs(d)) / ref_max) if ref_max > 0 else math.nan,
             "rms_rel": float(np.sqrt(np.mean(d ** 2)) / ref_mean) if ref_mean > 0 else math.nan,
-            "mean_force_demcell": ref_mean, "mean_force_lammps": float(np.mean(np.abs(f_l[a:b])))}
+            "mean_force_demcell": ref_mean, "mean_force_lammps": float(np.mean(np.abs(f_l[a:b]))),
+            "std_force_demcell": std,
+            "mean_diff_over_std": float(abs(np.mean(f_l[a:b]) - np.mean(f_e[a:b])) / std) if std > 0 else math.nan}
+
+
+def divergence_steps(f_l, f_e, levels=(1e-12, 1e-9, 1e-6, 1e-3, 1e-1)):
+    """First step at which |F_lammps - F_demcell| exceeds each level times the largest |F_demcell|
+    so far (None: never): how a round-off difference grows."""
+    ref = np.maximum.accumulate(np.abs(f_e))
+    rel = np.abs(f_l - f_e) / np.where(ref > 0.0, ref, 1.0)
+    out = {}
+    for level in levels:
+        k = np.flatnonzero(rel > level)
+        out[f"{level:g}"] = int(k[0]) if k.size else None
+    return out
 
 
 def compare_histories(case, nx, ny, dt, n_steps, speed, early, workdir):
@@ -152,6 +168,7 @@ def compare_histories(case, nx, ny, dt, n_steps, speed, early, workdir):
     for w, name in enumerate(("bottom", "top")):
         for key, (a, b) in windows.items():
             out[f"{name}_{key}"] = window_measures(f_l[:, w], f_e[:, w], a, b)
+        out[f"{name}_divergence_steps"] = divergence_steps(f_l[:, w], f_e[:, w])
     # final positions (demcell renumbers its discs: .order[k] is the original index of disc k)
     x_e = np.empty_like(spec.state.position)
     x_e[spec.order] = spec.state.position
@@ -166,10 +183,14 @@ def compare_histories(case, nx, ny, dt, n_steps, speed, early, workdir):
 def time_lammps(discs, law, opts, dt, n_steps, speed, ranks, workdir):
     directory = os.path.join(workdir, f"timing_lammps_{discs.n_discs}_{ranks}")
     write_lammps(directory, discs, law, opts, dt, n_steps, speed, dump_every=n_steps, wall_every=50)
-    run = L.run_lammps(directory, ranks=ranks, read=False)
-    log = run["log"]
+    rounds = []
+    for _ in range(3):
+        run = L.run_lammps(directory, ranks=ranks, read=False)
+        log = run["log"]
+        rounds.append((log["cpu_seconds"] / log["steps"], log["loop_seconds"] / log["steps"]))
+    cpu, wall = (float(np.median([r[i] for r in rounds])) for i in (0, 1))
     return {"engine": "lammps", "ranks": ranks, "discs": discs.n_discs, "steps": log["steps"],
-            "cpu_s_per_step": log["cpu_seconds"] / log["steps"], "wall_s_per_step": log["loop_seconds"] / log["steps"],
+            "cpu_s_per_step": cpu, "wall_s_per_step": wall, "rounds": rounds,
             "cpu_percent": log["cpu_percent"], "pair_seconds": log["sections"].get("Pair"),
             "listed_pairs": log["neighbours"], "neighbour_builds": log["neighbour_builds"],
             "process_cpu_seconds": run["cpu_seconds"]}
@@ -177,11 +198,15 @@ def time_lammps(discs, law, opts, dt, n_steps, speed, ranks, workdir):
 
 def time_demcell(discs, law, opts, dt, n_steps, speed, threads):
     spec = demcell_specimen(discs, law, opts, dt, speed, threads=threads)
-    spec.run(n_steps=min(20, n_steps))          # compile and warm up
-    c0, w0 = spec.cpu_seconds, spec.wall_seconds
-    spec.run(n_steps=n_steps)
+    spec.run(n_steps=50)          # compile and warm up (thread pool included)
+    rounds = []
+    for _ in range(3):
+        c0, w0 = spec.cpu_seconds, spec.wall_seconds
+        spec.run(n_steps=n_steps)
+        rounds.append(((spec.cpu_seconds - c0) / n_steps, (spec.wall_seconds - w0) / n_steps))
+    cpu, wall = (float(np.median([r[i] for r in rounds])) for i in (0, 1))
     return {"engine": "demcell", "threads": threads, "discs": discs.n_discs, "steps": n_steps,
-            "cpu_s_per_step": (spec.cpu_seconds - c0) / n_steps, "wall_s_per_step": (spec.wall_seconds - w0) / n_steps,
+            "cpu_s_per_step": cpu, "wall_s_per_step": wall, "rounds": rounds,
             "listed_pairs": int(spec.state.n_pairs), "contacts": int(np.count_nonzero(spec.state.touching))}
 
 
@@ -192,23 +217,28 @@ def markdown(report):
     if report.get("histories"):
         lines += ["## Platen force histories", "",
                   "| case | discs | steps | platen | window (steps) | max rel. diff | RMS diff / mean force | "
-                  "mean force demcell / LAMMPS [N] |", "|---|---|---|---|---|---|---|---|"]
+                  "mean force demcell / LAMMPS [N] | mean diff / std |", "|---|---|---|---|---|---|---|---|---|"]
         for h in report["histories"]:
             for name in ("bottom", "top"):
                 for key in ("early", "late"):
                     m = h[f"{name}_{key}"]
                     lines.append(f"| {h['case']} | {h['discs']} | {h['steps']} | {name} | {key} {m['steps'][0]}-"
                                  f"{m['steps'][1]} | {m['max_rel']:.2e} | {m['rms_rel']:.2e} | "
-                                 f"{m['mean_force_demcell']:.4g} / {m['mean_force_lammps']:.4g} |")
+                                 f"{m['mean_force_demcell']:.4g} / {m['mean_force_lammps']:.4g} | "
+                                 f"{m['mean_diff_over_std']:.2e} |")
+        lines += ["", "First step where |dF| exceeds a level times max |F| so far (bottom platen):", ""]
+        for h in report["histories"]:
+            lines.append(f"* {h['case']}: " + ", ".join(f"{k}: {v}" for k, v in h["bottom_divergence_steps"].items()))
         lines += ["", "Final positions, max |x_lammps - x_demcell| / r: " + ", ".join(
             f"{h['case']} {h['final_position_max_diff_over_r']:.2e}" for h in report["histories"]), ""]
     if report.get("timings"):
         lines += ["## CPU seconds per step", "",
-                  "| discs | engine | ranks / threads | CPU s / step | wall s / step | listed pairs |",
-                  "|---|---|---|---|---|---|"]
+                  "| discs | engine | ranks / threads | CPU s / step | wall s / step | listed pairs | load (1 min) |",
+                  "|---|---|---|---|---|---|---|"]
         for t in report["timings"]:
-            lines.append(f"| {t['discs']} | {t['engine']} | {t.get('ranks', t.get('threads'))} | "
-                         f"{t['cpu_s_per_step']:.3e} | {t['wall_s_per_step']:.3e} | {t.get('listed_pairs')} |")
+            lines.append(f"| {t['discs']} | {t['engine']} | {t.get('ranks') or t.get('threads')} | "
+                         f"{t['cpu_s_per_step']:.3e} | {t['wall_s_per_step']:.3e} | {t.get('listed_pairs')} | "
+                         f"{t['load_average'][0]:.2f} |")
         lines += ["", "Ratio LAMMPS / demcell of CPU s per step (same size, 1 rank vs 1 thread, 2 vs 2):", ""]
         for r in report.get("ratios", []):
             lines.append(f"* {r['discs']} discs, {r['cores']} core(s): {r['ratio']:.2f}")
@@ -251,10 +281,12 @@ def main(argv=None):
             h = compare_histories(case, args.nx, args.ny, args.dt, args.steps, args.speed, args.early, args.out)
             report["histories"].append(h)
             print(f"{case}: {h['discs']} discs, first contact step {h['first_contact_step']}; bottom platen early "
-                  f"max rel {h['bottom_early']['max_rel']:.2e}, late RMS/mean {h['bottom_late']['rms_rel']:.2e}; "
+                  f"max rel {h['bottom_early']['max_rel']:.2e}, late RMS/mean {h['bottom_late']['rms_rel']:.2e}, "
+                  f"late mean diff/std {h['bottom_late']['mean_diff_over_std']:.2e}; "
                   f"final positions max diff / r {h['final_position_max_diff_over_r']:.2e}", flush=True)
             save()
     if not args.skip_timings:
+        report["load_average_before_timings"] = os.getloadavg()
         law, opts, _ = laws("table71")
         for n in (int(s) for s in args.sizes.split(",")):
             if n not in LATTICES:
@@ -265,12 +297,14 @@ def main(argv=None):
                 t = time_lammps(discs, law, opts, args.dt, args.timing_steps, args.speed, ranks, args.out)
                 report["timings"].append(t)
                 row[("lammps", ranks)] = t["cpu_s_per_step"]
+                t["load_average"] = os.getloadavg()
                 print(f"{discs.n_discs} discs LAMMPS {ranks} rank(s): {t['cpu_s_per_step']:.3e} CPU s/step, "
                       f"{t['wall_s_per_step']:.3e} wall s/step", flush=True)
                 save()
             if have_engine:
                 for threads in (1, 2):
                     t = time_demcell(discs, law, opts, args.dt, args.timing_steps, args.speed, threads)
+                    t["load_average"] = os.getloadavg()
                     report["timings"].append(t)
                     row[("demcell", threads)] = t["cpu_s_per_step"]
                     print(f"{discs.n_discs} discs demcell {threads} thread(s): {t['cpu_s_per_step']:.3e} CPU s/step, "

@@ -235,11 +235,15 @@ def write_vtk_snapshot(directory, index, state):
 class CsvLog:
     """CSV file written row by row (flushed), so a run that stops leaves its history."""
 
-    def __init__(self, path, columns):
+    def __init__(self, path, columns, kept_rows=()):
+        """kept_rows: rows (lists of values, in the order of `columns`) written after the
+        header before any new one: what a restarted run keeps of its earlier file."""
         self.columns = list(columns)
         self._f = open(path, "w", newline="")
         self._w = csv.writer(self._f)
         self._w.writerow(self.columns)
+        for row in kept_rows:
+            self._w.writerow(row)
         self._f.flush()
 
     def write(self, **row):

@@ -240,3 +240,24 @@ def test_two_ranks_give_the_serial_run(tmp_path):
     f1, f2 = runs[1]["walls"]["wall_force"], runs[2]["walls"]["wall_force"]
     np.testing.assert_allclose(f2, f1, rtol=0, atol=1e-9 * np.max(np.abs(f1)))
     np.testing.assert_allclose(runs[2]["dump"]["position"], runs[1]["dump"]["position"], rtol=0, atol=1e-9)
+
+
+def test_state_of_the_engine_written_as_is(tmp_path):
+    """``write_lammps_state``: a SpecimenState with its law and options (Table 7.1 dashpot,
+    clipped) becomes the same LAMMPS run as the explicit call; a membrane specimen, which
+    LAMMPS cannot run, is refused in one line."""
+    from demcell.specimen.state import SpecimenOptions, SpecimenState
+    discs = thesis_lattice(nx=6, ny=6)
+    state = SpecimenState.from_specimen_discs(discs, lateral="walls")
+    state.wall_velocity[:] = (0.3, -0.3, 0.0, 0.0)
+    options = SpecimenOptions(dt=2.0e-3, normal_dashpot=DN, tangential_dashpot=0.0)
+    law = ContactLaw(kn=KN, ks=100.0, friction=0.8)
+    paths = L.write_lammps_state(tmp_path, state, law, options, 100, 50)
+    script = open(paths["input"]).read()
+    assert f"gran/hooke/history 10000.0 100.0 {DN / (MASS / 2.0)!r} 0.0 0.8 0 limit_damping" in script
+    assert f"wall/gran/region hooke/history 10000.0 0.0 {DN / MASS!r} 0.0 0.0 0 limit_damping" in script
+    run = L.run_lammps(tmp_path)
+    np.testing.assert_allclose(run["walls"]["wall_position"][-1], state.wall_position + state.wall_velocity * 0.2,
+                               rtol=0, atol=1e-12)
+    with pytest.raises(InputError, match="no membrane"):
+        L.write_lammps_state(tmp_path, state, law, options.with_(lateral="membrane"), 10, 10)

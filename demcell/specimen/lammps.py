@@ -345,8 +345,9 @@ def write_lammps_input(directory, position, radius, mass, law, walls, dt, n_step
             "dump_modify contacts format float %.17g",
         ]
     lines += [
-        "thermo_style custom step time ke cpu " + " ".join(c for c in columns if c.startswith("c_") and
-                                                          c.endswith("[3]")),
+        # the normal force of each wall: y for the platens, x for the side walls
+        "thermo_style custom step time ke cpu " + " ".join(
+            f"c_f_{WALL_NAMES[w]}[{3 if w < 2 else 2}]" for w in wall_list),
         "thermo_modify format float %.10g",
         f"thermo {thermo_every}",
         f"run {n_steps}",

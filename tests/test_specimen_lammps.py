@@ -261,3 +261,22 @@ def test_state_of_the_engine_written_as_is(tmp_path):
                                rtol=0, atol=1e-12)
     with pytest.raises(InputError, match="no membrane"):
         L.write_lammps_state(tmp_path, state, law, options.with_(lateral="membrane"), 10, 10)
+
+
+def test_moving_platen_hits_a_disc_with_the_wall_restitution(tmp_path):
+    """A disc at rest hit by the bottom platen moving up at 1 m/s (unclipped Table 7.1
+    dashpot, m_eff = m against a wall): it leaves at (1 + e) m/s with e = 0.3970 and the
+    contact lasts 0.05804 s (dns-spec A3), so the wall's own velocity enters the dashpot."""
+    law = L.lammps_law(ContactLaw(kn=KN, ks=0.0, friction=0.0), MASS / 2.0, normal_dashpot=DN, clip_normal=False)
+    beta = DN / (2.0 * MASS)
+    omega = math.sqrt(KN / MASS - beta ** 2)
+    t_c = math.pi / omega
+    e = math.exp(-beta * t_c)
+    assert (t_c, e) == (pytest.approx(0.05804, abs=1e-5), pytest.approx(0.3970, abs=1e-4))
+    dt = 1.0e-5
+    walls = L.LammpsWalls(position=(-RADIUS, 10.0, 0.0, 0.0), velocity=(1.0, 0.0, 0.0, 0.0))
+    L.write_lammps_input(tmp_path, np.zeros((1, 2)), [RADIUS], [MASS], law, walls, dt, 8000, 1, thermo_every=8000)
+    run = L.run_lammps(tmp_path)
+    pushed = np.count_nonzero(run["walls"]["contacts"][:, 0]) * dt
+    assert pushed == pytest.approx(t_c, abs=2.0e-5)
+    assert run["dump"]["velocity"][-1, 0, 1] == pytest.approx(1.0 + e, rel=1e-3)

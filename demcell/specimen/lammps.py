@@ -8,7 +8,11 @@ through demcell's homogenisation (``fields``) like the engine's own.
   dimension 2, ``pair_style gran/hooke/history``, ``fix nve/sphere disc``, ``fix enforce2d``,
   platens and side walls as ``fix wall/gran/region`` on moving planes, a dump, a wall-force
   history);
-* ``read_lammps_dump``, ``read_lammps_walls``, ``read_lammps_log``: the outputs as arrays;
+  ``lammps_law`` maps a demcell ContactLaw onto it, ``LammpsWalls`` holds the walls,
+  ``write_lammps_state`` writes an engine's SpecimenState with its law and options;
+* ``read_lammps_dump``, ``read_lammps_walls``, ``read_lammps_log``, ``read_lammps_contacts``:
+  the outputs as arrays; ``lammps_contact_forces``: a snapshot's contacts in demcell's pair
+  convention (pair_i < pair_j, fn, fs, external_force) for ``rev.rev_fields`` / ``fields``;
 * ``run_lammps``: runs ``lmp`` (or ``mpirun -n ranks lmp``) in the directory and reads them.
 
 Units: SI, 2D per unit out-of-plane depth as the rest of demcell (forces N, stiffnesses N/m,
@@ -62,8 +66,9 @@ omega_z over each dump interval (``fix ave/atom``) and ``read_lammps_dump`` rebu
 leapfrog rotation sum_k omega_{k+1/2} dt exactly from it (see ``_rotation_increment``).
 
 Walls: plane regions moving at a constant velocity (``region ... move``) with ``fix
-wall/gran/region hooke/history``: the wall velocity enters the dashpot (checked: a disc hit by
-a platen at 1 m/s leaves at 1 + 0.3971 m/s, the disc-wall restitution 0.3970 of dns-spec A3).
+wall/gran/region hooke/history``: the wall velocity enters the dashpot (a disc at rest hit by
+a platen at 1 m/s leaves at 1 + e m/s with e the disc-wall restitution 0.3970 of dns-spec A3:
+tests/test_specimen_lammps.py).
 The force each wall exerts on the discs is the sum of the fix's per-atom contact forces,
 written every ``wall_every`` steps. Servo-controlled walls are not built (LAMMPS has no such
 fix; a ``fix move`` driven from Python would be one).

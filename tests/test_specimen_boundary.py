@@ -268,11 +268,27 @@ def test_k4_pressure_arc_matches_quadrature():
                              centre + dist[1] * np.array([math.cos(theta_b), math.sin(theta_b)])])
         radius = np.array([r, r, r])
         out = np.zeros((3, 2))
-        totals = pressure_forces(position, radius, np.array([0, 1, 2]), np.array([0, 3]), p, out)
+        totals = pressure_forces(position, radius, np.array([0, 1, 2]), np.array([0, 3]), p, out, False)
         expected = arc_quadrature(r, theta_a, theta_b, p)
         assert np.abs(out[1] - expected).max() <= 1e-12 * p * r
         assert np.all(out[[0, 2]] == 0.0)      # anchors: no pressure
         assert np.array_equal(totals[0], out[1])
+
+
+def test_anchors_carry_the_arc_from_their_platen():
+    """A right side's bottom anchor: the arc from straight down CCW to its neighbour."""
+    p = 3.0
+    rng = np.random.default_rng(5)
+    for _ in range(20):
+        theta_b = rng.uniform(-0.4 * math.pi, 0.9 * math.pi)       # the neighbour, above-ish
+        position = np.array([[0.0, 0.0], [2 * R * math.cos(theta_b), 2 * R * math.sin(theta_b) + 10 * R]])
+        position[1] = position[0] + 2 * R * np.array([math.cos(theta_b), math.sin(theta_b)])
+        position = np.vstack([position, position[1] + [0.0, 2 * R], position[1] + [0.0, 4 * R]])
+        out = np.zeros((4, 2))
+        pressure_forces(position, np.full(4, R), np.arange(4), np.array([0, 4]), p, out)
+        assert np.abs(out[0] - arc_quadrature(R, -0.5 * math.pi, theta_b, p)).max() <= 1e-12 * p * R
+        # the top anchor: from its neighbour below to straight up
+        assert np.abs(out[3] - arc_quadrature(R, -0.5 * math.pi, 0.5 * math.pi, p)).max() <= 1e-12 * p * R
 
 
 def test_k4_straight_touching_chain_carries_p_times_its_height():
@@ -307,12 +323,17 @@ def test_d6_hexagonal_patch_sides_carry_p_times_their_height():
         height = abs(position[c[-1], 1] - position[c[0], 1])
         assert abs(sign * totals[side, 0] - p * height) <= 2 * p * R
         assert abs(totals[side, 1]) <= 2 * p * R
-    # only free side discs are loaded, and all of them inward
+    # only the side discs are loaded (with their anchors), and all of them inward
     loaded = np.flatnonzero(np.any(out != 0.0, axis=1))
-    free = np.concatenate([chain[start[c] + 1:start[c + 1] - 1] for c in (RIGHT, LEFT)])
-    assert np.array_equal(loaded, np.sort(free))
+    sides = np.concatenate([chain[start[c]:start[c + 1]] for c in (RIGHT, LEFT)])
+    assert np.array_equal(loaded, np.sort(sides))
     centre_x = position[:, 0].mean()
-    assert np.all(out[free, 0] * (position[free, 0] - centre_x) < 0)
+    assert np.all(out[sides, 0] * (position[sides, 0] - centre_x) < 0)
+    # the literal reading: the anchors get nothing
+    out = np.zeros_like(position)
+    pressure_forces(position, radius, chain, start, p, out, False)
+    free = np.concatenate([chain[start[c] + 1:start[c + 1] - 1] for c in (RIGHT, LEFT)])
+    assert np.array_equal(np.flatnonzero(np.any(out != 0.0, axis=1)), np.sort(free))
 
 
 # ---------------------------------------------------------------------------------------------

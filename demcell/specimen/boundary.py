@@ -302,7 +302,7 @@ def side_chains(loop, on_wall, position=None):
 # ---------------------------------------------------------------------------------------------
 
 @njit(cache=True)
-def pressure_forces(position, radius, chain, chain_start, pressure, out):
+def pressure_forces(position, radius, chain, chain_start, pressure, out, anchors=True):
     """Confining pressure on the outside arcs of the free boundary discs, 004 eq. 7.44.
 
     f_press^(i) = -p int_{dP_out} n ds over the outside arc of disc i, bounded by the
@@ -315,9 +315,19 @@ def pressure_forces(position, radius, chain, chain_start, pressure, out):
     length r_i inside disc i; a gap between discs carries no load. A disc met twice (the tip
     of a dangling chain: prev == next) gets the full circle, zero.
 
+    The anchors (the platen-contact discs at the ends of a chain, 004's "edge particles"):
+    with anchors=True (default) each gets the pressure on its lateral arc, from the direction
+    of its platen (straight down at the bottom, up at the top) to its chain neighbour, so the
+    confining pressure acts over the whole height between the platens. With anchors=False (the
+    literal reading of 004 section 7.3.2, dns-spec A6 5.) they get none; then nothing holds the
+    platen rows laterally but friction, and on smooth platens (004) the corner discs of a
+    lattice creep outwards under the isotropic stage: measured on a 10 x 20 lattice at
+    p = 50 N/m, the width grew by 3 % in 120 s and the platen stress never settled within
+    1e-3 p.
+
     position (n, 2) [m]; radius (n,) [m]; chain, chain_start int64 (``side_chains``: the first
-    and last entries of each chain are anchors and get no pressure); pressure p [N/m], > 0
-    confining; out (n, 2) [N]: the forces are ADDED to it.
+    and last entries of each chain are its anchors); pressure p [N/m], > 0 confining; out
+    (n, 2) [N]: the forces are ADDED to it; anchors: load the anchors' lateral arcs.
 
     Returns totals (n_chains, 2) [N]: the sum of the pressure forces per chain (for a straight
     touching side, |total_x| = p x the height between its anchors' centres, within 2 p r).
@@ -325,14 +335,30 @@ def pressure_forces(position, radius, chain, chain_start, pressure, out):
     n_chains = chain_start.shape[0] - 1
     totals = np.zeros((n_chains, 2))
     for c in range(n_chains):
-        for k in range(chain_start[c] + 1, chain_start[c + 1] - 1):
+        first = chain_start[c]
+        last = chain_start[c + 1] - 1
+        if last <= first:
+            continue
+        # the platens lie beyond the ends: below the lower end of the chain, above the upper
+        down = 1.0 if position[chain[first], 1] > position[chain[last], 1] else -1.0
+        lo = first if anchors else first + 1
+        hi = last if anchors else last - 1
+        for k in range(lo, hi + 1):
             i = chain[k]
-            a = chain[k - 1]
-            b = chain[k + 1]
-            ax = position[a, 0] - position[i, 0]
-            ay = position[a, 1] - position[i, 1]
-            bx = position[b, 0] - position[i, 0]
-            by = position[b, 1] - position[i, 1]
+            if k == first:          # the first anchor: from its platen's direction
+                ax = 0.0
+                ay = down
+            else:
+                a = chain[k - 1]
+                ax = position[a, 0] - position[i, 0]
+                ay = position[a, 1] - position[i, 1]
+            if k == last:           # the last anchor: to its platen's direction
+                bx = 0.0
+                by = -down
+            else:
+                b = chain[k + 1]
+                bx = position[b, 0] - position[i, 0]
+                by = position[b, 1] - position[i, 1]
             la = math.sqrt(ax * ax + ay * ay)
             lb = math.sqrt(bx * bx + by * by)
             # cos th = dx / l, sin th = dy / l; a coincident neighbour bounds nothing

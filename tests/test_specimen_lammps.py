@@ -280,3 +280,50 @@ def test_moving_platen_hits_a_disc_with_the_wall_restitution(tmp_path):
     pushed = np.count_nonzero(run["walls"]["contacts"][:, 0]) * dt
     assert pushed == pytest.approx(t_c, abs=2.0e-5)
     assert run["dump"]["velocity"][-1, 0, 1] == pytest.approx(1.0 + e, rel=1e-3)
+
+
+@pytest.mark.parametrize("case", ["undamped", "table71"])
+def test_engine_and_lammps_give_the_same_platen_forces(tmp_path, case):
+    """The same 200 discs, law and platens (closing at 0.03 m/s) in demcell's engine and in
+    LAMMPS, 300 steps: without dashpots or friction the forces depend on the positions only
+    and velocity Verlet and the leapfrog are the same scheme, so the platen forces agree to
+    round-off: the bottom platen (at y = 0) to 1e-12 of the force; the top one (at y = 35 m)
+    to kn times the round-off of its position, which demcell sums step by step (y += v dt)
+    and LAMMPS evaluates as y0 + v t (300 x 1e-16 x 35 m x kn ~ 1e-8 N). With the Table 7.1
+    law (friction, clipped dashpot) they differ by the moment arms (LAMMPS r, demcell
+    r - overlap/2) and the projected shear: below 1e-6 of the force."""
+    import warnings
+
+    from demcell.specimen import Specimen, SpecimenOptions, SpecimenState, WallControl
+    if case == "undamped":
+        law, opts, perturbation, tol = ContactLaw(kn=KN, ks=0.0, friction=0.0), {}, 0.02, 1e-12
+    else:
+        law, perturbation, tol = ContactLaw(kn=KN, ks=100.0, friction=0.8), 0.0, 1e-6
+        opts = dict(normal_dashpot=DN, tangential_dashpot=0.0)
+    discs = thesis_lattice(nx=10, ny=20, perturbation=perturbation, seed=1)
+    dt, n_steps, speed = 2.0e-3, 300, 0.03
+    options = SpecimenOptions(dt=dt, lateral="walls", boundary_interval=1, **opts)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")      # the inertial number of unloaded platens is infinite
+        spec = Specimen(SpecimenState.from_specimen_discs(discs, lateral="walls"), law, options)
+        spec.set_walls(bottom=WallControl(velocity=speed), top=WallControl(velocity=-speed))
+        forces = []
+        spec.run(n_steps=n_steps, on_interval=lambda s, m: forces.append(m.wall_force[:2, 1].copy()))
+    f_e = np.array(forces)
+    m = float(np.median(discs.mass))
+    llaw = L.lammps_law(law, 0.5 * m, opts.get("normal_dashpot"), opts.get("tangential_dashpot"), True, wall_mass=m)
+    b = discs.box
+    walls = L.LammpsWalls(position=(b[2], b[3], b[0], b[1]), velocity=(speed, -speed, 0.0, 0.0),
+                          active=(True, True, True, True))
+    L.write_lammps_input(tmp_path, discs.position, discs.radius, discs.mass, llaw, walls, dt, n_steps, n_steps,
+                         thermo_every=n_steps)
+    run = L.run_lammps(tmp_path)
+    f_l = run["walls"]["wall_force"][:n_steps, :2, 1]
+    scale = np.max(np.abs(f_e))
+    assert scale > 1.0
+    wall_roundoff = KN * n_steps * np.finfo(float).eps * abs(b[3])
+    np.testing.assert_allclose(f_l[:, 0], f_e[:, 0], rtol=0, atol=tol * scale)
+    np.testing.assert_allclose(f_l[:, 1], f_e[:, 1], rtol=0, atol=tol * scale + 10.0 * wall_roundoff)
+    x_e = np.empty_like(spec.state.position)
+    x_e[spec.order] = spec.state.position
+    np.testing.assert_allclose(run["dump"]["position"][-1], x_e, rtol=0, atol=1e3 * tol * RADIUS)

@@ -250,10 +250,10 @@ kept_rows = []
 if args.restart and os.path.isfile(history_path):      # the rows up to the checkpoint's step
     with open(history_path) as f:
         lines = f.read().splitlines()[1:]
-    kept_rows = [[float(v) for v in line.split(",")] for line in lines if line]
-    kept_rows = [r for r in kept_rows if r[COLUMNS.index("step")] <= resume_step]
+    kept_rows = [line.split(",") for line in lines if line]      # as written: the same bytes again
+    kept_rows = [r for r in kept_rows if float(r[COLUMNS.index("step")]) <= resume_step]
 history = CsvLog(history_path, COLUMNS, kept_rows)
-rows = [dict(zip(COLUMNS, r)) for r in kept_rows]
+rows = [dict(zip(COLUMNS, map(float, r))) for r in kept_rows]
 grid_step = args.grid_spacing * r_mean
 box = (test.state.wall_position[2] if args.lateral == "walls" else float(np.min(test.state.position[:, 0])) - r_mean,
        test.state.wall_position[0])

@@ -80,7 +80,7 @@ from cosserat_fenicsx.validation import (COUNT, NON_NEGATIVE, NON_NEGATIVE_INTEG
 SPECIMEN_DEFAULTS = {
     "thesis": dict(kn=1e4, ks=100.0, friction=0.8, normal_dashpot=100.0, tangential_dashpot=0.0, pressure=50.0,
                    platen_speed=0.03, dt=2e-3, lateral="membrane", loading_damping=0.0, duration=340.0,
-                   snapshots=[0.0, 90.0, 120.0, 340.0]),
+                   snapshots=[0.0, 90.0, 120.0, 340.0], output_every=1.0),
     "tiled": dict(kn=1e4, ks=2e3, friction=0.4, normal_dashpot=0.0, tangential_dashpot=0.0, pressure=10.0,
                   platen_speed=None, dt=None, lateral="walls", loading_damping=0.7, axial_strain=0.1,
                   snapshots=None),
@@ -157,8 +157,9 @@ parser.add_argument("--threads", type=number(low=1, high=1024, integer=True), de
 parser.add_argument("--output-every", type=number(POSITIVE), default=None,
                     help="history row and progress line every this many s (default phase 1 / 200)")
 parser.add_argument("--snapshots", type=times, default=None,
-                    help="phase 1 times [s] of the particle and field snapshots, comma separated "
-                         "(thesis: 0,90,120,340; otherwise 5 over the run)")
+                    help="phase 1 times [s] of the particle and field snapshots, comma separated, each taken "
+                         "at the first history row at or after it (thesis: 0,90,120,340; otherwise 5 over "
+                         "the run)")
 parser.add_argument("--kernel-width", type=number(POSITIVE), default=2.0,
                     help="coarse-graining kernel width in mean disc radii (default 2)")
 parser.add_argument("--grid-spacing", type=number(POSITIVE), default=2.0,
@@ -354,7 +355,8 @@ def save_checkpoint():
 
 # %% Phase 1: the platens close; a row, a progress line, snapshots and checkpoints as it goes
 steps_per_row = max(1, int(round(args.output_every / (args.dt * options.boundary_interval))))
-pending = [t for t in args.snapshots if t <= args.duration + 1e-9 and t not in kept["snapshots_done"]]
+phase1_done = test.state.time - test.reference["time"] if args.restart is not None else -math.inf
+pending = [t for t in args.snapshots if phase1_done + 1e-9 < t <= args.duration + 1e-9]
 next_checkpoint = [args.checkpoint_every] if args.checkpoint_every else [math.inf]
 if args.restart is not None and args.checkpoint_every:
     done = test.state.time - test.reference["time"]
@@ -370,8 +372,9 @@ def on_row(row):
         rows.append(row)
         history.write(**row)
         t = row["time"]
-        while pending and t >= pending[0] - 0.5 * args.output_every:
-            snapshot(len(kept["snapshots_done"]), pending.pop(0))
+        while pending and t >= pending[0] - 1e-9 * max(1.0, t):
+            pending.pop(0)
+            snapshot(len(kept["snapshots_done"]), t)
         if len(rows) % 20 == 0:
             plot_curve()
         print(f"[dem_specimen] t = {t:8.3f} s  eps_a {row['axial_strain']:+.4f}  ratio {row['stress_ratio']:.3f}  "
@@ -390,7 +393,8 @@ def on_row(row):
 if args.restart is None and 0.0 in pending:
     rows.append(test.row(test.specimen.measure()))
     history.write(**rows[-1])
-    snapshot(0, pending.pop(0))
+    pending.pop(0)
+    snapshot(0, 0.0)
 stopped = False
 try:
     remaining = args.duration - (test.state.time - test.reference["time"])

@@ -34,7 +34,8 @@ Outputs in --out, written as the run goes:
   particles/particles_NNNN.vtk, contacts_NNNN.vtk   at each --snapshots time: the discs with
                 displacement, rotation and their REV fields (004 eqs. 7.18-7.42: Cosserat
                 strain norm eps_norm, curvature k3x/k3y, stress, skew stress T21 - T12, couple
-                stress m3x/m3y, void ratio, coordination), NaN where a REV is invalid
+                stress m3x/m3y, void ratio, coordination), NaN where a REV is invalid; the same
+                arrays in particles/fields_NNNN.npz for numpy
   grains.xdmf   the same fields coarse-grained on a grid (Gaussian kernel of --kernel-width)
   summary.json  settings, the isotropic state, peak stress ratio, and at each snapshot the
                 shear band of the per-disc Cosserat strain norm fitted by 004 eq. 4.22
@@ -280,6 +281,8 @@ def snapshot(index, t):
     per_disc.update(displacement=st.position - st.reference_position, rotation=st.rotation - st.reference_rotation)
     write_particles_vtk(os.path.join(args.out, "particles", f"particles_{index:04d}.vtk"), st.position, st.radius,
                         per_disc)
+    np.savez_compressed(os.path.join(args.out, "particles", f"fields_{index:04d}.npz"), time=t, position=st.position,
+                        radius=st.radius, valid=rev.valid, excluded=excluded, **per_disc)
     k = np.flatnonzero(st.touching)
     write_contacts_vtk(os.path.join(args.out, "particles", f"contacts_{index:04d}.vtk"), st.position, st.pair_i[k],
                        st.pair_j[k], st.fn[k], st.fs[k], st.period)

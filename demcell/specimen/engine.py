@@ -305,10 +305,9 @@ class Specimen:
             return
         from .boundary import boundary_loop, escaped_discs, side_chains
         st = self.state
-        self._contact_on_wall()
         loop = boundary_loop(st.position, st.radius, st.pair_i, st.pair_j, self.gap_tolerance)
         try:
-            chain, chain_start = side_chains(loop, st.on_wall, st.position)
+            chain, chain_start = side_chains(loop, self._near_platen(), st.position)
         except InputError as exc:
             # no platen contact (a loose cloud): nothing anchors the membrane
             if not self._warned_sides:
@@ -327,16 +326,20 @@ class Specimen:
         st.on_boundary[:] = 0
         st.on_boundary[self.chain] = 1
 
-    def _contact_on_wall(self):
-        """on_wall of the current positions (the kernel's flags are those of the last step)."""
+    def _near_platen(self):
+        """Flags (n,) of the discs within the boundary gap tolerance of a platen: the edge
+        particles of dns-spec A6 (no pressure; membrane anchors). A tolerance rather than
+        overlap > 0: a corner disc whose platen overlap hovers about zero would otherwise
+        switch between anchor and loaded disc at every detection, and each switch kicks the
+        specimen by p r."""
         st = self.state
-        on = np.zeros(st.n_discs, np.int8)
-        for w in range(4):
+        near = np.zeros(st.n_discs, np.int8)
+        for w in range(2):
             if st.wall_active[w]:
                 a = WALL_AXIS[w]
                 gap = WALL_SIGN[w] * (st.position[:, a] - st.wall_position[w]) - st.radius
-                on[gap < 0.0] = 1
-        st.on_wall[:] = on
+                near[gap < self.gap_tolerance] = 1
+        return near
 
     # ------------------------------------------------------------------ measurements
     def measure(self):
@@ -525,6 +528,11 @@ class Specimen:
         self.set_walls()
         self.state.wall_velocity[:] = 0.0
         return done, last
+
+    def set_parallel_threshold(self, n_pairs):
+        """Run the pair and disc loops in parallel from n_pairs listed pairs on (default
+        contacts.PARALLEL_MIN_PAIRS; 0: always, as the thread-independence test does)."""
+        self.par[P_PARALLEL_MIN] = checks.number("n_pairs", n_pairs, Range(0, integer=True))
 
     def throughput(self):
         """Pair updates per CPU second and per wall second of the time loop so far."""

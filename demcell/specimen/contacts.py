@@ -32,8 +32,11 @@ from numba import njit, prange
 
 from ..contact_law import contact_update_params
 
-#: pairs below which the kernels run serially (a parallel region costs some microseconds)
-PARALLEL_MIN_PAIRS = 20000
+#: pairs below which the kernels take their serial loop. 0: always the parallel loop, even on
+#: one thread: in a parallel=True kernel Numba 0.56 compiled the plain range loop some 1.5x
+#: slower per pair (44 ns against 30 ns at 10^5 discs, benchmarks/dns/specimen_throughput.py)
+#: than the prange loop, whose launch costs only microseconds per step
+PARALLEL_MIN_PAIRS = 0
 
 # law vector slots read by the pair kernel (``law_vector``)
 (P_KN, P_KS, P_MU, P_KR, P_ETA, P_XIN, P_XIT, P_MEFF, P_PAIRMASS, P_CLIP, P_TOTAL, P_ROT, P_DT, P_PERIOD,

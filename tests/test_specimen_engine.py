@@ -330,7 +330,8 @@ def test_disc_through_a_wall_is_named():
 
 def test_checkpoint_round_trip(tmp_path):
     spec = _sheared_specimen(100)
-    spec.run(n_steps=120)
+    with pytest.warns(UserWarning, match="inertial number .* > 0.001"):
+        spec.run(n_steps=120)
     path = tmp_path / "state.npz"
     spec.save(path)
     with np.load(path) as data:
@@ -367,3 +368,25 @@ def test_bad_state_is_refused():
     state = SpecimenState.from_discs(pos, r, m, inertia, box=(-2, 5, -2, 2), lateral="membrane")
     with pytest.raises(InputError, match="does not match lateral='walls'"):
         Specimen(state, TABLE_71, SpecimenOptions())
+
+
+def test_membrane_sides_get_the_confining_pressure():
+    """lateral='membrane': the free-side chains are found (boundary.py) and every chain disc
+    but the anchors is pushed inwards by the pressure arcs; the platens servo to -p."""
+    p_conf, nx, ny = 50.0, 8, 10
+    pos = hexagonal_lattice(nx, ny)
+    p, rad, m, inertia = discs(pos)
+    box = (0.0, 2.0 * nx + 1.0, 0.0, 2.0 + (ny - 1) * math.sqrt(3.0))
+    state = SpecimenState.from_discs(p, rad, m, inertia, box=box, lateral="membrane")
+    options = SpecimenOptions(dt=2e-3, normal_dashpot=DN, local_damping=0.3, pressure=p_conf, lateral="membrane")
+    spec = Specimen(state, TABLE_71, options)
+    control = WallControl("stress", stress=-p_conf)
+    spec.set_walls(control, control)
+    last = spec.run(duration=20.0)
+    s = spec.state
+    assert np.all(np.abs(last.wall_stress[:2] + p_conf) < 0.1 * p_conf)     # the servo still closing in
+    right = spec.chain[spec.chain_start[0] + 1:spec.chain_start[1] - 1]
+    left = spec.chain[spec.chain_start[1] + 1:spec.chain_start[2] - 1]
+    assert right.size >= ny - 4 and left.size >= ny - 4
+    assert np.all(s.external_force[right, 0] < 0.0) and np.all(s.external_force[left, 0] > 0.0)
+    assert np.all(s.on_boundary[right] == 1)

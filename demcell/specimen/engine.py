@@ -285,9 +285,13 @@ class Specimen:
         self.cand_disc, self.cand_wall, self.cand_fs = disc, wall, cand_fs
         self.build_position = st.position.copy()
         self.build_wall = st.wall_position.copy()
-        st.external_force[:] = 0.0
-        self.external_moment[:] = 0.0
-        st.on_wall[:] = 0
+        if old is not None:
+            # discs no longer near a wall lose their wall load; the others keep the last step's
+            gone = np.setdiff1d(old, disc)
+            gone = gone[~np.isin(gone, self.chain)]
+            st.external_force[gone] = 0.0
+            self.external_moment[gone] = 0.0
+            st.on_wall[gone] = 0
         self.rebuilds += 1
 
     # ------------------------------------------------------------------ boundary
@@ -319,7 +323,10 @@ class Specimen:
         if out.size:
             raise LostDiscsError(f"{out.size} disc(s) pushed through the membrane at t = {st.time:g} s "
                                  f"(original indices {self._names(out)})")
-        st.external_force[self.chain] = 0.0
+        chain = np.ascontiguousarray(chain, np.int64)
+        # discs that left the chain lose their load now; the others keep the last step's
+        # (the kernel resets the chain's entries at the start of each step)
+        st.external_force[np.setdiff1d(self.chain, chain)] = 0.0
         self.loop = loop
         self.chain = np.ascontiguousarray(chain, np.int64)
         self.chain_start = np.ascontiguousarray(chain_start, np.int64)
@@ -397,7 +404,7 @@ class Specimen:
         p = np.nanmean(-stress[:2])
         p = max(p, self.pressure)
         if not p > 0.0:
-            return math.inf
+            return math.nan      # no confinement yet: undefined, not warned about
         rho = float(np.sum(st.mass) / np.sum(np.pi * st.radius ** 2))
         return rate * 2.0 * float(np.mean(st.radius)) / math.sqrt(p / rho)
 

@@ -59,7 +59,7 @@ def lattice_specimen(n_target, seed=0, shuffle=False, threads=1):
 def memory_per_disc(spec):
     st = spec.state
     total = sum(v.nbytes for v in st.to_dict().values() if isinstance(v, np.ndarray))
-    for name in ("work", "row", "jstart", "jcol", "build_position", "external_moment", "cand_disc", "cand_wall",
+    for name in ("work", "geo", "row", "jstart", "jcol", "build_position", "external_moment", "cand_disc", "cand_wall",
                  "cand_fs", "block_max", "order"):
         total += getattr(spec, name).nbytes
     return total / st.n_discs

@@ -27,7 +27,7 @@ from ..checks import NON_NEGATIVE, POSITIVE, Range
 from ..contact_law import ContactLaw
 from ..errors import InputError, SolveError
 from .contacts import (P_CLIP, P_DT, P_ETA, P_KN, P_KR, P_KS, P_MEFF, P_MU, P_PAIRMASS, P_PARALLEL_MIN, P_PERIOD,
-                       P_ROT, P_TOTAL, P_WALL_DN, P_WALL_RATIO, P_XIN, P_XIT, _one_pair, build_pairs, elastic_energy,
+                       P_ROT, P_TOTAL, P_WALL_DN, P_WALL_RATIO, P_XIN, P_XIT, _one_pair, branch, build_pairs, elastic_energy,
                        law_vector, merge_history, pairs_of_j, spatial_order)
 from .integrate import block, n_blocks
 from .state import SpecimenOptions, SpecimenState
@@ -70,9 +70,9 @@ def lateral_forces(position, radius, chain, chain_start, pressure, stiffness, ou
 
 @njit(cache=True, parallel=True)
 def advance(n_steps, position, velocity, rotation, spin, radius, mass, inertia, external_force, external_moment,
-            on_wall, pair_i, pair_j, touching, sliding, fn, fs, mr, work, row, jstart, jcol, cand_disc, cand_wall,
-            cand_fs, chain, chain_start, build_position, build_wall, wall_position, wall_velocity, wall_active,
-            wall_force, mode, velocity_prog, target, gain, vmax, par, ctrl, block_max):
+            on_wall, pair_i, pair_j, touching, sliding, fn, fs, mr, work, geo, row, jstart, jcol, cand_disc,
+            cand_wall, cand_fs, chain, chain_start, build_position, build_wall, wall_position, wall_velocity,
+            wall_active, wall_force, mode, velocity_prog, target, gain, vmax, par, ctrl, block_max):
     """Up to n_steps steps (module docstring); returns (steps done, status): DONE, REBUILD
     (the neighbour list is stale) or NONFINITE.
 
@@ -113,12 +113,16 @@ def advance(n_steps, position, velocity, rotation, spin, radius, mass, inertia, 
         # 1. contact law per pair
         if parallel:
             for k in prange(n_pairs):
-                _one_pair(k, position, velocity, spin, radius, mass, pair_i, pair_j, touching, sliding, fn, fs, mr,
-                          work, kn, ks, mu, kr, eta_r, xi_n, xi_t, meff, pair_mass, clip, total, rot, dt, period)
+                branch(k, position, pair_i, pair_j, period, geo)
+            for k in prange(n_pairs):
+                _one_pair(k, geo, velocity, spin, radius, mass, pair_i, pair_j, touching, sliding, fn, fs, mr,
+                          work, kn, ks, mu, kr, eta_r, xi_n, xi_t, meff, pair_mass, clip, total, rot, dt)
         else:
             for k in range(n_pairs):
-                _one_pair(k, position, velocity, spin, radius, mass, pair_i, pair_j, touching, sliding, fn, fs, mr,
-                          work, kn, ks, mu, kr, eta_r, xi_n, xi_t, meff, pair_mass, clip, total, rot, dt, period)
+                branch(k, position, pair_i, pair_j, period, geo)
+            for k in range(n_pairs):
+                _one_pair(k, geo, velocity, spin, radius, mass, pair_i, pair_j, touching, sliding, fn, fs, mr,
+                          work, kn, ks, mu, kr, eta_r, xi_n, xi_t, meff, pair_mass, clip, total, rot, dt)
         # 2. external loads: only the discs that may carry one are reset
         for c in range(cand_disc.shape[0]):
             p = cand_disc[c]
@@ -276,6 +280,7 @@ class Specimen:
         self.row = row
         self.jstart, self.jcol = pairs_of_j(st.n_discs, new_j)
         self.work = np.zeros((new_i.shape[0], 4))
+        self.geo = np.zeros((new_i.shape[0], 3))
         old = getattr(self, "cand_disc", None)
         disc, wall = wall_candidates(st.position, st.radius, st.wall_position, st.wall_active, self.skin)
         cand_fs = np.zeros(disc.shape[0])
@@ -478,7 +483,8 @@ class Specimen:
             c0, w0 = _time.process_time(), _time.perf_counter()
             done, status = advance(k, st.position, st.velocity, st.rotation, st.spin, st.radius, st.mass, st.inertia,
                                    st.external_force, self.external_moment, st.on_wall, st.pair_i, st.pair_j,
-                                   st.touching, st.sliding, st.fn, st.fs, st.mr, self.work, self.row, self.jstart,
+                                   st.touching, st.sliding, st.fn, st.fs, st.mr, self.work, self.geo, self.row,
+                                   self.jstart,
                                    self.jcol, self.cand_disc, self.cand_wall, self.cand_fs, self.chain,
                                    self.chain_start, self.build_position, self.build_wall, st.wall_position,
                                    st.wall_velocity, st.wall_active, st.wall_force, mode, vel, target, gain, vmax,

@@ -390,3 +390,22 @@ def test_membrane_sides_get_the_confining_pressure():
     assert right.size >= ny - 4 and left.size >= ny - 4
     assert np.all(s.external_force[right, 0] < 0.0) and np.all(s.external_force[left, 0] > 0.0)
     assert np.all(s.on_boundary[right] == 1)
+
+
+def test_wall_friction_opposes_sliding_within_coulomb():
+    """wall_friction mu_w: a disc resting on the bottom platen under gravity and sliding along
+    +x gets a wall force along -x of at most mu_w times the normal one (smooth by default)."""
+    pos, r, m, inertia = discs([[0.0, 1.0 - np.pi * 9.81 / KN]])
+    for mu_w in (0.0, 0.3):
+        state = SpecimenState.from_discs(pos, r, m, inertia, box=(-50, 50, 0, 10), lateral="membrane")
+        state.velocity[0] = [1.0, 0.0]
+        options = SpecimenOptions(dt=1e-3, normal_dashpot=DN, gravity=(0.0, -9.81), wall_friction=mu_w,
+                                  lateral="membrane", membrane_stiffness=0.0, boundary_interval=10)
+        spec = Specimen(state, TABLE_71, options)
+        spec.run(n_steps=100)
+        fx, fy = spec.state.wall_force[0]
+        assert fy == pytest.approx(np.pi * 9.81, rel=0.05)
+        if mu_w == 0.0:
+            assert fx == 0.0 and spec.state.velocity[0, 0] == 1.0
+        else:
+            assert -mu_w * fy * (1 + 1e-12) <= fx < 0.0 and spec.state.velocity[0, 0] < 1.0

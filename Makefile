@@ -16,7 +16,7 @@ export PYTHONPATH := $(CURDIR)$(if $(PYTHONPATH),:$(PYTHONPATH))
 
 DEB_PACKAGES = python3-dolfinx-real python3-numba python3-scipy python3-pytest \
 	python3-matplotlib python3-gmsh python3-h5py mpi-default-bin openmpi-bin \
-	xvfb xauth python3-paraview python3-hypothesis
+	xvfb xauth python3-paraview python3-hypothesis lammps python3-lammps
 SUDO := $(shell [ "$$(id -u)" = 0 ] || echo sudo)
 DEBIAN13 ?= ../shared/tools/debian13-env.sh
 DEBIAN13_PKGS = python3-matplotlib python3-gmsh python3-h5py python3-hypothesis
@@ -38,6 +38,8 @@ demo: deps
 	$(PYTHON) demos/dem_cell.py --out $(OUT)/dem_cell
 	$(MPIRUN) -n $(NP) $(PYTHON) demos/biaxial.py --out $(OUT)/biaxial
 	$(MPIRUN) -n $(NP) $(PYTHON) demos/femdem_biaxial.py --axial-strain 0.03 --steps 30 --out $(OUT)/femdem_biaxial
+	$(PYTHON) demos/dem_specimen.py --nx 30 --ny 69 --duration 90 --snapshots 0,30,60,90 --out $(OUT)/dem_specimen
+	$(PYTHON) demos/dem_specimen.py --specimen tiled --tiles 1x2 --axial-strain 0.02 --out $(OUT)/dem_specimen_tiled
 
 test: deps
 	NP=$(NP) TEST_TIMEOUT=$(TEST_TIMEOUT) tests/run_suite.sh $(PYTHON)
@@ -55,7 +57,7 @@ test-debian13:
 # YADE is only needed here (DEM speed and the FEM x DEM cross-check)
 BENCH_PACKAGES = yade python3-escript
 BENCH = $(OUT)/benchmarks
-BENCHMARK_GROUPS = verification ehlers dem femdem identification robustness slow-tests
+BENCHMARK_GROUPS = verification ehlers dem femdem dns identification robustness slow-tests
 .PHONY: benchmark-deps $(BENCHMARK_GROUPS:%=benchmark-%)
 
 benchmark: $(BENCHMARK_GROUPS:%=benchmark-%)
@@ -99,6 +101,13 @@ benchmark-femdem: benchmark-deps
 	$(PYTHON) benchmarks/femdem/femdem_batched.py --out $(BENCH)/femdem_batched
 	$(MPIRUN) -n $(NP) $(PYTHON) benchmarks/femdem/femdem_cell_relaxation.py --out $(BENCH)/femdem_cell_relaxation
 	$(PYTHON) benchmarks/femdem/femdem_yade.py --np $(NP) --out $(BENCH)/femdem_yade
+
+# particle specimens: throughput, the 004 test and its study, LAMMPS on the same specimen
+benchmark-dns: benchmark-deps
+	$(PYTHON) benchmarks/dns/specimen_throughput.py --out $(BENCH)/specimen_throughput
+	$(PYTHON) benchmarks/dns/lammps_compare.py --out $(BENCH)/lammps_compare
+	$(PYTHON) benchmarks/dns/dns_004.py --cases base --out $(BENCH)/dns_004
+	$(PYTHON) benchmarks/dns/dns_004.py --nx 40 --ny 92 --out $(BENCH)/dns_004_study
 
 benchmark-identification: benchmark-deps
 	$(PYTHON) benchmarks/identification/identification_sensitivity.py --out $(BENCH)/identification_sensitivity

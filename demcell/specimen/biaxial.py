@@ -31,6 +31,12 @@ from .specimens import Discs
 from .state import SpecimenOptions, SpecimenState
 from .walls import WallControl
 
+#: the servo of the isotropic stage may move the walls at most at the strain rate of this
+#: inertial number (I = rate d / sqrt(p / rho), two walls closing): below the quasi-static limit
+#: 1e-3, and settling in a few tens of s of simulated time (at the engine's own cap, 1e-4,
+#: 000's tiled cell needed some 130 s)
+SETTLING_INERTIAL_NUMBER = 8e-4
+
 COLUMNS = ["time", "step", "phase", "axial_strain", "lateral_strain", "volumetric_strain", "axial_stress",
            "lateral_stress", "stress_ratio", "bottom_force", "top_force", "coordination", "sliding_fraction",
            "kinetic_to_elastic", "inertial_number", "max_overlap"]
@@ -131,7 +137,15 @@ class BiaxialTest:
     def isotropic_stage(self, stress_tolerance=1e-3, energy_tolerance=1e-4, max_time=30.0, max_speed=None):
         """Phase 0 (dns-spec A7): the walls servo to -p until |sigma_w + p| < stress_tolerance p
         and E_kin / E_el < energy_tolerance, at most max_time [s]. The state is then the
-        reference of displacements and rotations. Raises SolveError if it does not settle."""
+        reference of displacements and rotations. Raises SolveError if it does not settle.
+        max_speed [m/s] caps the servo (its gain is max_speed / p): None, the wall speed of an
+        inertial number of SETTLING_INERTIAL_NUMBER, the quasi-static limit."""
+        if max_speed is None:
+            st = self.state
+            rho = float(np.sum(st.mass) / np.sum(np.pi * st.radius ** 2))
+            height = float(st.wall_position[1] - st.wall_position[0])
+            max_speed = (0.5 * SETTLING_INERTIAL_NUMBER * height * math.sqrt(self.pressure / rho)
+                         / (2.0 * float(np.mean(st.radius))))
         ok, last = self.specimen.isotropic_stage(self.pressure, stress_tolerance=stress_tolerance,
                                                  energy_tolerance=energy_tolerance, max_time=max_time,
                                                  max_speed=max_speed)

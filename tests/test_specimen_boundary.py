@@ -13,6 +13,9 @@ from demcell.errors import InputError
 from demcell.specimen.boundary import (LEFT, RIGHT, boundary_loop, escaped_discs, membrane_forces,
                                        pressure_forces, side_chains)
 
+# DEM only: nothing here uses MPI, so it runs in the serial pass alone
+pytestmark = pytest.mark.serial
+
 R = 1.0
 GAP = 0.5 * R     # dns-spec A6 default g_tol
 

@@ -13,6 +13,9 @@ from demcell.errors import InputError
 from demcell.specimen import LostDiscsError, Specimen, SpecimenOptions, SpecimenState, WallControl
 from demcell.specimen.contacts import brute_force_pairs, build_pairs, gather_forces, law_vector, pair_forces
 
+# DEM only: nothing here uses MPI, so it runs in the serial pass alone
+pytestmark = pytest.mark.serial
+
 KN, KS, DN, MU = 1.0e4, 100.0, 100.0, 0.8
 TABLE_71 = ContactLaw(kn=KN, ks=KS, friction=MU)
 

@@ -9,6 +9,9 @@ from demcell.errors import InputError
 from demcell.specimen.fields import (coarse_grain, coarse_grained_stress, moment_balance, patch_divergence,
                                      patch_gradient, rev_fields)
 
+# DEM only: nothing here uses MPI, so it runs in the serial pass alone
+pytestmark = pytest.mark.serial
+
 R = 1.0
 P = 50.0
 FN_LATTICE = 2.0 * P * R / math.sqrt(3.0)    # contact force of the hexagonal lattice under p

@@ -9,6 +9,9 @@ from conftest import ROOT
 from demcell.errors import InputError
 from demcell.specimen.files import GridSeries, write_contacts_vtk, write_particles_vtk
 
+# DEM only: nothing here uses MPI, so it runs in the serial pass alone
+pytestmark = pytest.mark.serial
+
 needs_paraview = pytest.mark.skipif(shutil.which("pvbatch") is None or shutil.which("xvfb-run") is None,
                                     reason="ParaView (python3-paraview) or xvfb-run not installed")
 
@@ -39,7 +42,6 @@ def test_grid_series_refuses_a_wrong_shape(tmp_path):
 
 
 @needs_paraview
-@pytest.mark.serial
 def test_grid_series_and_discs_open_in_paraview(tmp_path):
     from test_paraview import pvbatch_json
     _grid(tmp_path)

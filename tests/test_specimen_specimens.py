@@ -8,6 +8,9 @@ import demcell as dc
 from demcell.errors import InputError
 from demcell.specimen.specimens import read_discs, thesis_lattice, tiled_cell
 
+# DEM only: nothing here uses MPI, so it runs in the serial pass alone
+pytestmark = pytest.mark.serial
+
 
 def _overlapping_pairs(position, radius, lattice=None):
     """Brute force: pairs (i < j) closer than r_i + r_j (minimum image of the periodic

@@ -16,6 +16,9 @@ from demcell.specimen import SpecimenOptions
 from demcell.specimen.biaxial import BiaxialTest
 from demcell.specimen.specimens import tiled_cell
 
+# DEM only: nothing here uses MPI, so it runs in the serial pass alone
+pytestmark = pytest.mark.serial
+
 LAW = dc.ContactLaw(kn=1e4, ks=2e3, friction=0.4)
 P0 = 10.0
 STRAIN = 2e-3        # small: the contact network barely changes, the compliances are elastic

@@ -126,12 +126,7 @@ class BiaxialTest:
 
     def width(self):
         """Lateral extent [m]: side walls, period, or the extreme discs of a membrane specimen."""
-        st = self.state
-        if st.period > 0.0:
-            return st.period
-        if st.wall_active[2] and st.wall_active[3]:
-            return float(st.wall_position[3] - st.wall_position[2])
-        return float(np.max(st.position[:, 0] + st.radius) - np.min(st.position[:, 0] - st.radius))
+        return self.specimen.lateral_width()
 
     # ------------------------------------------------------------------ phases
     def isotropic_stage(self, stress_tolerance=1e-3, energy_tolerance=1e-4, max_time=30.0, max_speed=None):

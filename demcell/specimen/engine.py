@@ -300,7 +300,9 @@ class Specimen:
         self.rebuilds += 1
 
     # ------------------------------------------------------------------ boundary
-    def _lateral_width(self):
+    def lateral_width(self):
+        """Width the platens load [m]: the period, the distance between the side walls, or the
+        extent of the discs of a membrane specimen."""
         st = self.state
         if st.period > 0.0:
             return st.period
@@ -359,7 +361,7 @@ class Specimen:
         st = self.state
         self._check_finite()
         self._check_walls()
-        width = self._lateral_width()
+        width = self.lateral_width()
         height = float(st.wall_position[1] - st.wall_position[0])
         lengths = np.array([width, width, height, height])
         stress = np.full(4, np.nan)
@@ -478,7 +480,7 @@ class Specimen:
         intervals = 0
         since = st.step % interval
         while left > 0:
-            ctrl[C_WIDTH] = self._lateral_width()
+            ctrl[C_WIDTH] = self.lateral_width()
             k = min(left, interval - since)
             c0, w0 = _time.process_time(), _time.perf_counter()
             done, status = advance(k, st.position, st.velocity, st.rotation, st.spin, st.radius, st.mass, st.inertia,

@@ -1,6 +1,7 @@
 """demos/dem_specimen.py as a user runs it: outputs, restart bit for bit, signals, bad input."""
 import json
 import os
+import shutil
 import signal
 import subprocess
 import sys
@@ -37,6 +38,14 @@ def test_small_thesis_specimen_writes_every_output(tmp_path):
         assert (tmp_path / f"band_{k:04d}.png").is_file()
     assert (tmp_path / "curve.png").is_file()
     assert "snapshot 2 at t = 4 s" in proc.stdout
+    if shutil.which("pvbatch") and shutil.which("xvfb-run"):      # what a user opens in ParaView
+        from test_paraview import pvbatch_json
+        grid = pvbatch_json(os.path.join(ROOT, "tests", "paraview_check.py"), tmp_path / "grains.xdmf",
+                            tmp_path / "grid.png", "eps_norm")
+        assert grid["times"] == pytest.approx([0.0, 2.0, 4.0]) and "skew" in grid["arrays"]
+        discs = pvbatch_json(os.path.join(ROOT, "tests", "paraview_vtk_check.py"),
+                             tmp_path / "particles" / "particles_0002.vtk")
+        assert discs["points"] == 200 and {"eps_norm", "displacement", "rotation"} <= set(discs["arrays"])
 
 
 def test_stop_and_restart_give_the_straight_run_bit_for_bit(tmp_path):

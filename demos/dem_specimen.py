@@ -74,7 +74,7 @@ from demcell.specimen.specimens import read_discs, thesis_lattice, tiled_cell  #
 from cosserat_fenicsx.figures import pyplot  # noqa: E402
 from cosserat_fenicsx.run_guard import RunGuard  # noqa: E402
 from cosserat_fenicsx.shear_band import assess_band, fit_band  # noqa: E402
-from cosserat_fenicsx.validation import (COUNT, NON_NEGATIVE, NON_NEGATIVE_INTEGER, POSITIVE, InputError,  # noqa: E402
+from cosserat_fenicsx.validation import (NON_NEGATIVE, NON_NEGATIVE_INTEGER, POSITIVE, InputError,  # noqa: E402
                                          Parser, number)
 
 # %% The options, with the defaults of each specimen (None: the specimen's own)

@@ -56,6 +56,9 @@ class LoadStepper:
         self.stopped_early = False
         self.verbose = verbose
         self.records = []
+        #: cut-backs so far, those of a step that failed down to dt_min included (the records
+        #: carry the count at each converged step only)
+        self.cuts = start.cuts if start is not None else 0
 
     def log(self, text):
         if self.verbose:
@@ -82,6 +85,7 @@ class LoadStepper:
                 if info.flags and not info.failure:
                     cause += f"; {info.flags}"
                 cuts += 1
+                self.cuts = cuts
                 self.log(f"  cut-back at t={t + dt:.6g} (dt={dt:.3g}): {cause}")
                 dt *= 0.5
                 if dt < self.dt_min:

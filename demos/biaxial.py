@@ -145,7 +145,7 @@ summary = {
     "newton_residuals_longest_plastic_step": list(map(float, longest[1].residual_history)) if longest[1] else [],
     "newton_orders_longest_plastic_step": convergence_orders(longest[1].residual_history) if longest[1] else [],
     "newton_longest_plastic_step": longest[0],
-    "steps": len(rows), "cut_backs": int(rows[-1]["cuts"]) if rows else 0,
+    "steps": len(rows), "cut_backs": test.stepper.cuts,
     "kernel_time_rank0": test.zoned.kernel_time, "ranks": comm.size,
     "classical": classical, "l_c": used.l_c, "mu_c": used.mu_c if not classical else 0.0,
     "k_sigma": used.k_sigma, "k_mu": used.k_mu, "parameters_file": args.parameters, "eta": args.eta, "cell_size": args.cell_size, "width": args.width,

@@ -206,6 +206,9 @@ def test_cell_out_of_step_budget_cuts_then_stops_every_rank():
     assert len(failed) == 4            # dt = 1, 1/2, 1/4, 1/8, then below dt_min = 1/8
     assert all("did not relax within its step budget" in info.failure for info in failed)
     assert len(test.history) == 1 and test.history[0]["phase"] == 1
+    # the failed step's cut-backs are counted (the summary's cut_backs), not only those of
+    # the last converged step
+    assert test.stepper.cuts == 4 and test.history[-1]["cuts"] == 0
     assert_finite(test)
 
 

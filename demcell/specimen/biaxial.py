@@ -26,6 +26,7 @@ from .. import checks
 from ..checks import NON_NEGATIVE, POSITIVE
 from ..contact_law import ContactLaw
 from ..errors import SolveError
+from .contacts import contact_geometry
 from .engine import Specimen
 from .specimens import Discs
 from .state import SpecimenOptions, SpecimenState
@@ -53,15 +54,9 @@ def contact_stress(state, area):
     sigma = -(1/A) sum_c f_j (x) d_c (f_j the force on j, d_c = x_j - x_i, minimum image in
     x for a periodic specimen). The wall forces are left out (they act on the platens' rows)."""
     k = np.flatnonzero(state.touching)
-    i, j = state.pair_i[k], state.pair_j[k]
-    d = state.position[j] - state.position[i]
-    if state.period > 0.0:
-        d[:, 0] -= state.period * np.floor(d[:, 0] / state.period + 0.5)
-    dist = np.hypot(d[:, 0], d[:, 1])
-    n = d / dist[:, None]
-    t = np.column_stack([-n[:, 1], n[:, 0]])
-    f = state.fn[k, None] * n + state.fs[k, None] * t
-    return -np.einsum("ka,kb->ab", f, d) / area
+    d, _, _, force_j, _, _ = contact_geometry(state.position, state.radius, state.pair_i[k], state.pair_j[k],
+                                              state.fn[k], state.fs[k], None, state.period)
+    return -np.einsum("ka,kb->ab", force_j, d) / area
 
 
 class BiaxialTest:

@@ -14,7 +14,7 @@ whatever the size of the specimen.
 Forces (``pair_forces`` then ``gather_forces``): the law is demcell's
 ``contact_law.contact_update_params`` (the periodic cell's), with the normal force clipped at
 >= 0 and the Coulomb limit on the total normal force when asked (004 eqs. 7.4-7.14, dns-spec
-A2). Pass 1 (``branch``) writes the branch vector of every pair, pass 2 (``_one_pair``)
+A2). Pass 1 (``branch``) writes the branch vector of every pair, pass 2 (``one_pair``)
 evaluates every listed pair independently and writes the force on j and the two moments into
 a scratch row; pass 3 sums them per disc through the CSR of its pairs (first
 the pairs where it is j, then those where it is i, each in list order). Every sum is taken in
@@ -329,7 +329,7 @@ def branch(k, position, pair_i, pair_j, period, geo):
 
 
 @njit(cache=True)
-def _one_pair(k, geo, velocity, spin, radius, mass, pair_i, pair_j, touching, sliding, fn, fs, mr, work,
+def one_pair(k, geo, velocity, spin, radius, mass, pair_i, pair_j, touching, sliding, fn, fs, mr, work,
               kn, ks, mu, kr, eta_r, xi_n, xi_t, meff_const, pair_mass, clip, total, rot, dt):
     """Contact law of listed pair k (004 eqs. 7.3-7.14 through contact_update_params) from its
     branch vector geo[k] (``branch``): its history updated in place, the force on j
@@ -394,37 +394,34 @@ def _one_pair(k, geo, velocity, spin, radius, mass, pair_i, pair_j, touching, sl
     work[k, 3] = -aj * fst + mrk
 
 
+@njit(cache=True)
+def law_scalars(par):
+    """The law vector (``law_vector``) as the scalars the pair kernel takes: (kn, ks, mu, kr,
+    eta_r, xi_n, xi_t, m_eff, per-pair mass flag, clip flag, limit-on-total flag, rotations
+    flag, dt, period), read once per call rather than once per pair."""
+    return (par[P_KN], par[P_KS], par[P_MU], par[P_KR], par[P_ETA], par[P_XIN], par[P_XIT], par[P_MEFF],
+            par[P_PAIRMASS] > 0.5, par[P_CLIP] > 0.5, par[P_TOTAL] > 0.5, par[P_ROT] > 0.5, par[P_DT],
+            par[P_PERIOD])
+
+
 @njit(cache=True, parallel=True)
 def pair_forces(position, velocity, spin, radius, mass, pair_i, pair_j, touching, sliding, fn, fs, mr, work, par):
-    """Pass 1: the law on every listed pair (``_one_pair``), parallel over the pairs when
+    """Pass 1: the law on every listed pair (``one_pair``), parallel over the pairs when
     there are at least par[P_PARALLEL_MIN] of them. work (m, 4) scratch. (The engine's time
     loop has the same loop inline: see build_pairs on calling parallel kernels.)"""
-    kn = par[P_KN]
-    ks = par[P_KS]
-    mu = par[P_MU]
-    kr = par[P_KR]
-    eta_r = par[P_ETA]
-    xi_n = par[P_XIN]
-    xi_t = par[P_XIT]
-    meff = par[P_MEFF]
-    pair_mass = par[P_PAIRMASS] > 0.5
-    clip = par[P_CLIP] > 0.5
-    total = par[P_TOTAL] > 0.5
-    rot = par[P_ROT] > 0.5
-    dt = par[P_DT]
-    period = par[P_PERIOD]
+    kn, ks, mu, kr, eta_r, xi_n, xi_t, meff, pair_mass, clip, total, rot, dt, period = law_scalars(par)
     geo = np.empty((pair_i.shape[0], 3))
     if pair_i.shape[0] >= par[P_PARALLEL_MIN]:
         for k in prange(pair_i.shape[0]):
             branch(k, position, pair_i, pair_j, period, geo)
         for k in prange(pair_i.shape[0]):
-            _one_pair(k, geo, velocity, spin, radius, mass, pair_i, pair_j, touching, sliding, fn, fs, mr,
+            one_pair(k, geo, velocity, spin, radius, mass, pair_i, pair_j, touching, sliding, fn, fs, mr,
                       work, kn, ks, mu, kr, eta_r, xi_n, xi_t, meff, pair_mass, clip, total, rot, dt)
     else:
         for k in range(pair_i.shape[0]):
             branch(k, position, pair_i, pair_j, period, geo)
         for k in range(pair_i.shape[0]):
-            _one_pair(k, geo, velocity, spin, radius, mass, pair_i, pair_j, touching, sliding, fn, fs, mr,
+            one_pair(k, geo, velocity, spin, radius, mass, pair_i, pair_j, touching, sliding, fn, fs, mr,
                       work, kn, ks, mu, kr, eta_r, xi_n, xi_t, meff, pair_mass, clip, total, rot, dt)
 
 
@@ -486,3 +483,23 @@ def elastic_energy(position, radius, pair_i, pair_j, touching, fs, mr, kn, ks, k
         if kr > 0.0:
             e += 0.5 * mr[k] * mr[k] / kr
     return e
+
+
+def contact_geometry(position, radius, pair_i, pair_j, fn, fs, mr=None, periodic_width=None):
+    """Per pair: branch d = x_j - x_i (minimum image in x) (m,2) [m], distance (m,) [m],
+    overlap (m,) [m], force on j fn n + fs t (m,2) [N], moment on i -a_i fs - mr and on j
+    -a_j fs + mr (m,) [N m] (demcell's convention, a = r - overlap/2)."""
+    width = float(periodic_width or 0.0)
+    d = position[pair_j] - position[pair_i]
+    if width > 0.0:
+        d[:, 0] -= width * np.floor(d[:, 0] / width + 0.5)
+    dist = np.hypot(d[:, 0], d[:, 1])
+    safe = np.where(dist > 0.0, dist, 1.0)
+    nx = d[:, 0] / safe
+    ny = d[:, 1] / safe
+    force_j = np.stack([fn * nx - fs * ny, fn * ny + fs * nx], -1)
+    overlap = radius[pair_i] + radius[pair_j] - dist
+    rolling = 0.0 if mr is None else mr
+    moment_i = -(radius[pair_i] - 0.5 * overlap) * fs - rolling
+    moment_j = -(radius[pair_j] - 0.5 * overlap) * fs + rolling
+    return d, dist, overlap, force_j, moment_i, moment_j

@@ -26,26 +26,12 @@ from .. import checks
 from ..checks import NON_NEGATIVE, POSITIVE, Range
 from ..contact_law import ContactLaw
 from ..errors import InputError, SolveError
-from .contacts import (P_CLIP, P_DT, P_ETA, P_KN, P_KR, P_KS, P_MEFF, P_MU, P_PAIRMASS, P_PARALLEL_MIN, P_PERIOD,
-                       P_ROT, P_TOTAL, P_WALL_DN, P_WALL_RATIO, P_XIN, P_XIT, _one_pair, branch, build_pairs, elastic_energy,
-                       law_vector, merge_history, pairs_of_j, spatial_order)
+from .boundary import boundary_loop, escaped_discs, membrane_forces, pressure_forces, side_chains
+from .contacts import (P_PARALLEL_MIN, P_WALL_DN, P_WALL_RATIO, branch, build_pairs, contact_geometry, elastic_energy,
+                       law_scalars, law_vector, merge_history, one_pair, pairs_of_j, spatial_order)
 from .integrate import block, n_blocks
 from .state import SpecimenOptions, SpecimenState
 from .walls import WALL_AXIS, WALL_SIGN, WallControl, move_walls, programme_arrays, wall_candidates, wall_forces
-
-try:     # the free-side kernels (004 eqs. 7.44-7.46) live beside this module
-    from .boundary import membrane_forces, pressure_forces
-    _HAVE_BOUNDARY = True
-except ImportError:      # pragma: no cover - only while boundary.py is being written
-    _HAVE_BOUNDARY = False
-
-    @njit(cache=True)
-    def pressure_forces(position, radius, chain, chain_start, pressure, out):
-        return np.zeros((chain_start.shape[0] - 1, 2))
-
-    @njit(cache=True)
-    def membrane_forces(position, radius, chain, chain_start, stiffness, out):
-        return np.zeros(chain_start.shape[0] - 1)
 
 DONE, REBUILD, NONFINITE = range(3)
 #: inertial number above which a run is no longer quasi-static (warned once)
@@ -81,20 +67,7 @@ def advance(n_steps, position, velocity, rotation, spin, radius, mass, inertia, 
     another parallel kernel crashed when loaded from the cache (Numba 0.56). Below
     par[P_PARALLEL_MIN] pairs both run serially (a parallel region costs microseconds);
     either way every sum has the same order, so the result does not depend on the threads."""
-    dt = par[P_DT]
-    kn = par[P_KN]
-    ks = par[P_KS]
-    mu = par[P_MU]
-    kr = par[P_KR]
-    eta_r = par[P_ETA]
-    xi_n = par[P_XIN]
-    xi_t = par[P_XIT]
-    meff = par[P_MEFF]
-    pair_mass = par[P_PAIRMASS] > 0.5
-    clip = par[P_CLIP] > 0.5
-    total = par[P_TOTAL] > 0.5
-    rot = par[P_ROT] > 0.5
-    period = par[P_PERIOD]
+    kn, ks, mu, kr, eta_r, xi_n, xi_t, meff, pair_mass, clip, total, rot, dt, period = law_scalars(par)
     wall_dn = par[P_WALL_DN]
     wall_ratio = par[P_WALL_RATIO]
     n_pairs = pair_i.shape[0]
@@ -115,13 +88,13 @@ def advance(n_steps, position, velocity, rotation, spin, radius, mass, inertia, 
             for k in prange(n_pairs):
                 branch(k, position, pair_i, pair_j, period, geo)
             for k in prange(n_pairs):
-                _one_pair(k, geo, velocity, spin, radius, mass, pair_i, pair_j, touching, sliding, fn, fs, mr,
+                one_pair(k, geo, velocity, spin, radius, mass, pair_i, pair_j, touching, sliding, fn, fs, mr,
                           work, kn, ks, mu, kr, eta_r, xi_n, xi_t, meff, pair_mass, clip, total, rot, dt)
         else:
             for k in range(n_pairs):
                 branch(k, position, pair_i, pair_j, period, geo)
             for k in range(n_pairs):
-                _one_pair(k, geo, velocity, spin, radius, mass, pair_i, pair_j, touching, sliding, fn, fs, mr,
+                one_pair(k, geo, velocity, spin, radius, mass, pair_i, pair_j, touching, sliding, fn, fs, mr,
                           work, kn, ks, mu, kr, eta_r, xi_n, xi_t, meff, pair_mass, clip, total, rot, dt)
         # 2. external loads: only the discs that may carry one are reset
         for c in range(cand_disc.shape[0]):
@@ -211,8 +184,6 @@ class Specimen:
             raise InputError("lateral='periodic' needs state.period > 0 (the x period of the specimen) [m]")
         if options.lateral != "periodic" and state.period > 0.0:
             raise InputError(f"state.period = {state.period:g} m but lateral={options.lateral!r}: set period 0")
-        if options.lateral == "membrane" and not _HAVE_BOUNDARY:
-            raise InputError("lateral='membrane' needs demcell/specimen/boundary.py (pressure arcs and membrane)")
         rmax = float(np.max(state.radius))
         if state.period > 0.0 and state.period < 2.0 * (2.0 * rmax + (options.skin or 0.3 * rmax)):
             raise InputError(f"period {state.period:g} m must be at least twice 2 r_max + skin (minimum image)")
@@ -314,7 +285,6 @@ class Specimen:
         """The free-side chains again (dns-spec A6; every boundary_interval steps)."""
         if self.options.lateral != "membrane" or (self.pressure == 0.0 and self.options.membrane_stiffness == 0.0):
             return
-        from .boundary import boundary_loop, escaped_discs, side_chains
         st = self.state
         loop = boundary_loop(st.position, st.radius, st.pair_i, st.pair_j, self.gap_tolerance)
         try:
@@ -384,10 +354,7 @@ class Specimen:
         if nc:
             k = np.flatnonzero(st.touching)
             i, j = st.pair_i[k], st.pair_j[k]
-            d = st.position[j] - st.position[i]
-            if st.period > 0.0:
-                d[:, 0] -= st.period * np.floor(d[:, 0] / st.period + 0.5)
-            h = st.radius[i] + st.radius[j] - np.hypot(d[:, 0], d[:, 1])
+            h = contact_geometry(st.position, st.radius, i, j, st.fn[k], st.fs[k], None, st.period)[2]
             ovl = float(np.max(h / np.minimum(st.radius[i], st.radius[j])))
         m = Measurement(time=st.time, step=st.step, wall_position=st.wall_position.copy(),
                         wall_velocity=st.wall_velocity.copy(), wall_force=st.wall_force.copy(), wall_stress=stress,

@@ -63,6 +63,7 @@ from numba import njit, prange
 from .. import checks
 from ..checks import NON_NEGATIVE, POSITIVE, Range
 from ..errors import InputError
+from .contacts import contact_geometry
 
 #: REV status codes (``RevFields.status``)
 VALID, TOO_FEW, CENTRE_OUTSIDE, EXCLUDED = 0, 1, 2, 3
@@ -458,26 +459,6 @@ def _csr(owner, n):
     offsets = np.zeros(n + 1, np.int64)
     np.cumsum(np.bincount(owner, minlength=n), out=offsets[1:])
     return offsets, order
-
-
-def contact_geometry(position, radius, pair_i, pair_j, fn, fs, mr=None, periodic_width=None):
-    """Per pair: branch d = x_j - x_i (minimum image in x) (m,2) [m], distance (m,) [m],
-    overlap (m,) [m], force on j fn n + fs t (m,2) [N], moment on i -a_i fs - mr and on j
-    -a_j fs + mr (m,) [N m] (demcell's convention, a = r - overlap/2)."""
-    width = float(periodic_width or 0.0)
-    d = position[pair_j] - position[pair_i]
-    if width > 0.0:
-        d[:, 0] -= width * np.floor(d[:, 0] / width + 0.5)
-    dist = np.hypot(d[:, 0], d[:, 1])
-    safe = np.where(dist > 0.0, dist, 1.0)
-    nx = d[:, 0] / safe
-    ny = d[:, 1] / safe
-    force_j = np.stack([fn * nx - fs * ny, fn * ny + fs * nx], -1)
-    overlap = radius[pair_i] + radius[pair_j] - dist
-    rolling = 0.0 if mr is None else mr
-    moment_i = -(radius[pair_i] - 0.5 * overlap) * fs - rolling
-    moment_j = -(radius[pair_j] - 0.5 * overlap) * fs + rolling
-    return d, dist, overlap, force_j, moment_i, moment_j
 
 
 def flags(name, value, n):

@@ -83,9 +83,7 @@ class BiaxialTest:
         """The test from a checkpoint written by ``save`` (a dict or an open .npz)."""
         self = cls.__new__(cls)
         self.platen_speed = checks.number("platen_speed", platen_speed, POSITIVE)
-        state = SpecimenState.from_dict(checkpoint)
-        self.specimen = Specimen(state, law, options.with_(reorder=False))
-        self.specimen.order = np.asarray(checkpoint["order"], np.int64)
+        self.specimen = Specimen.restored(checkpoint, law, options)
         self.pressure = options.pressure
         self.phase = int(checkpoint["phase"])
         ref = np.asarray(checkpoint["reference"], float)
@@ -98,8 +96,7 @@ class BiaxialTest:
         """Everything a restart needs (.npz): the state, the disc order, the phase and the
         reference configuration."""
         ref = [] if self.reference is None else [self.reference[k] for k in ("height", "width", "area", "time")]
-        np.savez(path, order=self.specimen.order, phase=self.phase, reference=np.array(ref, float),
-                 **self.specimen.state.to_dict())
+        self.specimen.save(path, phase=self.phase, reference=np.array(ref, float))
 
     @property
     def state(self):
@@ -152,7 +149,7 @@ class BiaxialTest:
     def set_local_damping(self, alpha):
         """Local non-viscous damping alpha in [0, 1) from now on (000 section 3.2.1): phase 0
         may settle with it and phase 1 run without (004) or with it (000's quasi-static DNS)."""
-        self.specimen.options = self.specimen.options.with_(local_damping=alpha)
+        self.specimen.set_local_damping(alpha)
 
     def _start_platens(self):
         v = self.platen_speed

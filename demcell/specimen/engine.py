@@ -521,6 +521,20 @@ class Specimen:
         return (self.pair_updates / self.cpu_seconds if self.cpu_seconds > 0 else 0.0,
                 self.pair_updates / self.wall_seconds if self.wall_seconds > 0 else 0.0)
 
-    def save(self, path):
-        """Checkpoint of the state (.npz; the original disc order in `order`)."""
-        np.savez(path, order=self.order, **self.state.to_dict())
+    def set_local_damping(self, alpha):
+        """Local non-viscous damping alpha in [0, 1) from the next run on (000 section
+        3.2.1): a run may settle with it and load without (004) or with it (000's DNS)."""
+        self.options = self.options.with_(local_damping=alpha)
+
+    def save(self, path, **extra):
+        """Checkpoint of the state (.npz; the original disc order in `order`) and the arrays
+        of `extra` (a scene's own: its phase, its reference configuration)."""
+        np.savez(path, order=self.order, **extra, **self.state.to_dict())
+
+    @classmethod
+    def restored(cls, checkpoint, law, options):
+        """The specimen of a checkpoint written by ``save`` (a dict or an open .npz), its discs
+        in the saved order (options.reorder is not applied again)."""
+        specimen = cls(SpecimenState.from_dict(checkpoint), law, options.with_(reorder=False))
+        specimen.order = np.asarray(checkpoint["order"], np.int64)
+        return specimen

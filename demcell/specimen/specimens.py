@@ -75,17 +75,20 @@ class Discs:
         return float(np.pi * np.sum(self.radius ** 2) / (self.width * self.height))
 
 
-def discs_from(position, radius, density, box=None, periodic_width=0.0, info=None):
-    """A checked ``Discs`` from centres [m], radii [m] and a density [kg/m^2] (mass = density
-    pi r^2 per unit depth). box None: the bounding box of the discs (walls touching the
-    outermost discs); with periodic_width the box spans [box[0], box[0] + periodic_width]."""
+def discs_from(position, radius, density=None, box=None, periodic_width=0.0, info=None, mass=None):
+    """A checked ``Discs`` from centres [m], radii [m] and either a density [kg/m^2] (mass =
+    density pi r^2 per unit depth) or the masses [kg/m]. box None: the bounding box of the
+    discs (walls touching the outermost discs); with periodic_width the box spans
+    [box[0], box[0] + periodic_width]."""
     position = checks.array("position", position, (None, 2))
     n = position.shape[0]
     checks.number("number of discs", n, DISCS)
     radius = checks.array("radius", radius, (n,), POSITIVE)
-    density = checks.number("density", density, POSITIVE)
     periodic_width = checks.number("periodic_width", periodic_width, Range(0.0))
-    mass = density * np.pi * radius ** 2
+    if mass is None:
+        mass = checks.number("density", density, POSITIVE) * np.pi * radius ** 2
+    else:
+        mass = checks.array("mass", mass, (n,), POSITIVE)
     if box is None:
         box = (float(np.min(position[:, 0] - radius)), float(np.max(position[:, 0] + radius)),
                float(np.min(position[:, 1] - radius)), float(np.max(position[:, 1] + radius)))
@@ -224,13 +227,7 @@ def read_discs(path, density=None, tiles=(1, 1), periodic_sides=False):
         table = {"position": rows[:, :2], "radius": rows[:, 2]}
     info = {"source": "packing file", "file": path}
     if "mass" in table:
-        position = checks.array("position", table["position"], (None, 2))
-        radius = checks.array("radius", table["radius"], (position.shape[0],), POSITIVE)
-        mass = checks.array("mass", table["mass"], (position.shape[0],), POSITIVE)
-        discs = discs_from(position, radius, 1.0, info=info)
-        discs.mass = mass
-        discs.inertia = 0.5 * mass * radius ** 2
-        return discs
+        return discs_from(table["position"], table["radius"], mass=table["mass"], info=info)
     if density is None and "density" in table:
         density = float(table["density"])
     if density is None:

@@ -59,6 +59,7 @@ import math
 import os
 import sys
 import time
+import zipfile
 
 import numpy as np
 
@@ -238,10 +239,16 @@ if args.restart is None:
     print(f"[dem_specimen] settled at t = {m0.time:.3g} s: platen stresses {m0.wall_stress[0]:.4g}, "
           f"{m0.wall_stress[1]:.4g} N/m, coordination {m0.coordination:.3f}", flush=True)
 else:
-    with np.load(args.restart) as checkpoint:
-        test = BiaxialTest.restored(checkpoint, law, options, args.platen_speed)
-    with open(os.path.splitext(args.restart)[0] + ".json") as f:
-        kept = json.load(f)
+    try:        # a damaged or foreign checkpoint: one line, nothing written
+        with np.load(args.restart, allow_pickle=False) as checkpoint:
+            test = BiaxialTest.restored(checkpoint, law, options, args.platen_speed)
+        with open(os.path.splitext(args.restart)[0] + ".json") as f:
+            kept = json.load(f)
+        missing = {"snapshots_done", "bands", "balance", "isotropic", "series"} - set(kept)
+        if missing:
+            raise ValueError(f"its .json lacks {sorted(missing)}")
+    except (OSError, ValueError, KeyError, zipfile.BadZipFile) as error:
+        guard.refuse(f"--restart {args.restart}: not a checkpoint of this demo ({error})")
     print(f"[dem_specimen] restarted at t = {test.state.time - test.reference['time']:.4g} s of phase 1", flush=True)
 test.set_local_damping(args.loading_damping)
 
@@ -257,11 +264,13 @@ if args.restart and os.path.isfile(history_path):      # the rows up to the chec
 history = CsvLog(history_path, COLUMNS, kept_rows)
 rows = [dict(zip(COLUMNS, map(float, r))) for r in kept_rows]
 grid_step = args.grid_spacing * r_mean
-box = (test.state.wall_position[2] if args.lateral == "walls" else float(np.min(test.state.position[:, 0])) - r_mean,
-       test.state.wall_position[0])
-nx_grid = max(2, int(math.ceil(1.3 * test.width() / grid_step)))     # room for the lateral bulge
+# the grid covers the specimen at the end of phase 0 with room for the lateral bulge; it is
+# made from the reference configuration, so a restarted run writes on the same grid
+reference = test.state.reference_position
+x_left = float(np.min(reference[:, 0])) - r_mean
+nx_grid = max(2, int(math.ceil(1.3 * test.reference["width"] / grid_step)))
 ny_grid = max(2, int(math.ceil(test.reference["height"] / grid_step)))
-origin = (0.5 * (2 * box[0] + test.width()) - 0.5 * nx_grid * grid_step, box[1])
+origin = (x_left + 0.5 * test.reference["width"] - 0.5 * nx_grid * grid_step, float(np.min(reference[:, 1])) - r_mean)
 series = GridSeries(os.path.join(args.out, "grains.xdmf"), origin, (grid_step, grid_step), (nx_grid, ny_grid),
                     times=[tuple(s) for s in kept["series"]])
 grid_x = origin[0] + grid_step * (np.arange(nx_grid) + 0.5)

@@ -59,6 +59,22 @@ def test_stop_and_restart_give_the_straight_run_bit_for_bit(tmp_path):
     assert a == b
     sa, sb = (json.load(open(p / "summary.json")) for p in (straight, split))
     assert sb["completed"] is True and sa["bands"] == sb["bands"] and sa["peak_stress_ratio"] == sb["peak_stress_ratio"]
+    # the fields written after the restart lie on the same grid, with the same values
+    assert (straight / "grains.xdmf").read_text() == (split / "grains.xdmf").read_text()
+    assert (straight / "grains_0002.bin").read_bytes() == (split / "grains_0002.bin").read_bytes()
+
+
+@pytest.mark.parametrize("content", [b"", b"PK\x03\x04 not a zip", None])
+def test_a_damaged_checkpoint_is_refused_in_one_line(tmp_path, content):
+    checkpoint = tmp_path / "checkpoint.npz"
+    if content is None:          # a real .npz of something else, without the demo's .json
+        np.savez(checkpoint, a=np.ones(3))
+    else:
+        checkpoint.write_bytes(content)
+    proc = run_demo("dem_specimen", *SMALL, "--restart", checkpoint, "--out", tmp_path / "out", check=False)
+    assert proc.returncode == 2, proc.stderr
+    lines = proc.stderr.strip().splitlines()
+    assert len(lines) == 1 and "not a checkpoint of this demo" in lines[0]
 
 
 def test_sigint_leaves_readable_outputs(tmp_path):

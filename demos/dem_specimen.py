@@ -69,6 +69,7 @@ import demcell as dc  # noqa: E402
 from demcell.io import CsvLog  # noqa: E402
 from demcell.specimen import LostDiscsError, SpecimenOptions  # noqa: E402
 from demcell.specimen.biaxial import COLUMNS, BiaxialTest  # noqa: E402
+from demcell.specimen.engine import check_time_step  # noqa: E402
 from demcell.specimen.fields import coarse_grain, moment_balance, rev_fields  # noqa: E402
 from demcell.specimen.files import GridSeries, write_contacts_vtk, write_particles_vtk  # noqa: E402
 from demcell.specimen.specimens import read_discs, thesis_lattice, tiled_cell  # noqa: E402
@@ -199,6 +200,7 @@ try:
                            periodic_sides=args.lateral == "periodic")
     if args.dt is None:
         args.dt = DT_FRACTION * math.sqrt(float(np.min(discs.mass)) / args.kn)
+    check_time_step(args.dt, discs.mass, args.kn)
     r_mean = float(np.mean(discs.radius))
     if args.platen_speed is None:       # inertial number I = rate d / sqrt(p / rho)
         rho = float(np.sum(discs.mass) / np.sum(np.pi * discs.radius ** 2))

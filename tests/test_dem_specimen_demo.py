@@ -101,6 +101,7 @@ def test_sigint_leaves_readable_outputs(tmp_path):
     (["--tiles", "0x2", "--specimen", "tiled"], "--tiles"),
     (["--pressure", "-1"], "--pressure"),
     (["--dt", "nan"], "--dt"),
+    (["--dt", 10], "stability limit"),
     (["--duration", 10, "--axial-strain", 0.01], "not both"),
     (["--specimen", "file"], "--packing"),
     (["--specimen", "file", "--packing", "/nonexistent.npz"], "not found"),

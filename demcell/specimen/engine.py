@@ -40,6 +40,17 @@ INERTIAL_LIMIT = 1.0e-3
 (C_GX, C_GY, C_DAMP, C_SKIN, C_PRESSURE, C_EM, C_WIDTH, C_LATERAL, C_WALL_MU, N_CTRL) = range(10)
 
 
+def check_time_step(dt, mass, kn):
+    """InputError (one line) when dt [s] is above 2 sqrt(m_min / kn), the stability limit of
+    the leapfrog for the lightest disc [kg/m] on its stiffest single spring (a disc against a
+    wall, kn [N/m]): such a run can only blow up. Below it the step may still be too coarse
+    for accuracy (004's 2e-3 s is 0.11 of sqrt(m / kn))."""
+    limit = 2.0 * math.sqrt(float(np.min(mass)) / kn)
+    if not dt < limit:
+        raise InputError(f"time step dt = {dt:g} s is above the stability limit 2 sqrt(m_min / kn) = {limit:.3g} s "
+                         f"of the lightest disc on a spring kn = {kn:g} N/m")
+
+
 class LostDiscsError(SolveError):
     """Discs left the specimen (through a wall or the membrane) or their state is not finite."""
 
@@ -184,6 +195,7 @@ class Specimen:
             raise InputError("lateral='periodic' needs state.period > 0 (the x period of the specimen) [m]")
         if options.lateral != "periodic" and state.period > 0.0:
             raise InputError(f"state.period = {state.period:g} m but lateral={options.lateral!r}: set period 0")
+        check_time_step(options.dt, state.mass, law.kn)
         rmax = float(np.max(state.radius))
         if state.period > 0.0 and state.period < 2.0 * (2.0 * rmax + (options.skin or 0.3 * rmax)):
             raise InputError(f"period {state.period:g} m must be at least twice 2 r_max + skin (minimum image)")

@@ -249,7 +249,7 @@ else:
         missing = {"snapshots_done", "bands", "balance", "isotropic", "series"} - set(kept)
         if missing:
             raise ValueError(f"its .json lacks {sorted(missing)}")
-    except (OSError, ValueError, KeyError, zipfile.BadZipFile) as error:
+    except (OSError, EOFError, ValueError, KeyError, zipfile.BadZipFile) as error:   # numpy 2: EOFError for an empty file
         guard.refuse(f"--restart {args.restart}: not a checkpoint of this demo ({error})")
     print(f"[dem_specimen] restarted at t = {test.state.time - test.reference['time']:.4g} s of phase 1", flush=True)
 test.set_local_damping(args.loading_damping)

@@ -39,6 +39,10 @@ materials (linear elasticity, Ehlers) as they are; a material overrides what it 
 * resident state (what is not in the float history, e.g. a DEM cell per point):
   `export_points`, `import_points`, `check_exported` (checkpoints, points moved between
   ranks).
+* `use_fallback_operator(on)`: a `tangent_on_demand` material with a second operator that
+  stays positive definite where its own does not (a DEM cell's contact stiffness past a
+  peak, where the consistent operator of a sliding network turns singular) switches to it;
+  fallback.FallbackSolver tries a failed load step with it before the step is cut.
 * diagnostics: `cost_unit`, `timers`, `memory_bytes()`, `describe()`.
 
 `update` (and `tangent`) may return a `PointReport`: per updated point a status (0 ok,
@@ -144,6 +148,11 @@ class Constitutive(abc.ABC):
     def tangent(self, points, tangent_out):
         """Write tangent_out[points] (a `tangent_on_demand` material only)."""
         raise NotImplementedError(f"{type(self).__name__} computes its tangent in update()")
+
+    def use_fallback_operator(self, on):
+        """Compute the tangents from now on with the material's fallback operator (on=True)
+        or its own (on=False); True if that changed the operator. Default: no fallback."""
+        return False
 
     def commit(self):
         """The load step converged: the trial state becomes the committed one."""

@@ -77,6 +77,7 @@ class SolveInfo:
     force_ratios: list = field(default_factory=list)
     flags: str = ""     # a flagged Gauss point at the last iterate (e.g. a cell without contacts)
     accepted: bool = False   # ended at its best iterate above force_rtol but below accept_rtol
+    fallback: str = ""       # the cause a first try with the material's own operator failed (fallback.py)
 
 
 class NewtonSolver:

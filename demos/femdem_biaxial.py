@@ -70,6 +70,10 @@ update at 228 discs; a 2x4 mesh (48 cells) to 3 % in 30 steps without a weak zon
 CPU minutes. Past the peak, and from the start in a classical run with a weak zone, the
 elastic operators make the Newton converge slowly (up to 25 iterations per step, steps
 ending at their best iterate: --accept-rtol), and a step can cost ten times as much.
+Where the consistent operator (--tangent pstlo) of the sliding cells turns indefinite past the
+peak, a step it cannot solve is solved with --fallback-tangent (kruyt) and so are the
+--fallback-hold steps after it (history.csv column fallback; docs/reference/femdem.md, "Past
+the peak").
 """
 import sys, os  # noqa: E401
 sys.path.insert(0, os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
@@ -91,14 +95,14 @@ from cosserat_fenicsx.validation import (COUNT, DISCS, FRICTION, NON_NEGATIVE, N
 #: the scene's settings given as options (their ranges and help: scenes/femdem_biaxial.py)
 DISCRETISATION = ["cell_type", "degree_u", "degree_phi"]
 SPECIMEN = ["width", "height", "axial_strain", "steps", "weak_size", "weak_friction_factor"]
-COUPLING = ["mode", "mu_c", "l_c", "grain_diameter", "tangent", "force_rtol"]
+COUPLING = ["mode", "mu_c", "l_c", "grain_diameter", "tangent", "fallback_tangent", "fallback_hold", "force_rtol"]
 CELLS = ["balance", "balance_threshold", "balance_cost", "balance_passes", "batched", "cell_threads", "cell_device"]
 
 parser = cli.make_parser(__doc__)
 cli.add_settings(parser.add_argument_group("discretization"), FemDemSettings, DISCRETISATION)
 cli.add_output_options(parser, "results/femdem_biaxial")
 cli.add_checkpoint_options(parser, "femdem_biaxial",
-                           solver_options=("tangent", "force_rtol", "accept_rtol", "stagnation_its", "batched",
+                           solver_options=("tangent", "fallback_tangent", "fallback_hold", "force_rtol", "accept_rtol", "stagnation_its", "batched",
                                            "cell_threads", "cell_device"))
 g = parser.add_argument_group("specimen and loading (000 section 4.1)")
 g.add_argument("--mesh", default="2x4", help="NXxNY rectangles (000: 1x1, 1x2, 2x4, 4x8; default %(default)s)")
@@ -185,7 +189,7 @@ run.fields(test.cell_fields())
 history = run.log("history.csv", ["step", "time", "phase", "axial_strain", "stress_ratio", "volumetric_strain",
                                   "coordination_number", "anisotropy", "sliding_fraction", "vertical_reaction",
                                   "vertical_stress", "mean_sigma11", "mean_sigma22", "newton_iterations",
-                                  "force_ratio", "accepted", "dem_steps", "points_without_contacts", "cuts",
+                                  "force_ratio", "accepted", "fallback", "dem_steps", "points_without_contacts", "cuts",
                                   "wall_time"])
 gauss_log = run.log("gauss_points.csv", ["step", "axial_strain", "point", "x", "y", "stress_ratio"])
 
@@ -248,6 +252,7 @@ summary = {
     "newton_iterations_mean_after_peak": float(np.mean(iterations[i_peak + 1:])) if rows and i_peak + 1 < len(rows) else None,
     "newton_force_ratios": [info.force_ratios for info in test.solver.infos_converged()],
     "steps_accepted_above_force_rtol": int(sum(r["accepted"] for r in test.history)),
+    "steps_with_fallback_tangent": int(sum(r["fallback"] for r in test.history)),
     "dem_steps_total": float(sum(r["dem_steps"] for r in test.history)),
     "steps": len(test.history), "cut_backs": test.stepper.cuts,
     "cell_preparation_time": test.preparation_time, "ranks": comm.size,

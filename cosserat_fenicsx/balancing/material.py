@@ -43,6 +43,7 @@ class BalancedMaterial(Constitutive):
         self.threshold, self.every, self.cost_measure = float(threshold), int(every), cost
         self.passes = passes
         self.inner = make_material()
+        self.fallback_on = False        # kept for the inner materials a migration makes
         inner = self.inner
         self.rate_independent = inner.rate_independent
         self.tangent_on_demand = inner.tangent_on_demand
@@ -218,6 +219,10 @@ class BalancedMaterial(Constitutive):
         tangent_out[points[sent.order]] = back.rows.reshape(-1, nf, nf)
         return self._finish(points, sent.order, back)
 
+    def use_fallback_operator(self, on):
+        self.fallback_on = bool(on)
+        return self.inner.use_fallback_operator(on)
+
     def rollback(self):
         self.inner.rollback()
         self._clean = True
@@ -310,6 +315,7 @@ class BalancedMaterial(Constitutive):
         for name, value in old.timers.items():
             self._timers_done[name] = self._timers_done.get(name, 0.0) + value
         self.inner, self.slots = migrate(comm, old, self.make_material, self.slots, new_worker[self.slot_global])
+        self.inner.use_fallback_operator(self.fallback_on)
         self._slots_changed()
         self.worker = new_worker[self.home_offset[comm.rank]:self.home_offset[comm.rank] + self.n_home].copy()
         self._moved = True

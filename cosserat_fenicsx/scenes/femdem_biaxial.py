@@ -31,7 +31,11 @@ Newton and the cells' tolerance (docs/reference/femdem.md): the macro Newton sto
 FNORM/RNORM <= force_rtol (001 section 6), 1e-2 by default, above the floor that cells relaxed
 to 1e-3 leave in the residual; near the peak that floor rises, and a step whose iteration
 stagnates ends at its best iterate if that reached accept_rtol (3e-2), reported as accepted,
-as soon as that best has gained less than 10 % in stagnation_its (4) iterations.
+as soon as that best has gained less than 10 % in stagnation_its (4) iterations. Past the
+peak the consistent operators (pstlo, demqo, perturbation) of cells with sliding contacts turn
+indefinite and the Newton corrections explode: a step that fails with `tangent` is solved again
+with `fallback_tangent` (kruyt, positive definite while the contact network holds), and the
+`fallback_hold` (5) steps after it too (fallback.py).
 """
 from dataclasses import dataclass, field
 import time
@@ -45,9 +49,10 @@ from ..materials.dem.cells import TANGENTS
 from ..materials.dem.modes import MODES
 from ..resources import memory_bytes
 from ..shear_band import fit_band_collective
+from ..fallback import FallbackSolver
 from ..snes import NewtonSolver
-from ..validation import (AXIAL_STRAIN, COUNT, DEGREE, FRACTION, NON_NEGATIVE, POSITIVE, STEPS, Range,
-                          check_settings, setting)
+from ..validation import (AXIAL_STRAIN, COUNT, DEGREE, FRACTION, NON_NEGATIVE, NON_NEGATIVE_INTEGER, POSITIVE,
+                          STEPS, Range, check_settings, setting)
 from .platen_test import CELL_TYPES, PlatenTest
 
 DEFAULT_SOLVER_OPTIONS = {"snes_linesearch_type": "basic"}   # full Newton steps, as 001 and YADE
@@ -80,6 +85,12 @@ class FemDemSettings:
     tangent: str = setting("pstlo", choices=TANGENTS,
                            help="cell operator of the macro Newton (pstlo_sliding: PSTLO with the contacts on their "
                                 "Coulomb limit sliding, not for mode micropolar; docs/reference/femdem.md)")
+    fallback_tangent: str = setting("kruyt", choices=TANGENTS + ("none",),
+                                    help="operator a load step that failed with --tangent is tried again with "
+                                         "before it is cut (none: cut at once; docs/reference/femdem.md, "
+                                         "'Past the peak')")
+    fallback_hold: int = setting(5, NON_NEGATIVE_INTEGER, "steps solved with the fallback tangent directly "
+                                                                "after one that needed it")
     mu_c: float = setting(None, POSITIVE, "Cosserat modulus [N/m] (hybrid; default: the cell's initial shear modulus)")
     l_c: float = setting(None, NON_NEGATIVE, "internal length [m] (hybrid; default: --grain-diameter)")
     grain_diameter: float = setting(2.5e-4, POSITIVE, "mean grain diameter in the specimen's units [m] (W / 40)")
@@ -126,9 +137,10 @@ class FemDemSettings:
                              f"got {self.grain_diameter!r}")
         if self.l_c is not None and not self.l_c < min(self.width, self.height):
             raise ValueError(f"femdem: l_c must be below the specimen's width and height, got {self.l_c!r}")
-        refusal = check_tangent(self.tangent, self.mode)
-        if refusal:
-            raise ValueError(f"femdem: {refusal}")
+        for name in (self.tangent, self.fallback_tangent):
+            refusal = None if name == "none" else check_tangent(name, self.mode)
+            if refusal:
+                raise ValueError(f"femdem: {refusal}")
         if self.mode == "classical" and (self.mu_c is not None or self.l_c is not None):
             raise ValueError("femdem: mu_c and l_c are micropolar options; a classical (Cauchy) scene has "
                              "no rotation field (use mode hybrid)")
@@ -239,8 +251,10 @@ class FemDemBiaxial(PlatenTest):
             self.cell_moduli = self.mode.moduli = reference_moduli(self.mode, ref, s.tangent, s.grain_diameter)
             self.mu_c, self.l_c = self.cell_moduli["mu_c"], self.cell_moduli["l_c"]
 
+        fallback = None if s.fallback_tangent == "none" else s.fallback_tangent
+
         def make_material():
-            return DemMaterial(self.reference_cells, self.mode, s.tangent)
+            return DemMaterial(self.reference_cells, self.mode, s.tangent, fallback_tangent=fallback)
         self.cell_device = "cpu"
         if s.batched:
             import numba
@@ -251,7 +265,8 @@ class FemDemBiaxial(PlatenTest):
                 self.cell_device = use_device(comm.rank)
 
             def make_material():
-                return BatchedDemMaterial(self.reference_cells, self.mode, s.tangent, device=s.cell_device)
+                return BatchedDemMaterial(self.reference_cells, self.mode, s.tangent, device=s.cell_device,
+                                          fallback_tangent=fallback)
         self.material = make_material()
         self.balanced = s.balance and comm.size > 1
         if self.balanced:
@@ -270,7 +285,8 @@ class FemDemBiaxial(PlatenTest):
         self.newton = NewtonSolver(self.problem, options=options, force_rtol=s.force_rtol,
                                    accept_rtol=s.accept_rtol,
                                    stagnation_its=s.stagnation_its if s.accept_rtol is not None else None)
-        self.use_solver(self.newton, t_end=1.0 + s.steps)
+        self.fallback = FallbackSolver(self.newton, self.problem, self.material, hold=s.fallback_hold)
+        self.use_solver(self.fallback, t_end=1.0 + s.steps)
         cb = self.problem.gauss_points     # fluxes sigma = -p0 I before any solve (initial_fluxes)
         self.gradients_start = np.zeros_like(cb.gradients)       # phase 2 starts at u = 0
         self.gradients_previous = np.zeros_like(cb.gradients)
@@ -354,7 +370,7 @@ class FemDemBiaxial(PlatenTest):
                "vertical_reaction": reaction, "vertical_stress": reaction / s.width,
                "mean_sigma11": self.mean(cb.flux_values[:, 0]), "mean_sigma22": self.mean(cb.flux_values[:, 1]),
                "newton_iterations": record.iterations, "force_ratio": info.force_ratios[-1] if info.force_ratios else np.nan,
-               "accepted": int(info.accepted),
+               "accepted": int(info.accepted), "fallback": int(bool(info.fallback)),
                "dem_steps": comm.allreduce(float(cb.step_cost.sum())),
                "points_without_contacts": comm.allreduce(int(np.count_nonzero(status == 1))),
                "cuts": record.cuts, "wall_time": record.wall_time}
@@ -364,11 +380,12 @@ class FemDemBiaxial(PlatenTest):
     def checkpoint_state(self):
         """(per-point arrays, run state) beyond the fields, the Gauss-point arrays and the cells."""
         per_point, run_state = super().checkpoint_state()
-        return dict(per_point, gradients_previous=self.gradients_previous), run_state
+        return dict(per_point, gradients_previous=self.gradients_previous), dict(run_state, fallback_held=self.fallback.held)
 
     def restore_state(self, per_point, run_state):
         super().restore_state(per_point, run_state)
         self.gradients_previous[:] = per_point["gradients_previous"]
+        self.fallback.held = int(run_state.get("fallback_held", 0))
 
     # --- run --------------------------------------------------------------------------
     def after_step(self):

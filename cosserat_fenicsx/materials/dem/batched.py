@@ -13,5 +13,7 @@ class BatchedDemMaterial(DemMaterial):
 
     DEVICES = BatchedCells.DEVICES
 
-    def __init__(self, reference_cells, mode, tangent="pstlo", max_strain_increment=0.05, device="cpu"):
-        super().__init__(reference_cells, mode, tangent, max_strain_increment, batched=True, device=device)
+    def __init__(self, reference_cells, mode, tangent="pstlo", max_strain_increment=0.05, device="cpu",
+                 fallback_tangent="kruyt"):
+        super().__init__(reference_cells, mode, tangent, max_strain_increment, batched=True, device=device,
+                         fallback_tangent=fallback_tangent)

@@ -44,6 +44,11 @@ class DemMaterial(Constitutive):
                      'demqo', 'kruyt', 'pstlo', 'pstlo_sliding' (Cauchy cells)
     batched          the cells in one demcell cell store (stores.BatchedCells) on `device`
                      ('cpu' or 'gpu'), else one DemCell per point (stores.CellList)
+    fallback_tangent the operator of a load step that failed with `tangent`
+                     (use_fallback_operator; None: none). Default kruyt: the contact springs'
+                     uniform-strain stiffness stays positive definite where the consistent
+                     operators of a network with sliding contacts turn singular past a peak
+                     (fallback.py, docs/reference/femdem.md "Past the peak")
     """
 
     rate_independent = True
@@ -54,10 +59,11 @@ class DemMaterial(Constitutive):
     cost_unit = "DEM time steps"
 
     def __init__(self, reference_cells, mode, tangent="pstlo", max_strain_increment=0.05, batched=False,
-                 device="cpu"):
-        refusal = check_tangent(tangent, mode.name)
-        if refusal:
-            raise ValueError(refusal)
+                 device="cpu", fallback_tangent="kruyt"):
+        for name in (tangent, fallback_tangent):
+            refusal = None if name is None else check_tangent(name, mode.name)
+            if refusal:
+                raise ValueError(refusal)
         if not reference_cells:
             raise ValueError("DemMaterial needs at least one reference cell")
         if mode.name == "micropolar" and not all(c.micropolar for c in reference_cells):
@@ -72,6 +78,8 @@ class DemMaterial(Constitutive):
         self.reference_cells = list(reference_cells)
         self.mode = mode
         self.tangent_name = tangent
+        self.fallback_tangent = fallback_tangent
+        self.fallback_on = False
         self.batched, self.device = batched, device
         self.zone = None
         self.store = CellList([], mode, self.max_strain_increment)
@@ -83,7 +91,13 @@ class DemMaterial(Constitutive):
     def tangent_kind(self):
         """The demcell.tangent.TangentKind of the cell operator the Newton uses."""
         from demcell.tangent import tangent_kind
-        return tangent_kind(self.tangent_name)
+        on = self.fallback_on and self.fallback_tangent is not None
+        return tangent_kind(self.fallback_tangent if on else self.tangent_name)
+
+    def use_fallback_operator(self, on):
+        before = self.tangent_kind.name
+        self.fallback_on = bool(on)
+        return self.tangent_kind.name != before
 
     @property
     def cells(self):

@@ -138,3 +138,17 @@ def test_bad_input_is_refused_in_one_line():
         frame.set_deformation(np.eye(2), rotation=0.1)
     with pytest.raises(dc.InputError, match="det F"):
         frame.set_deformation(np.diag([1.0, -1.0]))
+
+
+@pytest.mark.serial
+def test_dem_cell_demo_runs_with_a_frame(demo, tmp_path):
+    """demos/dem_cell.py --micro-bc frame: a tiny biaxial run, micro_bc in summary.json."""
+    import json
+    demo("dem_cell", "--particles", 50, "--axial-strain", 0.002, "--increment", 0.001, "--micro-bc", "frame",
+         "--relaxation-tol", 1e-3, "--frame-tol", 2e-2, "--out", tmp_path)
+    summary = json.load(open(tmp_path / "summary.json"))
+    assert summary["micro_bc"] == "frame" and summary["frame"]["frame_discs"] > 4
+    data = np.genfromtxt(tmp_path / "history.csv", delimiter=",", names=True)
+    assert len(data) == 3 and np.all(np.isfinite(data["stress_ratio"])) and data["stress_ratio"][-1] > 0.1
+    refused = demo("dem_cell", "--micro-bc", "frame", "--test", "shear", "--out", tmp_path / "x", check=False)
+    assert refused.returncode != 0 and "--micro-bc frame is for --test biaxial" in refused.stderr

@@ -67,13 +67,15 @@ SERIAL_PAIRS = 10 ** 5
 class ServoRecord:
     """What the servo did in the last solve: residual r_a after each relaxation (iteration 0:
     after the loading ramp), DEM steps of each relaxation, the steps of the ramps, the final
-    residuals in both measures (servo.RESIDUALS) and the largest |a+ + a-| / mean contact force."""
+    residuals in both measures (servo.RESIDUALS), the largest |a+ + a-| / mean contact force,
+    and by_measure: the residual after each relaxation in each measure."""
     residuals: list
     relaxation_steps: list
     ramp_steps: int
     residual_force: float = math.nan
     residual_table2: float = math.nan
     anti_periodicity: float = math.nan
+    by_measure: dict = dataclasses.field(default_factory=dict)
 
     @property
     def iterations(self):
@@ -244,8 +246,11 @@ class FrameCell(MicroCell):
                            f"(max_steps = {o.relaxation.max_steps}, {steps} of {total} steps of the solve used)")
                 break
             da, dm, weights = self._residuals()
-            scale_f, scale_m = servo.scales(o.residual, fr.groups, fr.mass, fr.radius, self.dt, self._mean_force())
-            r_a = servo.residual(da, dm, scale_f, scale_m, fr.corner_group)
+            for kind in servo.RESIDUALS:
+                scale_f, scale_m = servo.scales(kind, fr.groups, fr.mass, fr.radius, self.dt, self._mean_force())
+                r = servo.residual(da, dm, scale_f, scale_m, fr.corner_group)
+                record.by_measure.setdefault(kind, []).append(r)
+            r_a = record.by_measure[o.residual][-1]
             record.residuals.append(r_a)
             if r_a <= o.eps_a:
                 converged = True

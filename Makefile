@@ -87,6 +87,7 @@ benchmark-dem: benchmark-deps
 	$(PYTHON) benchmarks/dem/dem_relaxation.py --out $(BENCH)/dem_relaxation
 	$(PYTHON) benchmarks/dem/dem_micropolar_moduli.py --out $(BENCH)/dem_micropolar_moduli
 	$(PYTHON) benchmarks/dem/dem_virtual_tests.py --out $(BENCH)/dem_virtual_tests
+	$(PYTHON) benchmarks/dem/frame_cell.py --increments 5 --out $(BENCH)/frame_cell
 	$(PYTHON) benchmarks/dem/dem_calibration.py --dem $(BENCH)/dem_virtual_tests --out $(BENCH)/dem_calibration
 	$(PYTHON) benchmarks/femdem/femdem_vs_ehlers.py --parameters $(BENCH)/dem_calibration/identify/identified_parameters.json --out $(BENCH)/femdem_vs_ehlers
 

@@ -256,18 +256,20 @@ def _stress_differences(base, trial_from, F, eps, opts, curvature_eps=None):
     return C, results
 
 
-def perturbation_tangent(cell, eps=1e-5):
+def perturbation_tangent(cell, eps=1e-5, options=None):
     """Consistent tangent by perturbation (CTO, 001 eq. 6): for each component, a copy of the
     cell is rolled back to its last committed state and solved to F + eps L^mn. ``cell`` (a
-    DemCell) must hold a solved state at F. Returns (C 4x4 d sigma/dF, solve results)."""
+    DemCell, or another cell with copy, rollback, options, set_deformation, solve and
+    homogenized) must hold a solved state at F. options: the cell's options for these solves
+    (default ``perturbation_options``, a DemCell's). Returns (C 4x4 d sigma/dF, solve results)."""
 
     def rolled_back_copy(_):
         trial = cell.copy()
         trial.rollback()
         return trial
 
-    return _stress_differences(rolled_back_copy(None), rolled_back_copy, cell.deformation_gradient(),
-                               eps, perturbation_options(cell, eps))
+    opts = perturbation_options(cell, eps) if options is None else options
+    return _stress_differences(rolled_back_copy(None), rolled_back_copy, cell.deformation_gradient(), eps, opts)
 
 
 def demqo_tangent(cell, eps=1e-6):

@@ -98,6 +98,7 @@ from cosserat_fenicsx.validation import AXIAL_STRAIN, DISCS, FRICTION  # noqa: E
 TEST_OPTIONS = {"biaxial": dict(axial_strain=0.1, lateral_control="servo", axial_direction=1),
                 "shear": dict(shear_strain=0.02, rotation="zero"),
                 "curvature": dict(rotation_jump=0.02)}
+FRAME_TOL = 1e-3       # --micro-bc frame: servo tolerance (demcell.frame.FrameOptions.eps_a)
 SHEAR_STRAIN = dict(low=0.0, high=0.5, low_open=True, high_open=True)   # |gamma| of the simple shear
 ROTATION_JUMP = dict(low=0.0, high=1.0, low_open=True)   # [rad]; DemCell refuses a jump > 1 rad
 
@@ -153,6 +154,16 @@ def parse(argv=None):
                         "dominated by the pre-stress and stops before a small rotation increment has relaxed)")
     p.add_argument("--relaxation", choices=["local", "fire"], default="local",
                    help="dynamic relaxation: local damping 0.7 (000, default) or FIRE")
+    p.add_argument("--micro-bc", choices=("periodic", "frame"), default="periodic",
+                   help="biaxial: the cell's boundary: periodic (default, images) or frame (paper 000's frame "
+                        "of boundary particles held by a servo, demcell.frame, made from the prepared periodic "
+                        "cell; needs --lateral-control strain, its default then)")
+    p.add_argument("--frame-thickness", type=number(POSITIVE), default=None,
+                   help="frame: width of the frame in mean diameters (default: one particle layer, the discs "
+                        "the cut crosses)")
+    p.add_argument("--frame-tol", type=number(POSITIVE), default=None,
+                   help="frame: servo tolerance eps_a on the frame's residual in mean contact forces "
+                        f"(default {FRAME_TOL:g}, with --relaxation-tol 1e-4 and --criterion force)")
     p.add_argument("--packing", default=None, help="start from a packing file (.npz from a previous run)")
     p.add_argument("--out", default="results/dem_cell", help="output directory")
     a = p.parse_args(argv)
@@ -167,9 +178,22 @@ def parse(argv=None):
         if a.no_rotation and a.test != "biaxial":
             raise InputError(f"--no-rotation cannot be used with --test {a.test}: locked rotations cannot carry "
                              "a micro-rotation or a curvature")
+        frame = a.micro_bc == "frame"
+        if not frame and (a.frame_thickness is not None or a.frame_tol is not None):
+            raise InputError("--frame-thickness and --frame-tol are options of --micro-bc frame")
+        if frame and a.test != "biaxial":
+            raise InputError(f"--micro-bc frame is for --test biaxial: --test {a.test} loads a micropolar cell, "
+                             "which is periodic (its curvature turns the periodic images)")
+        if frame and a.lateral_control == "servo":
+            raise InputError("--micro-bc frame takes --lateral-control strain (the stress servo is the periodic "
+                             "cell's: it deforms the cell during the relaxation)")
+        if frame and a.relaxation == "fire":
+            raise InputError("--micro-bc frame relaxes with local damping (000 section 3.2.1), not --relaxation fire")
+        if frame:
+            a.lateral_control = "strain"
         micropolar = a.test != "biaxial"
-        for name, default in dict(TEST_OPTIONS[a.test], criterion="force" if micropolar else "energy",
-                                  relaxation_tol=1e-4 if micropolar else 1e-3).items():
+        for name, default in dict(TEST_OPTIONS[a.test], criterion="force" if micropolar or frame else "energy",
+                                  relaxation_tol=1e-4 if micropolar or frame else 1e-3).items():
             if getattr(a, name) is None:
                 setattr(a, name, default)
         total_name, total = {"biaxial": ("axial-strain", a.axial_strain), "shear": ("shear-strain", a.shear_strain),
@@ -223,6 +247,20 @@ CURVATURE_COLUMNS = ["rotation_jump", "kappa31", "m31", "m32", "skew_stress", "s
 DETAIL_COLUMNS = ["load", "micro_rotation", "kappa31", "kappa32", "sigma11", "sigma22", "sigma12", "sigma21",
                   "m31", "m32", "coordination_number", "n_contacts", "mean_rotation_fluctuation",
                   "max_rotation_fluctuation", "converged", "steps"]
+
+
+def frame_cell(cell, law, opts, a):
+    """The prepared periodic cell (after the isotropic stage) cut open into paper 000's frame
+    cell (demcell.frame), re-referenced there: F = I, sigma = -p0 I."""
+    from demcell.frame import FrameCell, FrameOptions
+    prepared = cell.state.copy()
+    prepared.v[:] = 0.0
+    prepared.omega[:] = 0.0
+    frame = dict(thickness=a.frame_thickness) if a.frame_thickness is not None else {}
+    # the lateral stress of each increment is found to 1e-4 by a secant iteration
+    # (strain_path_step): the servo must bring the stress closer than that
+    frame["eps_a"] = a.frame_tol if a.frame_tol is not None else FRAME_TOL
+    return FrameCell(prepared, law, FrameOptions(relaxation=opts, max_iterations=300, **frame))
 
 
 def micropolar_cell(state, law, opts, pressure):
@@ -445,7 +483,7 @@ def run_micropolar(a, guard, law, state, info, opts, t0):
                            l_c_note=f"l_c = sqrt(B / (2 mu_c)) needs B > 0 and mu_c > 0 (B = {B:.3g} N m, "
                                     f"mu_c = {mu_c:.3g} N/m)")
     summary.update(increments=n_inc, increments_not_converged=n_bad, dem_steps=int(steps_total),
-                   time_step_s=cell.dt, wall_time_s=time.time() - t0, packing=info, options=echoed_options(a),
+                   time_step_s=cell.dt, wall_time_s=time.time() - t0, packing=info, micro_bc=a.micro_bc, options=echoed_options(a),
                    sign_convention="tension positive; (Grad u)_ij = du_i/dX_j; phi, kappa ccw positive; "
                                    "skew_stress = sigma12 - sigma21")
     if n_bad:
@@ -495,6 +533,11 @@ def main(argv=None):
         dc.isotropic_stage(cell, a.pressure)   # friction on, sigma = -p0 I (000 section 4.1)
     except dc.DemCellError as error:
         guard.stop(f"isotropic stage: {error}")
+    servo_iterations = []
+    if a.micro_bc == "frame":
+        cell = frame_cell(cell, law, opts, a)
+        print(f"[demcell] frame cell: {len(cell.frame.groups)} frame discs ({cell.frame.n_copies - cell.frame.inner.size}"
+              f" copies: {len(cell.frame.edge_pairs())} edge pairs), {cell.frame.inner.size} inner discs")
     F = cell.deformation_gradient()
     F_iso = F.copy()
     J_iso = np.linalg.det(F_iso)
@@ -545,6 +588,8 @@ def main(argv=None):
         else:
             res = strain_path_step(cell, F, lat, -a.pressure)
         steps_total += res.steps
+        if a.micro_bc == "frame":
+            servo_iterations.append(cell.last_servo.iterations)
         if not res.converged:
             n_bad += 1
             print(f"[demcell]   increment {k}: NOT converged: {res.message}")
@@ -565,8 +610,12 @@ def main(argv=None):
                    final_stress_ratio=float(hh[-1, 1]), final_volumetric_strain=float(hh[-1, 2]),
                    friction_angle_at_peak_deg=float(math.degrees(math.asin(min(1.0, hh[ipk, 1])))),
                    increments=n_inc, increments_not_converged=n_bad, dem_steps=int(steps_total),
-                   time_step_s=cell.dt, wall_time_s=time.time() - t0, packing=info,
+                   time_step_s=cell.dt, wall_time_s=time.time() - t0, packing=info, micro_bc=a.micro_bc,
                    options=echoed_options(a), sign_convention="tension positive; axial_strain = F_aa/F_aa_iso - 1 (a = axial direction)")
+    if a.micro_bc == "frame":
+        summary["frame"] = dict(frame_discs=len(cell.frame.groups), inner_discs=int(cell.frame.inner.size),
+                                thickness=a.frame_thickness, servo_iterations_mean=float(np.mean(servo_iterations)),
+                                servo_iterations_max=int(max(servo_iterations)), options=str(cell.options))
     if n_bad:
         summary["warning"] = (f"{n_bad} of {n_inc} increments did not relax to --relaxation-tol within the step "
                               "budget (details.csv: converged = 0): their stresses are not equilibrium values; "

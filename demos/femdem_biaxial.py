@@ -121,6 +121,13 @@ g.add_argument("--criterion", choices=("energy", "force"), default="force",
                help="cell convergence test: unbalanced-force ratio (001, default) or E_kin/E_pot (000 eq. 31; "
                     "near the peak it leaves a residual floor above --force-rtol, docs/reference/femdem.md)")
 g.add_argument("--max-dem-steps", type=number(low=1, high=1e9, integer=True), default=200_000, help="DEM steps allowed per cell solve (default %(default)s)")
+g.add_argument("--micro-bc", choices=("periodic", "frame"), default="periodic",
+               help="the cells' boundary: periodic (default) or frame (paper 000's frame of boundary particles held "
+                    "by a servo, demcell.frame, cut from the reference cell; docs/reference/frame_cell.md)")
+g.add_argument("--frame-thickness", type=number(POSITIVE), default=None,
+               help="frame: width in mean diameters (default: one particle layer)")
+g.add_argument("--frame-tol", type=number(POSITIVE), default=1e-3,
+               help="frame: the servo's tolerance eps_a in mean contact forces (default %(default)g)")
 g.add_argument("--cell-option", type=cli.key_value, action="append", default=[], metavar="KEY=VALUE",
                help="a further demcell.RelaxationOptions of the cells, e.g. method=fire, dt_safety=0.5, "
                     "strain_rate=1e-5 (repeat for more; docs/reference/femdem.md, 'Cheaper cells')")
@@ -147,7 +154,8 @@ def femdem_settings(args):
         cell=CellOptions(particles=args.particles, seed=args.seed, packing=args.packing, friction=args.friction,
                          pressure=args.pressure, kn=args.kn, ks=args.ks, rotation=not args.no_rotation,
                          relaxation_tol=args.relaxation_tol, criterion=args.criterion,
-                         max_steps=args.max_dem_steps, extra=dict(args.cell_option)))
+                         max_steps=args.max_dem_steps, extra=dict(args.cell_option), micro_bc=args.micro_bc,
+                         frame_thickness=args.frame_thickness, frame_tol=args.frame_tol))
 
 
 def check(args):
@@ -161,6 +169,11 @@ def check(args):
         if ignored:           # the file sets the discs: these would be silently without effect
             raise ValueError(f"--packing gives the discs: {', '.join('--' + o for o in ignored)} would have no "
                              f"effect (leave {'it' if len(ignored) == 1 else 'them'} out)")
+    if args.micro_bc == "frame" and (args.checkpoint_every or args.restart is not None):
+        raise ValueError("--micro-bc frame: checkpoints and restarts save periodic cell states (a frame cell "
+                         "is not restored from one)")
+    if args.micro_bc != "frame" and args.frame_thickness is not None:
+        raise ValueError("--frame-thickness is an option of --micro-bc frame")
     femdem_settings(args).check()             # every option, before any cell exists
 
 
@@ -244,7 +257,7 @@ summary = {
     "friction_angle_at_peak_deg": float(math.degrees(math.asin(min(1.0, ratio[i_peak])))) if rows else None,
     "final_stress_ratio": float(ratio[-1]) if rows else None,
     "final_axial_strain": float(rows[-1]["axial_strain"]) if rows else None,
-    "n_gauss_points": n_points, "particles_per_cell": test.packing_info["n_particles"],
+    "n_gauss_points": n_points, "particles_per_cell": test.packing_info["n_particles"], "micro_bc": args.micro_bc,
     **band_entries,
     "band_thickness_definition": "H = standard deviation of the bell fitted to the equivalent strain (thesis 4.22); FWHM = 2.355 H",
     "newton_iterations_total": int(sum(iterations)),

@@ -157,6 +157,16 @@ class FemDemSettings:
             raise ValueError("femdem: mode micropolar needs grains that rotate (a micropolar cell imposes the "
                              "rotation and curvature on them): drop the locked rotations or use mode hybrid")
         self.cell.check()
+        if self.cell.micro_bc == "frame":
+            from ..materials.dem.cells import FRAME_TANGENTS
+            for name, on, why in (("mode micropolar", self.mode == "micropolar", "a micropolar cell is periodic"),
+                                  ("batched", self.batched or self.cell_device == "gpu",
+                                   "the cell stores batch periodic cells"),
+                                  ("balance", self.balance, "cells move between ranks as periodic states"),
+                                  (f"tangent {self.tangent}", self.tangent not in FRAME_TANGENTS,
+                                   f"a frame cell has {', '.join(FRAME_TANGENTS)}")):
+                if on:
+                    raise ValueError(f"femdem: micro_bc 'frame' cannot be used with {name} ({why})")
         if self.balance_passes and not self.balance:
             raise ValueError("femdem: balance_passes (--balance-passes) is a way to balance: it needs balance "
                              "(--balance)")

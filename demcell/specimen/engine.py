@@ -67,7 +67,7 @@ def lateral_forces(position, radius, chain, chain_start, pressure, stiffness, ou
 
 @njit(cache=True, parallel=True)
 def advance(n_steps, position, velocity, rotation, spin, radius, mass, inertia, external_force, external_moment,
-            on_wall, pair_i, pair_j, touching, sliding, fn, fs, mr, work, geo, row, jstart, jcol, cand_disc,
+            on_wall, held, pair_i, pair_j, touching, sliding, fn, fs, mr, work, geo, row, jstart, jcol, cand_disc,
             cand_wall, cand_fs, chain, chain_start, build_position, build_wall, wall_position, wall_velocity,
             wall_active, wall_force, mode, velocity_prog, target, gain, vmax, par, ctrl, block_max):
     """Up to n_steps steps (module docstring); returns (steps done, status): DONE, REBUILD
@@ -126,11 +126,11 @@ def advance(n_steps, position, velocity, rotation, spin, radius, mass, inertia, 
         if parallel:
             for b in prange(nb):
                 block_max[b] = block(b, row, jstart, jcol, work, position, velocity, rotation, spin, mass, inertia,
-                                     external_force, external_moment, gx, gy, damp, dt, rot, build_position)
+                                     external_force, external_moment, gx, gy, damp, dt, rot, build_position, held)
         else:
             for b in range(nb):
                 block_max[b] = block(b, row, jstart, jcol, work, position, velocity, rotation, spin, mass, inertia,
-                                     external_force, external_moment, gx, gy, damp, dt, rot, build_position)
+                                     external_force, external_moment, gx, gy, damp, dt, rot, build_position, held)
         u2 = 0.0
         for b in range(nb):
             if block_max[b] > u2:
@@ -187,7 +187,7 @@ class Specimen:
         checks.instance("law", law, ContactLaw)
         options = SpecimenOptions() if options is None else checks.instance("options", options, SpecimenOptions)
         state.check()
-        expected = (1, 1, 1, 1) if options.lateral == "walls" else (1, 1, 0, 0)
+        expected = {"walls": (1, 1, 1, 1), "none": (0, 0, 0, 0)}.get(options.lateral, (1, 1, 0, 0))
         if tuple(int(a) for a in state.wall_active) != expected:
             raise InputError(f"state.wall_active {tuple(int(a) for a in state.wall_active)} does not match "
                              f"lateral={options.lateral!r} (expected {expected})")
@@ -227,6 +227,7 @@ class Specimen:
         self.chain_start = np.zeros(3, np.int64)
         self.loop = np.zeros(0, np.int64)
         self.external_moment = np.zeros(state.n_discs)
+        self.held = np.zeros(state.n_discs, np.int8)
         self.block_max = np.zeros(n_blocks(state.n_discs))
         self._warned_inertial = False
         self._warned_sides = False
@@ -405,6 +406,13 @@ class Specimen:
                                          f"(original indices {self._names(out)})")
 
     # ------------------------------------------------------------------ running
+    def hold(self, mask):
+        """Hold the discs of `mask` (n,) bool, in the original disc order: from the next step
+        on they ignore their forces and move with the velocity and spin of their state
+        (prescribed motion, e.g. demcell.frame's frame particles); the others are free."""
+        mask = checks.array("mask", np.asarray(mask, dtype=float), (self.state.n_discs,))
+        self.held = np.ascontiguousarray((mask[self.order] != 0.0).astype(np.int8))
+
     def set_walls(self, bottom=None, top=None, left=None, right=None):
         """Wall programme: a WallControl per wall (None: fixed). Absent walls (membrane or
         periodic sides) must stay None."""
@@ -463,7 +471,8 @@ class Specimen:
             k = min(left, interval - since)
             c0, w0 = _time.process_time(), _time.perf_counter()
             done, status = advance(k, st.position, st.velocity, st.rotation, st.spin, st.radius, st.mass, st.inertia,
-                                   st.external_force, self.external_moment, st.on_wall, st.pair_i, st.pair_j,
+                                   st.external_force, self.external_moment, st.on_wall, self.held, st.pair_i,
+                                   st.pair_j,
                                    st.touching, st.sliding, st.fn, st.fs, st.mr, self.work, self.geo, self.row,
                                    self.jstart,
                                    self.jcol, self.cand_disc, self.cand_wall, self.cand_fs, self.chain,

@@ -7,7 +7,8 @@ the dashpot forces evaluated at the lagged half-step velocity (dns-spec A5):
     v_{n+1/2} = v_{n-1/2} + F(x_n, v_{n-1/2}) dt / m,    x_{n+1} = x_n + v_{n+1/2} dt,
 
 and the same for the rotation with the inertia. The state's ``velocity`` and ``spin`` are the
-half-step values. Optional local non-viscous damping (000 section 3.2.1, eq. 30):
+half-step values. A held disc (``held[p]`` = 1: a frame particle of demcell.frame, whose
+motion is prescribed) ignores its forces: it drifts with the velocity and spin set for it. Optional local non-viscous damping (000 section 3.2.1, eq. 30):
 F_c <- F_c - alpha |F_c| sign(v_c) per component, for quasi-static preparation only.
 Rotations locked (ContactLaw.rotations False): spin and rotation stay zero.
 
@@ -28,9 +29,12 @@ BLOCK = 512
 
 @njit(cache=True)
 def leapfrog_disc(p, fx, fy, mo, position, velocity, rotation, spin, mass, inertia, external_force,
-                  external_moment, gx, gy, damp, dt, rot, build_position):
-    """Advance disc p by one step from its contact resultant (fx, fy [N], mo [N m]); returns
-    |x_p - x_p^build|^2 [m^2] (inf if not finite)."""
+                  external_moment, gx, gy, damp, dt, rot, build_position, held):
+    """Advance disc p by one step from its contact resultant (fx, fy [N], mo [N m]), or, if
+    held[p], by its prescribed velocity and spin; returns |x_p - x_p^build|^2 [m^2] (inf if
+    not finite)."""
+    if held[p] != 0:
+        return drift_held(p, position, velocity, rotation, spin, dt, rot, build_position)
     fx += external_force[p, 0] + mass[p] * gx
     fy += external_force[p, 1] + mass[p] * gy
     if damp > 0.0:
@@ -51,6 +55,25 @@ def leapfrog_disc(p, fx, fy, mo, position, velocity, rotation, spin, mass, inert
         rotation[p] += spin[p] * dt
     else:
         spin[p] = 0.0
+    return displacement2(p, position, build_position)
+
+
+@njit(cache=True)
+def drift_held(p, position, velocity, rotation, spin, dt, rot, build_position):
+    """A held disc moves by its prescribed velocity and spin [m/s, rad/s] whatever its forces;
+    returns |x_p - x_p^build|^2 [m^2] (inf if not finite)."""
+    position[p, 0] += velocity[p, 0] * dt
+    position[p, 1] += velocity[p, 1] * dt
+    if rot:
+        rotation[p] += spin[p] * dt
+    else:
+        spin[p] = 0.0
+    return displacement2(p, position, build_position)
+
+
+@njit(cache=True)
+def displacement2(p, position, build_position):
+    """|x_p - x_p^build|^2 [m^2], inf if not finite."""
     ux = position[p, 0] - build_position[p, 0]
     uy = position[p, 1] - build_position[p, 1]
     u2 = ux * ux + uy * uy
@@ -61,7 +84,7 @@ def leapfrog_disc(p, fx, fy, mo, position, velocity, rotation, spin, mass, inert
 
 @njit(cache=True)
 def block(b, row, jstart, jcol, work, position, velocity, rotation, spin, mass, inertia, external_force,
-          external_moment, gx, gy, damp, dt, rot, build_position):
+          external_moment, gx, gy, damp, dt, rot, build_position, held):
     """Gather + leapfrog of the discs of block b (BLOCK discs); returns their largest
     |x - x_build|^2. The engine's time loop runs the blocks in a parallel loop and takes the
     maximum over the blocks in block order."""
@@ -70,7 +93,7 @@ def block(b, row, jstart, jcol, work, position, velocity, rotation, spin, mass, 
     for p in range(b * BLOCK, min(n, (b + 1) * BLOCK)):
         fx, fy, mo = gather_disc(p, row, jstart, jcol, work)
         u2 = leapfrog_disc(p, fx, fy, mo, position, velocity, rotation, spin, mass, inertia, external_force,
-                           external_moment, gx, gy, damp, dt, rot, build_position)
+                           external_moment, gx, gy, damp, dt, rot, build_position, held)
         if u2 > umax:
             umax = u2
     return umax

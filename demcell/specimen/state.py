@@ -22,7 +22,7 @@ from .. import checks
 from ..checks import NON_NEGATIVE, POSITIVE, Range
 from ..errors import InputError
 
-LATERAL_KINDS = ("walls", "membrane", "periodic")
+LATERAL_KINDS = ("walls", "membrane", "periodic", "none")
 BOTTOM, TOP, LEFT, RIGHT = range(4)
 #: unit normal of each wall pointing into the specimen
 WALL_NORMAL = np.array([[0.0, 1.0], [0.0, -1.0], [1.0, 0.0], [-1.0, 0.0]])
@@ -95,7 +95,8 @@ class SpecimenState:
     def from_discs(cls, position, radius, mass, inertia, box, lateral="walls", period=0.0):
         """A state at rest from disc arrays and the box (x_min, x_max, y_min, y_max) [m] the
         walls start on. lateral: "walls" (four walls), "membrane" (platens only),
-        "periodic" (platens only, x period = `period`, default the box width)."""
+        "periodic" (platens only, x period = `period`, default the box width), "none" (no
+        wall: the discs are driven by held discs, Specimen.hold)."""
         checks.choice("lateral", lateral, LATERAL_KINDS)
         position = checks.array("position", position, (None, 2))
         n = position.shape[0]
@@ -113,7 +114,9 @@ class SpecimenState:
             period = float(box[1] - box[0])
         if lateral != "periodic":
             period = 0.0
-        active = np.array([1, 1, 1 if lateral == "walls" else 0, 1 if lateral == "walls" else 0], np.int8)
+        platens = 0 if lateral == "none" else 1
+        side = 1 if lateral == "walls" else 0
+        active = np.array([platens, platens, side, side], np.int8)
         return cls(position=position.copy(), velocity=np.zeros((n, 2)), rotation=np.zeros(n), spin=np.zeros(n),
                    radius=radius.copy(), mass=mass.copy(), inertia=inertia.copy(),
                    reference_position=position.copy(), reference_rotation=np.zeros(n),
@@ -222,7 +225,8 @@ class SpecimenOptions:
         for quasi-static preparation; 0 in a dynamic run (004 uses only the dashpots);
     gravity (g_x, g_y) [m/s^2];
     skin [m]: Verlet skin (None: 0.3 times the largest radius);
-    lateral: "walls" | "membrane" | "periodic";
+    lateral: "walls" | "membrane" | "periodic" | "none" (no wall at all: boundary conditions
+        through held discs, ``Specimen.hold``, as demcell.frame's frame cell);
     membrane_stiffness E_m [N/m] (004 eq. 7.45; NGT, dns-spec proposes 100);
     pressure p [N/m]: confining pressure on the free sides (004 eq. 7.44) and the target of
         the servo-controlled side walls;

@@ -22,6 +22,7 @@ import os
 
 import numpy as np
 
+from demcell.frame.cell import FRAME_TANGENTS  # noqa: F401 (the tangents a frame cell has)
 from demcell.tangent import TANGENT_KINDS
 
 #: the cell operators a DemMaterial's Newton may use, by demcell's names (demcell.tangent's
@@ -46,6 +47,9 @@ def check_tangent(tangent, mode):
     return None
 
 
+#: the cell's boundary conditions: periodic images (demcell.DemCell) or paper 000's servo-
+#: controlled frame of boundary particles (demcell.frame.FrameCell)
+MICRO_BCS = ("periodic", "frame")
 #: DEM steps allowed per cell solve at most (the relaxation kernel counts in int64; a
 #: billion steps is days of one cell)
 MAX_STEPS = 10 ** 9
@@ -69,6 +73,9 @@ class CellOptions:
     criterion: str = "force"          # 001: max unbalanced force / mean contact force (docs/reference/femdem.md)
     max_steps: int = 200_000         # DEM steps allowed per solve after the loading ramp
     extra: dict = field(default_factory=dict)   # further demcell.RelaxationOptions
+    micro_bc: str = "periodic"       # "frame": paper 000's frame cell (demcell.frame) cut from the reference cell
+    frame_thickness: float = None    # frame width in mean diameters (None: one particle layer)
+    frame_tol: float = 1e-3          # the frame servo's eps_a (demcell.frame.FrameOptions)
 
     def check(self):
         """Every value in range and the packing file readable, before any cell exists.
@@ -95,6 +102,12 @@ class CellOptions:
         if not (isinstance(self.max_steps, (int, np.integer)) and 2 * check_every <= self.max_steps <= MAX_STEPS):
             raise ValueError(f"max_steps must be an integer in [{2 * check_every}, {MAX_STEPS:.0e}] (the convergence "
                              f"test runs every {check_every} DEM steps), got {self.max_steps!r}")
+        if self.micro_bc not in MICRO_BCS:
+            raise ValueError(f"micro_bc must be one of {', '.join(MICRO_BCS)}, got {self.micro_bc!r}")
+        if self.micro_bc == "frame":
+            self.frame_options()     # bad thickness or tolerance: InputError (a ValueError) now
+        elif self.frame_thickness is not None:
+            raise ValueError("frame_thickness is an option of micro_bc 'frame'")
         if self.packing is not None:
             self.load_packing()      # missing or corrupt: InputError (a ValueError) now
         for name, own in OWN_SETTINGS.items():
@@ -102,6 +115,12 @@ class CellOptions:
                 raise ValueError(f"relaxation option {name!r} has its own setting: {own}")
         self.relaxation()            # unknown or bad extra options
         self.law()
+
+    def frame_options(self):
+        """demcell.frame.FrameOptions of the frame cells (micro_bc 'frame')."""
+        from demcell.frame import FrameOptions
+        return FrameOptions(relaxation=self.relaxation(), thickness=self.frame_thickness, eps_a=self.frame_tol,
+                            max_iterations=300)
 
     def law(self, friction=None):
         import demcell as dc
@@ -155,6 +174,12 @@ def reference_cells(options, frictions, comm=None, micropolar=False):
     if micropolar and not options.rotation:
         raise ValueError("mode 'micropolar' needs grains that rotate (not rotation=False / --no-rotation)")
     rotation_mode = "micropolar" if micropolar else None
+    if options.micro_bc == "frame":
+        if micropolar:
+            raise ValueError("micro_bc 'frame' takes no micro-rotation or curvature: mode micropolar needs "
+                             "periodic cells")
+        from demcell.frame import FrameCell
+        return [FrameCell(s, options.law(mu), options.frame_options()) for s, mu in zip(states, frictions)], info
     for s in states:
         if micropolar:      # the imposed values the prepared state is at
             s.phi = 0.0

@@ -1,0 +1,194 @@
+#!/usr/bin/python3
+"""Periodic cell against paper 000's frame cell (demcell.frame) on the same grains.
+
+1. Biaxial path at three cell sizes (--sizes, default 60 120 240 discs, seed 0): the
+   prepared reference cell (demcell.reference_cell, p0 = 10 N/m, kn = 1e4 N/m, mu = 0.4) is
+   loaded as a periodic DemCell and, cut open, as a FrameCell (one-particle frame, the
+   defaults of demcell.frame: stiffness gain beta 0.5 with Anderson mixing, servo tolerance
+   --frame-tol in mean contact forces), both by demcell.strain_path_step (axial F imposed,
+   the lateral F found by a secant iteration on sigma_lat = -p0: a FEM x DEM Gauss point's
+   path, to 1e-3 of p0), --increments of --increment. Per size: the stress-ratio curves and their largest
+   difference, the peaks, the volumetric strains, and per increment the frame's servo
+   iterations, DEM steps and CPU / wall seconds against the periodic cell's; also the Table
+   2 residual r_a (a~ = M R / dt^2) after the first relaxation of every solve, i.e. 000's
+   criterion before any servo correction (000 Table 2: eps_a = 1e-4).
+2. Grains through the frame (000 section 4.2): a 60-disc cell sheared and compressed in 1 %
+   increments to 30 % with a one-particle frame and with a frame 3 mean diameters wide:
+   the increment at which a grain is pushed through, if any.
+3. Optionally (--femdem MESH) demos/femdem_biaxial.py on that mesh with 100-disc cells,
+   periodic against frame (classical mode, --femdem-steps of 0.2 %).
+
+Writes --out/frame_cell.json and prints the tables of docs/results/frame_cell.md.
+
+    python3 benchmarks/dem/frame_cell.py --out results/frame_cell
+"""
+import argparse
+import json
+import os
+import subprocess
+import sys
+import time
+
+import numpy as np
+
+sys.path.insert(0, os.path.join(os.path.dirname(os.path.abspath(__file__)), "..", ".."))
+
+import demcell as dc  # noqa: E402
+from demcell.frame import FrameCell, FrameOptions, servo  # noqa: E402
+from demcell.strain_path import strain_path_step  # noqa: E402
+
+P0 = 10.0
+#: the secant iteration's tolerance on the lateral stress (demcell.strain_path_step's default
+#: 1e-4 asks a frame cell for several more solves per increment)
+LATERAL_RTOL = 1e-3
+LAW = dc.ContactLaw(kn=1e4, ks=2e3, friction=0.4)
+
+
+def reference(n, seed=0):
+    state, _ = dc.generate_packing(n, pressure=P0, law=LAW, seed=seed)
+    return dc.reference_cell(state, LAW, dc.RelaxationOptions(criterion="force", tol=1e-4), P0)
+
+
+def table2_first(cell):
+    """Table 2's r_a (a~ = M R / dt^2) after the first relaxation of the last solve, before
+    any servo correction."""
+    first = cell.last_servo.by_measure.get("table2", [])
+    return first[0] if first else float("nan")
+
+
+def biaxial(cell, increments, increment, frame):
+    rows = []
+    for k in range(1, increments + 1):
+        F = cell.deformation_gradient()
+        F[1, 1] = 1.0 - k * increment
+        c0, w0 = time.process_time(), time.perf_counter()
+        iterations, first = [], []
+        if frame:
+            solve = cell.solve
+
+            def counted(max_steps=None):
+                result = solve(max_steps)
+                iterations.append(cell.last_servo.iterations)
+                first.append(table2_first(cell))
+                return result
+            cell.solve = counted
+        res = strain_path_step(cell, F, 0, -P0, rtol=LATERAL_RTOL)
+        if frame:
+            del cell.solve
+        cell.commit()
+        h = cell.homogenized()
+        rows.append(dict(axial_strain=-k * increment, stress_ratio=h.stress_ratio,
+                         volumetric_strain=float(np.linalg.det(cell.deformation_gradient()) - 1.0),
+                         sigma=h.cauchy.tolist(), steps=res.steps, converged=bool(res.converged),
+                         cpu=time.process_time() - c0, wall=time.perf_counter() - w0,
+                         solves=len(iterations) if frame else None,
+                         servo_iterations=int(np.sum(iterations)) if frame else None,
+                         table2_first=float(np.nanmax(first)) if frame and first else None,
+                         load=os.getloadavg()[0]))
+    return rows
+
+
+def size_study(sizes, increments, increment, frame_tol):
+    out = {}
+    for n in sizes:
+        ref = reference(n)
+        relax = dc.RelaxationOptions(criterion="force", tol=1e-4)
+        periodic = dc.DemCell(ref.state.copy(), LAW, relax)
+        frame = FrameCell(ref.state.copy(), LAW, FrameOptions(relaxation=relax, eps_a=frame_tol, max_iterations=300))
+        fr = frame.frame
+        p_rows = biaxial(periodic, increments, increment, False)
+        f_rows = biaxial(frame, increments, increment, True)
+        rp = np.array([r["stress_ratio"] for r in p_rows])
+        rf = np.array([r["stress_ratio"] for r in f_rows])
+        sp = np.array([r["sigma"] for r in p_rows])
+        sf = np.array([r["sigma"] for r in f_rows])
+        out[n] = dict(frame_discs=len(fr.groups), inner_discs=int(fr.inner.size), periodic=p_rows, frame=f_rows,
+                      ratio_difference_max=float(np.abs(rf - rp).max()),
+                      stress_difference_max=float((np.abs(sf - sp).max(axis=(1, 2)) / np.abs(sp).max(axis=(1, 2))).max()),
+                      peak_periodic=float(rp.max()), peak_frame=float(rf.max()),
+                      volumetric_difference_max=float(np.abs(np.array([r["volumetric_strain"] for r in f_rows])
+                                                             - np.array([r["volumetric_strain"] for r in p_rows])).max()),
+                      cost_ratio_cpu=float(sum(r["cpu"] for r in f_rows) / sum(r["cpu"] for r in p_rows)),
+                      cost_ratio_steps=float(sum(r["steps"] for r in f_rows) / sum(r["steps"] for r in p_rows)))
+        print(f"[frame_cell] {n} discs done: {json.dumps({k: v for k, v in out[n].items() if not isinstance(v, list)})}",
+              flush=True)
+    return out
+
+
+def escape_study(n=60, increment=0.01, final=0.3):
+    ref = reference(n)
+    out = {}
+    for thickness in (None, 3.0):
+        cell = FrameCell(ref.state.copy(), LAW, FrameOptions(relaxation=dc.RelaxationOptions(criterion="force", tol=1e-3),
+                                                          thickness=thickness, eps_a=1e-2, max_iterations=50))
+        lost = None
+        for k in range(1, int(round(final / increment)) + 1):
+            e = k * increment
+            cell.set_deformation(np.array([[1.0 - e, 0.5 * e], [0.5 * e, 1.0 + 0.5 * e]]))
+            res = cell.solve()
+            if cell.escaped.size:
+                lost = dict(increment=k, strain=e, discs=cell.escaped.tolist(), message=res.message)
+                break
+            cell.commit()
+        out["one particle" if thickness is None else f"{thickness:g} diameters"] = dict(
+            frame_discs=len(cell.frame.groups), inner_discs=int(cell.frame.inner.size), lost=lost,
+            reached=e)
+        print(f"[frame_cell] escape, thickness {thickness}: {out[list(out)[-1]]}", flush=True)
+    return out
+
+
+def femdem(mesh, steps, out):
+    root = os.path.join(os.path.dirname(os.path.abspath(__file__)), "..", "..")
+    result = {}
+    for bc in ("periodic", "frame"):
+        target = os.path.join(out, f"femdem_{bc}")
+        cmd = [sys.executable, os.path.join(root, "demos", "femdem_biaxial.py"), "--mesh", mesh, "--particles", "100",
+               "--mode", "classical", "--axial-strain", str(0.002 * steps), "--steps", str(steps),
+               "--micro-bc", bc, "--out", target]
+        c0, w0 = time.process_time(), time.perf_counter()
+        subprocess.run(cmd, check=True, capture_output=True, text=True)
+        summary = json.load(open(os.path.join(target, "summary.json")))
+        history = np.genfromtxt(os.path.join(target, "history.csv"), delimiter=",", names=True)
+        result[bc] = dict(wall=time.perf_counter() - w0, peak=summary["peak_stress_ratio"],
+                          stress_ratio=history["stress_ratio"].tolist(), dem_steps=summary["dem_steps_total"],
+                          newton=summary["newton_iterations_total"])
+        print(f"[frame_cell] femdem {mesh} {bc}: {result[bc]}", flush=True)
+    return result
+
+
+def main():
+    p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    p.add_argument("--sizes", type=int, nargs="+", default=[60, 120, 240])
+    p.add_argument("--increments", type=int, default=10)
+    p.add_argument("--increment", type=float, default=2e-3)
+    p.add_argument("--frame-tol", type=float, default=1e-3)
+    p.add_argument("--no-escape", action="store_true")
+    p.add_argument("--femdem", default=None, help="mesh NXxNY of the FEM x DEM comparison (default: skipped)")
+    p.add_argument("--femdem-steps", type=int, default=5)
+    p.add_argument("--out", default="results/frame_cell")
+    a = p.parse_args()
+    os.makedirs(a.out, exist_ok=True)
+    t0 = time.perf_counter()
+    result = dict(sizes=size_study(a.sizes, a.increments, a.increment, a.frame_tol), options=vars(a))
+    if not a.no_escape:
+        result["escape"] = escape_study()
+    if a.femdem:
+        result["femdem"] = femdem(a.femdem, a.femdem_steps, a.out)
+    result["wall_time"] = time.perf_counter() - t0
+    json.dump(result, open(os.path.join(a.out, "frame_cell.json"), "w"), indent=1)
+    print("| discs | frame / inner discs | max |d stress ratio| | max |d sigma| / |sigma| | peak periodic / frame "
+          "| max |d eps_v| | servo iterations per increment (solves) | DEM steps frame / periodic | CPU frame / periodic "
+          "| Table 2 r_a at iteration 0 (max) |")
+    print("|---|---|---|---|---|---|---|---|---|---|")
+    for n, s in result["sizes"].items():
+        f = s["frame"]
+        print(f"| {n} | {s['frame_discs']} / {s['inner_discs']} | {s['ratio_difference_max']:.3f} | "
+              f"{s['stress_difference_max']:.3f} | {s['peak_periodic']:.3f} / {s['peak_frame']:.3f} | "
+              f"{s['volumetric_difference_max']:.1e} | {np.mean([r['servo_iterations'] for r in f]):.0f} "
+              f"({np.mean([r['solves'] for r in f]):.1f}) | {s['cost_ratio_steps']:.0f} | {s['cost_ratio_cpu']:.0f} | "
+              f"{max(r['table2_first'] for r in f):.1e} |")
+    print(f"[frame_cell] {result['wall_time']:.0f} s; {os.path.join(a.out, 'frame_cell.json')}")
+
+
+if __name__ == "__main__":
+    main()

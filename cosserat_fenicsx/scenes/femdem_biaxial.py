@@ -153,6 +153,9 @@ class FemDemSettings:
             reason = available()
             if reason:
                 raise ValueError(f"femdem: cell_device gpu: {reason}")
+            if self.cell.relaxation().fixed:
+                raise ValueError("femdem: cell_device gpu: fixed_steps (cells that do not relax) runs on CPU cells "
+                                 "only")
             self.batched = True          # a GPU holds the rank's cells as one batch
         if self.cell_threads > 1 and not self.batched:
             raise ValueError("femdem: cell_threads > 1 needs batched cells (--batched)")

@@ -101,6 +101,8 @@ CASES = [   # (id, args, pattern the error line must match)
     ("cell-option-method", ["--cell-option", "method=verlet"], r"relaxation method 'verlet'"),
     ("cell-option-dt-safety", ["--cell-option", "dt_safety=1.5"], r"dt_safety must be in \(0, 1\]"),
     ("cell-option-check-every", ["--cell-option", "check_every=0"], r"check_every must be an integer >= 1"),
+    ("cell-option-fixed-steps-zero", ["--cell-option", "fixed_steps=0"], r"fixed_steps must be an integer in \[1"),
+    ("cell-option-fixed-steps-fraction", ["--cell-option", "fixed_steps=2.5"], r"fixed_steps must be an integer"),
 ]
 
 

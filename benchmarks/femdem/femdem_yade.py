@@ -347,7 +347,7 @@ def cell_scatter(yade, out, seeds, law, increments, width):
     makeCloud seeds (seed 1 is the example's), all under ours' law of the example's RVE:
     its spread is the scatter of a 400-disc cell, the yardstick of the curves' agreement.
     Returns {seed: [force at 0, 1, ..., increments x 1e-3 axial strain]}."""
-    import demcell as dc
+    from benchmarks.femdem.femdem_cases import homogeneous_path
     from cosserat_fenicsx.materials.dem import CellOptions, reference_cells
     curves = {}
     for seed in seeds:
@@ -363,18 +363,12 @@ def cell_scatter(yade, out, seeds, law, increments, width):
         opts = CellOptions(packing=packing, pressure=PRESSURE, kn=law["kn"], ks=law["ks"], friction=law["friction"],
                            criterion="force")
         cell = reference_cells(opts, [law["friction"]])[0][0]
-        mask = np.array([[True, False], [False, False]])
         force = [float(cell.cauchy_stress()[1, 1]) * width]
-        for k in range(1, increments + 1):
-            F = cell.deformation_gradient().copy()
-            F[1, 1] = 1.0 - k * PLATEN_STEP / HEIGHT
-            F[0, 1] = F[1, 0] = 0.0
-            cell.set_deformation(F)
-            r = cell.solve(stress_mask=mask, stress_target=-PRESSURE * np.eye(2))
-            if not r.converged:
-                raise SystemExit(f"seed {seed}: the cell did not converge at increment {k}: {r.message}")
-            cell.commit()
-            force.append(float(cell.cauchy_stress()[1, 1]) * width)
+        try:
+            path = homogeneous_path(cell, [-k * PLATEN_STEP / HEIGHT for k in range(1, increments + 1)], PRESSURE)
+        except RuntimeError as error:
+            raise SystemExit(f"seed {seed}: {error}")
+        force += [float(sigma[1, 1]) * width for sigma in path]
         curves[seed] = force
         print(f"cell of seed {seed}: force {np.round(force, 1).tolist()} N/m", flush=True)
     return curves

@@ -92,7 +92,7 @@ CASES = [   # (id, args, pattern the error line must match)
     ("weak-friction-zero", ["--weak-friction", 0], r"weak[-_]friction"),
     ("force-rtol-zero", ["--force-rtol", 0], r"force[-_]rtol"),
     ("stagnation-its-negative", ["--stagnation-its", -1], r"stagnation[-_]its"),
-    ("cell-threads-without-batched", ["--cell-threads", 2], r"cell_threads.*--batched"),
+    ("cell-threads-without-batched", ["--no-batched", "--cell-threads", 2], r"cell_threads.*--no-batched"),
     ("cell-threads-too-many", ["--batched", "--cell-threads", 100000], r"cell_threads.*NUMBA_NUM_THREADS"),
     ("cell-threads-zero", ["--batched", "--cell-threads", 0], r"cell-threads"),
     ("cell-option-no-equals", ["--cell-option", "fire"], r"--cell-option.*KEY=VALUE"),

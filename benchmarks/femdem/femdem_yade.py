@@ -85,6 +85,7 @@ PACKAGES = ("yade", "python3-escript")
 #: Newton tolerance on |du| / |u|
 WIDTH, HEIGHT, PRESSURE, PLATEN_STEP, YADE_RTOL = 0.05, 0.1, 1e5, 1e-4, 1e-2
 MESH = "8x16"
+CELLS = 512              # 8 x 16 quadrilaterals x 4 Gauss points
 
 
 def installed(package):
@@ -297,9 +298,10 @@ def ours_run(packing, law, increments, np_, tangent, force_rtol, relaxation_tol,
            "--kn", repr(law["kn"]), "--ks", repr(law["ks"]), "--friction", repr(law["friction"]),
            "--pressure", repr(PRESSURE), "--axial-strain", repr(increments * PLATEN_STEP / HEIGHT),
            "--steps", str(increments), "--tangent", tangent, "--force-rtol", repr(force_rtol),
-           "--relaxation-tol", repr(relaxation_tol), "--criterion", "force",
            "--accept-rtol", repr(max(3e-2, force_rtol)), "--fields", "displacement",
            "--write-every", str(increments + 10), "--out", out]
+    if relaxation_tol is not None:
+        cmd += ["--relaxation-tol", repr(relaxation_tol)]
     for option in cell_options:
         cmd += ["--cell-option", option]
     if batched:
@@ -485,9 +487,13 @@ def main(argv=None):
     p.add_argument("--force-rtol", type=float, default=None,
                    help="our Newton tolerance FNORM/RNORM (default: the equivalent of YADE's |du|/|u| < 1e-2 "
                         "from YADE's curve in this run, module docstring)")
-    p.add_argument("--relaxation-tol", type=float, default=1e-3,
-                   help="our cells' unbalanced-force ratio (default 1e-3, the project's; YADE's cells do not "
-                        "relax: about 100 steps per call)")
+    p.add_argument("--relaxation-tol", type=float, default=None,
+                   help="our cells' relaxation tolerance (default: the demo's, docs/reference/femdem.md; YADE's "
+                        "cells do not relax: about 100 steps per call)")
+    p.add_argument("--like-yade", action="store_true",
+                   help="run every tangent once more with cells run as YADE's run (--cell-option fixed_steps=N, N "
+                        "= YADE's mean DEM steps per cell per Newton pass in this run, no relaxation): the "
+                        "like-for-like ratio of the same work")
     p.add_argument("--cell-option", action="append", default=[], metavar="KEY=VALUE",
                    help="run every tangent a second time with these cells (demcell.RelaxationOptions, e.g. "
                         "method=fire; repeat for more; passed on to demos/femdem_biaxial.py)")
@@ -578,12 +584,23 @@ def reused_record(record, a):
     return res
 
 
+def yade_steps_per_cell_pass(y):
+    """YADE's DEM steps per cell per Newton pass (its ns = int(max(1e5 max|D|, 2)), the mean over
+    the cells and passes of its run, rounded): the fixed_steps of ours' like-for-like cells."""
+    passes = sum(i["passes"] for i in y["increments"]) * CELLS
+    return max(1, int(round(sum(i["dem_steps"] for i in y["increments"]) / passes)))
+
+
 def run_ours(res, a, law, packing, rtol):
-    """Ours' runs (every tangent, then every tangent with --cell-option), the scatter of the
-    cell and the report, added to ``res`` and written as they go."""
+    """Ours' runs (every tangent, then every tangent with --cell-option, then with --like-yade
+    every tangent with cells that take YADE's DEM steps per pass), the scatter of the cell and
+    the report, added to ``res`` and written as they go."""
     y = res["yade"]
     record = os.path.join(a.out, "femdem_yade.json")
     variants = [(t, ()) for t in a.tangents] + ([(t, tuple(a.cell_option)) for t in a.tangents] if a.cell_option else [])
+    if a.like_yade:
+        res["yade_steps_per_cell_pass"] = yade_steps_per_cell_pass(y)
+        variants += [(t, (f"fixed_steps={res['yade_steps_per_cell_pass']}",)) for t in a.tangents]
     for tangent, cell_options in variants:
         words = run_words(tangent, cell_options, a.batched)
         name = " ".join(words)
@@ -611,7 +628,7 @@ def run_ours(res, a, law, packing, rtol):
                                    min=f.min(0).tolist(), max=f.max(0).tolist())
     for o in [res["yade"]] + res["ours"]:       # cost of one cell pass (one cell, one Newton pass)
         inc = o["increments"]
-        passes = sum(i["passes"] for i in inc) * 512
+        passes = sum(i["passes"] for i in inc) * CELLS
         o["per_cell_pass"] = dict(wall_ms_x_np=1e3 * a.np * sum(i["wall"] for i in inc) / passes,
                                   cpu_ms=1e3 * sum(i["cpu"] for i in inc) / passes,
                                   dem_steps=sum(i["dem_steps"] for i in inc) / passes)

@@ -107,8 +107,8 @@ class FemDemSettings:
                                      "in every run, whatever the machine's load)")
     balance_passes: bool = setting(False, help="... at the start of every Newton pass, by the cell work of the pass "
                                                "before, instead of after every step (docs/results/balancing.md)")
-    batched: bool = setting(False, help="the rank's cells in one struct of arrays, solved by one Numba call (same "
-                                        "results; docs/reference/femdem.md)")
+    batched: bool = setting(True, help="the rank's cells in one struct of arrays, solved by one Numba call (the "
+                                       "same results as one cell at a time, --no-batched; docs/reference/femdem.md)")
     cell_threads: int = setting(1, COUNT, "Numba threads per rank over the cells, with --batched "
                                           "(ranks x threads <= cores)")
     cell_device: str = setting("cpu", choices=("cpu", "gpu"),
@@ -158,7 +158,7 @@ class FemDemSettings:
                                  "only")
             self.batched = True          # a GPU holds the rank's cells as one batch
         if self.cell_threads > 1 and not self.batched:
-            raise ValueError("femdem: cell_threads > 1 needs batched cells (--batched)")
+            raise ValueError("femdem: cell_threads > 1 needs batched cells (the default: leave out --no-batched)")
         import numba
         if self.cell_threads > numba.config.NUMBA_NUM_THREADS:
             raise ValueError(f"femdem: cell_threads = {self.cell_threads} exceeds NUMBA_NUM_THREADS = "

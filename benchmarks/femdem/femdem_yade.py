@@ -29,11 +29,13 @@ bottom, u2 prescribed at the top, one pin at the bottom centre), the top platen 
    8-node quads with the same 2x2 rule), the same size, pressure and platen increments,
    the packing of 3 (re-equilibrated once at p0 under the constant-kn law), tangent kruyt
    (the uniform-strain contact-stiffness operator, as YADE's getStressAndTangent) and, with
-   --tangents kruyt pstlo, pstlo as well. With --cell-option KEY=VALUE (repeatable; the cells'
-   demcell.RelaxationOptions, e.g. method=fire) every tangent runs a second time with those
-   cells, in the same run: the default cells and the cheaper ones against the same YADE part.
-   With --batched, every run of ours uses the demo's --batched cells (a rank's cells in one
-   struct of arrays: solve, homogenisation and Kruyt tangent one Numba call each).
+   --tangents kruyt pstlo, pstlo as well; the cells are the demo's defaults (FIRE, batched:
+   docs/reference/femdem.md). With --cell-option KEY=VALUE (repeatable; the cells'
+   demcell.RelaxationOptions, e.g. method=local) every tangent runs a second time with those
+   cells, in the same run, against the same YADE part. With --like-yade ours runs once more
+   as YADE's cells run: the kruyt operator and cells that take YADE's mean number of DEM
+   steps per cell per Newton pass in this run and do not relax (--cell-option fixed_steps=N):
+   the like-for-like ratio of the same work.
    The scatter of the cell: the single-cell response of YADE RVEs from prepareRVE.py with
    makeCloud seeds 1..--scatter-seeds (cell_scatter), the yardstick of the curves' agreement.
    Newton tolerance: YADE stops when |du| / |u| < 1e-2 (L2 norms of the displacement
@@ -53,8 +55,8 @@ every 0.2 s): YADE's master and its pool workers, ours mpirun and its ranks.
 
     /usr/bin/python3 benchmarks/femdem/femdem_yade.py --out results/benchmarks/femdem_yade
     /usr/bin/python3 benchmarks/femdem/femdem_yade.py --increments 10 --tangents kruyt pstlo
-    /usr/bin/python3 benchmarks/femdem/femdem_yade.py --tangents pstlo --cell-option method=fire
-    /usr/bin/python3 benchmarks/femdem/femdem_yade.py --reuse-yade --cell-option method=fire --batched
+    /usr/bin/python3 benchmarks/femdem/femdem_yade.py --tangents pstlo kruyt --like-yade
+    /usr/bin/python3 benchmarks/femdem/femdem_yade.py --reuse-yade --tangents kruyt --cell-option method=local
 
 About 15 minutes for the default 5 increments on a 2-core machine at load 1.5-5 (YADE 9 min,
 50-160 s per increment; ours 3-4 min per tangent; the scatter estimate 20 s). Measured figures
@@ -491,15 +493,15 @@ def main(argv=None):
                    help="our cells' relaxation tolerance (default: the demo's, docs/reference/femdem.md; YADE's "
                         "cells do not relax: about 100 steps per call)")
     p.add_argument("--like-yade", action="store_true",
-                   help="run every tangent once more with cells run as YADE's run (--cell-option fixed_steps=N, N "
-                        "= YADE's mean DEM steps per cell per Newton pass in this run, no relaxation): the "
-                        "like-for-like ratio of the same work")
+                   help="run ours once more as YADE runs: its operator (kruyt) and cells that do not relax "
+                        "(--cell-option fixed_steps=N, N = YADE's mean DEM steps per cell per Newton pass in "
+                        "this run): the like-for-like ratio of the same work")
     p.add_argument("--cell-option", action="append", default=[], metavar="KEY=VALUE",
                    help="run every tangent a second time with these cells (demcell.RelaxationOptions, e.g. "
                         "method=fire; repeat for more; passed on to demos/femdem_biaxial.py)")
     p.add_argument("--batched", action="store_true",
-                   help="ours with batched cells (demos/femdem_biaxial.py --batched); the runs are labelled "
-                        "'batched', so that --reuse-yade keeps the per-cell runs beside them")
+                   help="label ours' runs 'batched' and pass --batched (the demo's default since the defaults "
+                        "study), so that --reuse-yade keeps older per-cell runs beside them")
     p.add_argument("--scatter-seeds", type=int, default=6,
                    help="YADE RVEs (prepareRVE.py seeds 1..N) whose single-cell response gives the scatter of "
                         "the cell (default 6; 0: skip)")
@@ -593,14 +595,14 @@ def yade_steps_per_cell_pass(y):
 
 def run_ours(res, a, law, packing, rtol):
     """Ours' runs (every tangent, then every tangent with --cell-option, then with --like-yade
-    every tangent with cells that take YADE's DEM steps per pass), the scatter of the cell and
-    the report, added to ``res`` and written as they go."""
+    the Kruyt operator, YADE's, with cells that take YADE's DEM steps per pass), the scatter of
+    the cell and the report, added to ``res`` and written as they go."""
     y = res["yade"]
     record = os.path.join(a.out, "femdem_yade.json")
     variants = [(t, ()) for t in a.tangents] + ([(t, tuple(a.cell_option)) for t in a.tangents] if a.cell_option else [])
     if a.like_yade:
         res["yade_steps_per_cell_pass"] = yade_steps_per_cell_pass(y)
-        variants += [(t, (f"fixed_steps={res['yade_steps_per_cell_pass']}",)) for t in a.tangents]
+        variants.append(("kruyt", (f"fixed_steps={res['yade_steps_per_cell_pass']}",)))
     for tangent, cell_options in variants:
         words = run_words(tangent, cell_options, a.batched)
         name = " ".join(words)

@@ -67,7 +67,8 @@ continues from the checkpoint, on the same or another number of ranks:
     mpirun -n 2 python3 demos/femdem_biaxial.py --restart run
 
 What it costs (docs/reference/femdem.md): the cells take 99.6 % of the time, about 0.06 CPU s per cell
-update at 228 discs; a 2x4 mesh (48 cells) to 3 % in 30 steps without a weak zone is a few
+update at 228 discs with local damping and half the DEM steps with the default FIRE cells
+(docs/results/femdem.md, "Default cells"); a 2x4 mesh (48 cells) to 3 % in 30 steps without a weak zone is a few
 CPU minutes. Past the peak, and from the start in a classical run with a weak zone, the
 elastic operators make the Newton converge slowly (up to 25 iterations per step, steps
 ending at their best iterate: --accept-rtol), and a step can cost ten times as much.

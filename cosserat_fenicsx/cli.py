@@ -82,7 +82,8 @@ def add_stepping_options(parser, steps=1):
 def add_settings(group, cls, names, defaults=None):
     """The fields `names` of the settings dataclass `cls` (declared with validation.setting)
     as options of the argparse `group`: a number typed with its range, a choice among its
-    choices, a bool a flag; the default the field's, or `defaults[name]` (the demo's own)."""
+    choices, a bool a flag (--name, and --no-name when the default is True); the default the
+    field's, or `defaults[name]` (the demo's own)."""
     fields = declared(cls)
     for name in names:
         f = fields[name]
@@ -90,7 +91,10 @@ def add_settings(group, cls, names, defaults=None):
         default = (defaults or {}).get(name, field_default(f))
         kwargs = dict(dest=option_dest(f), help=meta["help"])
         if isinstance(field_default(f), bool):
-            group.add_argument(option_flag(f), action="store_true", **kwargs)
+            if default:
+                group.add_argument(option_flag(f), action=argparse.BooleanOptionalAction, default=True, **kwargs)
+            else:
+                group.add_argument(option_flag(f), action="store_true", **kwargs)
             continue
         if default is not None:      # an optional setting's help says what None means
             kwargs["help"] += " (default %(default)s)" if meta["choices"] else " (default %(default)g)"

@@ -32,6 +32,12 @@ class RelaxationOptions:
     method : 'local' (local non-viscous damping, 000 section 3.2.1) or 'fire' (FIRE, Bitzek
         et al. 2006, adaptive step up to fire_dt_max x dt; see benchmarks/DEM.md for speed)
     fire_dt_max : largest FIRE time step / dt
+    fixed_steps : None (relax to the criterion), or N: run the cells as YADE's FEMxDEM cells
+        run (Guo & Zhao's simDEM.py): the increment of F applied over exactly N DEM steps per
+        solve (shared out over its sub-steps, at least one step each), no relaxation and no
+        convergence test after it; the solve counts as converged. Solves without a servo
+        only: a stress-controlled solve (``DemCell.solve(stress_mask=...)``, the isotropic
+        stage of the preparation) relaxes to ``tol`` as always
     """
     criterion: str = "energy"
     tol: float = 1e-3
@@ -48,13 +54,15 @@ class RelaxationOptions:
     servo_gain: float = 0.05
     method: str = "local"
     fire_dt_max: float = 2.0
+    fixed_steps: int = None
 
     #: what each numeric option may be (None allowed for dt and max_total_steps: automatic)
     RANGES = {"tol": POSITIVE, "damping": Range(0.0, 1.0, high_open=True),
               "max_steps": Range(1, MAX_BUDGET, integer=True), "max_total_steps": Range(1, MAX_BUDGET, integer=True),
               "check_every": COUNT, "strain_rate": POSITIVE, "max_increment": POSITIVE, "dt": POSITIVE,
               "dt_safety": Range(0.0, 1.0, low_open=True), "skin_ratio": NON_NEGATIVE, "stress_tol": NON_NEGATIVE,
-              "servo_gain": NON_NEGATIVE, "fire_dt_max": Range(1.0)}
+              "servo_gain": NON_NEGATIVE, "fire_dt_max": Range(1.0),
+              "fixed_steps": Range(1, MAX_BUDGET, integer=True)}
 
     def __post_init__(self):
         if self.method not in ("local", "fire"):
@@ -64,7 +72,7 @@ class RelaxationOptions:
                              "(000 eq. 31) or 'force' (unbalanced-force ratio, 001)")
         for name, allowed in self.RANGES.items():
             value = getattr(self, name)
-            if value is None and name in ("dt", "max_total_steps"):
+            if value is None and name in ("dt", "max_total_steps", "fixed_steps"):
                 continue
             # frozen: the checked value (an int for the step counts) replaces the given one
             object.__setattr__(self, name, allowed.check(f"RelaxationOptions.{name}", value))
@@ -76,6 +84,11 @@ class RelaxationOptions:
         if self.max_total_steps is not None:
             return self.max_total_steps
         return min(max(100 * self.max_steps, 10 ** 7), MAX_BUDGET)
+
+    @property
+    def fixed(self):
+        """True when a solve takes exactly ``fixed_steps`` DEM steps and does not relax."""
+        return self.fixed_steps is not None
 
     @property
     def criterion_code(self):

@@ -8,6 +8,11 @@ lattice of a sheared cell, ramp the cell to the sub-step's target (001 eq. 7) an
 (``interface.DemCell.solve``) and many cells of a struct of arrays (``batch.CellBatch``, a
 prange over cells) run the same compiled arithmetic: the two give the same bits.
 
+With ``RelaxationOptions.fixed_steps`` = N the solve runs the cells as YADE's FEMxDEM example
+does: the ramps of its sub-steps take N DEM steps together (``ramp_steps``) and nothing
+relaxes after them (no convergence test, no relaxation budget); the solve counts as converged
+once its ramps are done.
+
 When a cell's pair arrays are full, ``solve_cell`` returns ``NEED_CAPACITY`` with its
 progress in ``work`` / ``iwork``; the caller enlarges the pair arrays and calls it again, and
 it resumes where it stopped (as relaxation.run does for one ramp).
@@ -21,12 +26,13 @@ from numba import njit
 from .relaxation import CELL_TOO_SMALL, CONVERGED, MAX_STEPS, NEED_CAPACITY, NO_CONTACTS, NONFINITE, advance
 from .slots import (C_ALPHA, C_DT, C_DTMAX, C_GAIN, C_KAP, C_KAP_END, C_KAP_START, C_MAXRATE, C_METHOD, C_PHI,
                     C_PHI_END, C_PHI_START, C_SKIN, C_STOL, C_TIME, C_TOL, IW_INRUN, IW_IPAR, IW_K, IW_NSUB,
-                    IW_REMAIN, IW_STAGE, I_CHECK, I_CRIT, I_FCUR, I_MAXSTEPS, I_NPAIRS, I_NRAMP, N_CTRL, N_IPAR,
-                    N_OPTS, N_OUT, O_BONDLOST, O_EKIN, O_EPOT, O_MAXOVL, O_REBUILDS, O_STEPS, O_UNBAL, Q_CHECK,
-                    Q_CRIT, Q_DAMP, Q_FIREDT, Q_GAIN, Q_LIMIT, Q_MAXINC, Q_METHOD, Q_RATE, Q_SKIN, Q_STOL, Q_TOL,
-                    Q_TOTAL, ROTATIONS, R_BUDGET, R_CONVERGED, R_EKIN, R_EPOT, R_FAILED_STATUS, R_FAILED_STEPS,
-                    R_FAILED_SUB, R_MAXOVL, R_NOCONTACT, R_REBUILDS, R_STEPS, R_SUBSTEPS, R_UNBAL, T_F, T_KAP, T_PHI,
-                    W_CTRL, W_FEND, W_FSTART, W_GEO, W_KAP0, W_OUT, W_PHI0, W_TOTAL)
+                    IW_REMAIN, IW_STAGE, I_CHECK, I_CRIT, I_FCUR, I_KRAMP, I_MAXSTEPS, I_NPAIRS, I_NRAMP, NO_CHECK,
+                    N_CTRL, N_IPAR, N_OPTS, N_OUT, O_BONDLOST, O_EKIN, O_EPOT, O_MAXOVL, O_REBUILDS, O_STEPS,
+                    O_UNBAL, Q_CHECK, Q_CRIT, Q_DAMP, Q_FIREDT, Q_FIXED, Q_GAIN, Q_LIMIT, Q_MAXINC, Q_METHOD, Q_RATE,
+                    Q_SKIN, Q_STOL, Q_TOL, Q_TOTAL, ROTATIONS, R_BUDGET, R_CONVERGED, R_EKIN, R_EPOT,
+                    R_FAILED_STATUS, R_FAILED_STEPS, R_FAILED_SUB, R_MAXOVL, R_NOCONTACT, R_REBUILDS, R_STEPS,
+                    R_SUBSTEPS, R_UNBAL, T_F, T_KAP, T_PHI, W_CTRL, W_FEND, W_FSTART, W_GEO, W_KAP0, W_OUT, W_PHI0,
+                    W_TOTAL)
 from .periodic_cell import deformation_gradient, path_point, path_setup, reduce_lattice, substep_count
 
 # the solve's own codes next to relaxation's (CONVERGED .. CELL_TOO_SMALL)
@@ -41,6 +47,17 @@ def _rotation_increment(phi_a, kap_a0, kap_a1, phi_b, kap_b0, kap_b1, h_ref):
     j0 = abs(dk0 * h_ref[0, 0] + dk1 * h_ref[1, 0])
     j1 = abs(dk0 * h_ref[0, 1] + dk1 * h_ref[1, 1])
     return max(abs(phi_b - phi_a), max(j0, j1))
+
+
+@njit(cache=True)
+def ramp_steps(opts, size, k, n):
+    """DEM steps of the loading ramp of sub-step k of n whose largest |dF| is ``size``:
+    size / strain_rate (001 eq. 7), or with fixed_steps N the k-th of n near-equal shares of N
+    (at least one step: N steps in all when N >= n)."""
+    fixed = int(opts[Q_FIXED])
+    if fixed > 0:
+        return max(1, (fixed * (k + 1)) // n - (fixed * k) // n)
+    return substep_count(size / opts[Q_RATE])
 
 
 @njit(cache=True, nogil=True)
@@ -59,6 +76,7 @@ def solve_cell(radius, mass, inertia, s, v, theta, omega, dtheta, force, moment,
     total = work[W_TOTAL:W_TOTAL + N_OUT]
     ipar = iwork[IW_IPAR:IW_IPAR + N_IPAR]
     max_inc = opts[Q_MAXINC]
+    fixed = opts[Q_FIXED] > 0.0
     if iwork[IW_STAGE] == 0:
         # the path (DemCell.solve; micropolar: refined until phi and kappa also change by at
         # most max_increment per sub-step, DemCell._micropolar_path)
@@ -118,7 +136,7 @@ def solve_cell(radius, mass, inertia, s, v, theta, omega, dtheta, force, moment,
                     size = max(size, abs(Fk[a, b] - Fcur[a, b]))
             if micropolar:
                 size = max(size, _rotation_increment(cellf[1], cellf[2], cellf[3], phi_k, kap_k0, kap_k1, h_ref))
-            n_ramp = substep_count(size / opts[Q_RATE])
+            n_ramp = ramp_steps(opts, size, k, n)
             ctrl[:] = 0.0
             ctrl[C_DT] = dt
             ctrl[C_ALPHA] = opts[Q_DAMP]
@@ -144,7 +162,7 @@ def solve_cell(radius, mass, inertia, s, v, theta, omega, dtheta, force, moment,
             ipar[I_FCUR] = celli[1]
             ipar[I_NRAMP] = n_ramp
             ipar[I_CHECK] = int(opts[Q_CHECK])
-            ipar[I_CRIT] = int(opts[Q_CRIT])
+            ipar[I_CRIT] = NO_CHECK if fixed else int(opts[Q_CRIT])
             for a in range(2):
                 for b in range(2):
                     work[W_FSTART + 2 * a + b] = Fcur[a, b]
@@ -152,7 +170,7 @@ def solve_cell(radius, mass, inertia, s, v, theta, omega, dtheta, force, moment,
             out[:] = 0.0
             total[:] = 0.0
             # this sub-step's steps: its ramp and its relaxation budget, no more than the solve has left
-            remain = n_ramp + int(opts[Q_LIMIT])
+            remain = n_ramp + (0 if fixed else int(opts[Q_LIMIT]))
             left = opts[Q_TOTAL] - result[R_STEPS]
             if left < remain:
                 remain = max(0, int(left))
@@ -182,6 +200,8 @@ def solve_cell(radius, mass, inertia, s, v, theta, omega, dtheta, force, moment,
         celli[1] = ipar[I_FCUR]
         if status == NEED_CAPACITY:
             return NEED_CAPACITY
+        if fixed and status == MAX_STEPS and ipar[I_KRAMP] >= ipar[I_NRAMP]:
+            status = CONVERGED      # the ramp is done: a fixed-step solve does not relax
         iwork[IW_INRUN] = 0
         iwork[IW_K] = k + 1
         cellf[0] = ctrl[C_TIME]
@@ -227,6 +247,7 @@ def solve_options(options, skin, max_steps, total_steps=None):
     q[Q_LIMIT] = max_steps
     q[Q_STOL], q[Q_GAIN] = options.stress_tol, options.servo_gain
     q[Q_TOTAL] = options.solve_budget if total_steps is None else total_steps
+    q[Q_FIXED] = options.fixed_steps if options.fixed else 0
     return q
 
 

@@ -74,6 +74,7 @@ opts (float64, N_OPTS): options of quasistatic.solve_cell (``quasistatic.solve_o
     Q_STOL      relative tolerance on stress targets [-]
     Q_GAIN      servo gain [-]
     Q_TOTAL     steps of the whole solve, ramps included
+    Q_FIXED     DEM steps of a solve that does not relax (RelaxationOptions.fixed_steps; 0: relax)
 
 target (float64, N_TARGET): where quasistatic.solve_cell takes the cell
     T_F         4 slots: F (11, 12, 21, 22) [-]
@@ -161,8 +162,8 @@ N_OUT = 15
 
 # --- quasistatic.solve_cell: opts, target, result, work, iwork ------------------------------------
 (Q_MAXINC, Q_RATE, Q_TOL, Q_CHECK, Q_DAMP, Q_SKIN, Q_METHOD, Q_FIREDT, Q_CRIT, Q_LIMIT,
- Q_STOL, Q_GAIN, Q_TOTAL) = range(13)
-N_OPTS = 13
+ Q_STOL, Q_GAIN, Q_TOTAL, Q_FIXED) = range(14)
+N_OPTS = 14
 T_F, T_PHI, T_KAP = 0, 4, 5
 N_TARGET = 7
 (R_STEPS, R_SUBSTEPS, R_CONVERGED, R_NOCONTACT, R_MAXOVL, R_FAILED_SUB, R_FAILED_STATUS,

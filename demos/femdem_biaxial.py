@@ -10,7 +10,8 @@ equilibrium (000 section 3.2.1) and its homogenized Cauchy stress (001 eq. 8) is
 the point. The cell is the one of demos/dem_cell.py (000 Table 3: 228 discs, mu = 0.4,
 kn = 1e4 N/m, ks = 2e3 N/m, tolerance 1e-3; p0 = 10 N/m, see the note on the pressure there),
 prepared by the same isotropic stage; the same --particles N --seed S give the same packing
-(the cells relax to the unbalanced-force ratio 1e-3 of 001 by default, see --criterion).
+(the cells relax by FIRE to the unbalanced-force ratio 1e-3 of 001 by default, see --criterion and
+--cell-option; batched, see --no-batched: docs/results/femdem.md, "Default cells").
 
 1. Isotropic compression: the preparation of the cell, so every Gauss point starts at F = I
    with sigma = -p0 I; one macro step applies p0 to the lateral faces and checks equilibrium.
@@ -66,7 +67,8 @@ continues from the checkpoint, on the same or another number of ranks:
     mpirun -n 2 python3 demos/femdem_biaxial.py --restart run
 
 What it costs (docs/reference/femdem.md): the cells take 99.6 % of the time, about 0.06 CPU s per cell
-update at 228 discs; a 2x4 mesh (48 cells) to 3 % in 30 steps without a weak zone is a few
+update at 228 discs with local damping and half the DEM steps with the default FIRE cells
+(docs/results/femdem.md, "Default cells"); a 2x4 mesh (48 cells) to 3 % in 30 steps without a weak zone is a few
 CPU minutes. Past the peak, and from the start in a classical run with a weak zone, the
 elastic operators make the Newton converge slowly (up to 25 iterations per step, steps
 ending at their best iterate: --accept-rtol), and a step can cost ten times as much.
@@ -129,8 +131,9 @@ g.add_argument("--frame-thickness", type=number(POSITIVE), default=None,
 g.add_argument("--frame-tol", type=number(POSITIVE), default=1e-3,
                help="frame: the servo's tolerance eps_a in mean contact forces (default %(default)g)")
 g.add_argument("--cell-option", type=cli.key_value, action="append", default=[], metavar="KEY=VALUE",
-               help="a further demcell.RelaxationOptions of the cells, e.g. method=fire, dt_safety=0.5, "
-                    "strain_rate=1e-5 (repeat for more; docs/reference/femdem.md, 'Cheaper cells')")
+               help="a further demcell.RelaxationOptions of the cells, e.g. method=local (local damping instead "
+                    "of the default FIRE), dt_safety=0.5, fixed_steps=100 (YADE's way: N DEM steps per solve, no "
+                    "relaxation) (repeat for more; docs/reference/femdem.md, 'The cells' relaxation')")
 g = parser.add_argument_group("coupling")
 cli.add_settings(g, FemDemSettings, COUPLING)
 g.add_argument("--accept-rtol", type=number(NON_NEGATIVE), default=3e-2,

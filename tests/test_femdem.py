@@ -19,15 +19,18 @@ def history(out):
 def test_homogeneous_specimen_equals_the_stand_alone_cell(demo, tmp_path, mode):
     """A 1x1 specimen with smooth platens and no imperfection deforms homogeneously: every
     Gauss point is the stand-alone cell of demos/dem_cell.py (same packing) loaded along the
-    same path (straight in F from the committed state, lateral stress p0). Through the peak
-    (at about 0.5 % for 100 discs) the curves agree to the tolerances (cells relaxed to an
-    unbalanced-force ratio of 1e-3, macro FNORM/RNORM 3e-3); the servo control of
-    dem_cell.py, a different loading path of the same frictional packing, differs by many
-    times more."""
+    same path (straight in F from the committed state, lateral stress p0), with the same
+    relaxation (FIRE, the cells' default). Through the peak (at about 0.5 % for 100 discs) the
+    curves agree to the tolerances (cells relaxed to an unbalanced-force ratio of 1e-3, macro
+    FNORM/RNORM 3e-3) and to how a frictional cell's end state depends on the path of its
+    solves (each Newton iterate re-solves the increment from the committed state with a
+    slightly different F); the servo control of dem_cell.py, a different loading path of the
+    same frictional packing, differs by as much."""
     cell = ("--particles", 100, "--seed", 0, "--criterion", "force", "--relaxation-tol", 1e-3)
-    demo("dem_cell", *cell, "--axial-direction", 2, "--axial-strain", 0.006, "--increment", 1e-3,
+    alone = (*cell, "--relaxation", "fire")     # the FEM x DEM cells' default relaxation
+    demo("dem_cell", *alone, "--axial-direction", 2, "--axial-strain", 0.006, "--increment", 1e-3,
          "--lateral-control", "strain", "--out", tmp_path / "strain")
-    demo("dem_cell", *cell, "--axial-direction", 2, "--axial-strain", 0.006, "--increment", 1e-3,
+    demo("dem_cell", *alone, "--axial-direction", 2, "--axial-strain", 0.006, "--increment", 1e-3,
          "--out", tmp_path / "servo")
     demo("femdem_biaxial", *cell, "--mode", mode, "--mesh", "1x1", "--axial-strain", 0.006, "--steps", 6,
          "--force-rtol", 3e-3,
@@ -37,29 +40,38 @@ def test_homogeneous_specimen_equals_the_stand_alone_cell(demo, tmp_path, mode):
     assert np.allclose(fe["axial_strain"], strain["axial_strain"], atol=1e-12)
     peak = int(np.argmax(strain["stress_ratio"]))
     assert 2 <= peak            # the peak is inside the compared range
-    # measured: 0.07-0.26 % up to the peak, 0.6 % after it; the lateral stress is p0 to 0.2 %
+    # measured with FIRE cells: 0.03-0.55 % up to the peak (local damping: 0.07-0.26 %; FIRE's
+    # less damped ramp lets contacts near their Coulomb limit slip by amounts that depend on the
+    # iterate's F), 0.07 % after it; the lateral stress is p0 to 0.2 %
     error = np.abs(fe["stress_ratio"] / strain["stress_ratio"] - 1.0)
-    assert error[:peak + 1].max() < 4e-3 and error.max() < 1.5e-2, error
+    assert error[:peak + 1].max() < 8e-3 and error.max() < 1.5e-2, error
     assert np.abs(fe["volumetric_strain"] - strain["volumetric_strain"]).max() < 5e-5
     # 2 C / N with N = 100 discs: one contact is 0.02, a few contacts differ
     assert np.abs(fe["coordination_number"] - strain["coordination_number"])[:peak + 1].max() <= 0.1
-    path_effect = np.abs(servo["stress_ratio"] / strain["stress_ratio"] - 1.0).max()   # measured 5.9 %
-    assert path_effect > 5 * error[:peak + 1].max()
+    # the servo control of the lateral stress, another path: measured 0.54 % with FIRE cells, 5.9 %
+    # with local damping, whose answer depends on how fast and along what the cell is loaded
+    # (docs/results/femdem.md, "Default cells")
+    path_effect = np.abs(servo["stress_ratio"] / strain["stress_ratio"] - 1.0).max()
+    assert path_effect < 1.5e-2
     summary = read_summary(tmp_path / "fe")
     assert summary["n_gauss_points"] == 6 and summary["completed"]
     assert summary["band_thickness"] is None     # homogeneous: no band is claimed
 
 
 def tight_scene(mode, pre_strain, friction=0.4, tangent="pstlo", **kw):
-    """A 1x1 specimen of 100-disc cells relaxed tightly (unbalanced-force ratio 1e-7), at the
-    committed state after the isotropic step and, if pre_strain > 0, one step of that axial
-    strain."""
+    """A 1x1 specimen of 100-disc cells relaxed tightly (unbalanced-force ratio 1e-7) by local
+    damping, at the committed state after the isotropic step and, if pre_strain > 0, one step
+    of that axial strain. Local damping, not the default FIRE: the operators are derivatives of
+    the quasi-static response, which the heavily damped ramp follows; FIRE's livelier ramp lets
+    contacts near their Coulomb limit slip under a perturbation of F, so that the secant of its
+    response is 4 % off pstlo and demqo after 0.2 % of strain (measured), a property of the
+    cells and not of the operators."""
     from cosserat_fenicsx.materials.dem import CellOptions
     from cosserat_fenicsx.scenes.femdem_biaxial import FemDemBiaxial, FemDemSettings
     s = FemDemSettings(nx=kw.pop("nx", 1), ny=kw.pop("ny", 1), mode=mode, tangent=tangent,
                        axial_strain=pre_strain if pre_strain > 0 else 1e-3, steps=1,
                        cell=CellOptions(particles=100, criterion="force", relaxation_tol=kw.pop("tol", 1e-7),
-                                        friction=friction), **kw)
+                                        friction=friction, extra={"method": "local"}), **kw)
     test = FemDemBiaxial(COMM, s, verbose=False)
     test.t_end = 2.0 if pre_strain > 0 else 1.0
     test.run()

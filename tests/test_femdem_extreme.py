@@ -74,9 +74,9 @@ def run(settings, on_step=None):
     return test, same_everywhere(message)
 
 
-def small_run(steps=2, axial_strain=0.002, **cell):
+def small_run(steps=2, axial_strain=0.002, batched=True, **cell):
     return FemDemSettings(nx=1, ny=1, steps=steps, axial_strain=axial_strain, dt_min_fraction=2.0 ** -3,
-                          cell=CellOptions(particles=100, **cell))
+                          batched=batched, cell=CellOptions(particles=100, **cell))
 
 
 @pytest.fixture(scope="module")
@@ -184,8 +184,10 @@ def test_cell_out_of_step_budget_cuts_then_stops_every_rank():
     the resident cells: CellOptions(max_steps=5) already fails in the reference cell's
     preparation, see test_femdem_input.test_tiny_dem_step_budget): phase 2's first step is
     cut and retried down to dt_min, then a LoadSteppingError names the budget on every rank
-    (the other rank's cells converge: it must stop with the same message, not wait)."""
-    test = FemDemBiaxial(COMM, small_run(), verbose=False)
+    (the other rank's cells converge: it must stop with the same message, not wait). The
+    budget is set on resident DemCells: one cell at a time (a batch keeps its options in its
+    own arrays)."""
+    test = FemDemBiaxial(COMM, small_run(batched=False), verbose=False)
     counts = COMM.allgather(len(test.material.cells))
     victim = next(rank for rank, n in enumerate(counts) if n)
 

@@ -92,7 +92,7 @@ CASES = [   # (id, args, pattern the error line must match)
     ("weak-friction-zero", ["--weak-friction", 0], r"weak[-_]friction"),
     ("force-rtol-zero", ["--force-rtol", 0], r"force[-_]rtol"),
     ("stagnation-its-negative", ["--stagnation-its", -1], r"stagnation[-_]its"),
-    ("cell-threads-without-batched", ["--cell-threads", 2], r"cell_threads.*--batched"),
+    ("cell-threads-without-batched", ["--no-batched", "--cell-threads", 2], r"cell_threads.*--no-batched"),
     ("cell-threads-too-many", ["--batched", "--cell-threads", 100000], r"cell_threads.*NUMBA_NUM_THREADS"),
     ("cell-threads-zero", ["--batched", "--cell-threads", 0], r"cell-threads"),
     ("cell-option-no-equals", ["--cell-option", "fire"], r"--cell-option.*KEY=VALUE"),
@@ -101,6 +101,8 @@ CASES = [   # (id, args, pattern the error line must match)
     ("cell-option-method", ["--cell-option", "method=verlet"], r"relaxation method 'verlet'"),
     ("cell-option-dt-safety", ["--cell-option", "dt_safety=1.5"], r"dt_safety must be in \(0, 1\]"),
     ("cell-option-check-every", ["--cell-option", "check_every=0"], r"check_every must be an integer >= 1"),
+    ("cell-option-fixed-steps-zero", ["--cell-option", "fixed_steps=0"], r"fixed_steps must be an integer in \[1"),
+    ("cell-option-fixed-steps-fraction", ["--cell-option", "fixed_steps=2.5"], r"fixed_steps must be an integer"),
 ]
 
 

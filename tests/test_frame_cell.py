@@ -157,14 +157,15 @@ def test_dem_cell_demo_runs_with_a_frame(demo, tmp_path):
 @pytest.mark.serial
 def test_femdem_biaxial_runs_with_frame_cells(demo, tmp_path):
     """demos/femdem_biaxial.py --micro-bc frame: one compression step of a 1x1 mesh of frame
-    cells; micropolar mode and batched cells are refused in one line."""
+    cells (one at a time: batched cells are the default of periodic cells only); micropolar mode
+    and GPU cells are refused in one line."""
     import json
     demo("femdem_biaxial", "--mesh", "1x1", "--particles", 50, "--axial-strain", 0.001, "--steps", 1,
          "--micro-bc", "frame", "--mode", "classical", "--relaxation-tol", 1e-3, "--frame-tol", 2e-2,
          "--out", tmp_path)
     summary = json.load(open(tmp_path / "summary.json"))
     assert summary["micro_bc"] == "frame" and summary["completed"] and summary["peak_stress_ratio"] > 0.05
-    for extra, words in ((("--mode", "micropolar"), "mode micropolar"), (("--batched",), "batched")):
+    for extra, words in ((("--mode", "micropolar"), "mode micropolar"), (("--cell-device", "gpu"), "cell_device gpu")):
         refused = demo("femdem_biaxial", "--micro-bc", "frame", *extra, "--out", tmp_path / "x", check=False)
         assert refused.returncode != 0 and words in refused.stderr + refused.stdout
         assert "micro_bc 'frame' cannot be used" in refused.stderr + refused.stdout

@@ -136,9 +136,9 @@ def fe_part(a, log):
               "-pc_type", "redundant"]
     env = dict(os.environ, OMPI_ALLOW_RUN_AS_ROOT="1", OMPI_ALLOW_RUN_AS_ROOT_CONFIRM="1",
                OMPI_MCA_rmaps_base_oversubscribe="1", OMP_NUM_THREADS="1")
-    cases = [("1 rank, per cell", 1, []), ("1 rank, batched, 1 thread", 1, ["--batched"]),
+    cases = [("1 rank, per cell", 1, ["--no-batched"]), ("1 rank, batched, 1 thread", 1, ["--batched"]),
              ("1 rank, batched, 2 threads", 1, ["--batched", "--cell-threads", "2"]),
-             ("2 ranks, per cell", 2, []), ("2 ranks, batched", 2, ["--batched"])]
+             ("2 ranks, per cell", 2, ["--no-batched"]), ("2 ranks, batched", 2, ["--batched"])]
     for name, ranks, extra in cases:
         out = os.path.join(a.out, "fe_" + name.replace(" ", "").replace(",", "_"))
         cmd = [sys.executable, os.path.join(ROOT, "demos", "femdem_biaxial.py"), *common, *extra, "--out", out]

@@ -168,6 +168,33 @@ def run_case(comm, out, label, s, log=print):
     return record
 
 
+def homogeneous_path(cell, axial_strains, pressure):
+    """The stand-alone cell on the homogeneous path of the biaxial test with smooth platens:
+    F_22 = 1 + e imposed for each e of `axial_strains` (tension positive: e < 0 compresses),
+    F_12 = F_21 = 0, sigma_11 = -pressure [N/m] held by the servo on F_11, committed after each.
+    What a uniform specimen's every Gauss point does; over packing seeds, the scatter of the
+    cell (the yardstick of a curve's agreement). Returns the 2x2 Cauchy stresses [N/m], one per
+    strain; RuntimeError if a solve does not converge."""
+    mask = np.array([[True, False], [False, False]])
+    stresses = []
+    for e in axial_strains:
+        F = cell.deformation_gradient().copy()
+        F[1, 1] = 1.0 + e
+        F[0, 1] = F[1, 0] = 0.0
+        cell.set_deformation(F)
+        result = cell.solve(stress_mask=mask, stress_target=-pressure * np.eye(2))
+        if not result.converged:
+            raise RuntimeError(f"the cell did not converge at axial strain {e:g}: {result.message}")
+        cell.commit()
+        stresses.append(cell.cauchy_stress().copy())
+    return stresses
+
+
+def stress_ratio(sigma):
+    """|s11 - s22| / |s11 + s22| of a 2x2 stress (000 eq. 40, the history's stress_ratio)."""
+    return abs(sigma[0, 0] - sigma[1, 1]) / abs(sigma[0, 0] + sigma[1, 1])
+
+
 def time_split(record):
     """Where the Newton time went (slowest rank), in % of it: cell solves (and homogenisation),
     cell tangents, assembly (residual and Jacobian), linear solve and SNES."""

@@ -29,11 +29,13 @@ bottom, u2 prescribed at the top, one pin at the bottom centre), the top platen 
    8-node quads with the same 2x2 rule), the same size, pressure and platen increments,
    the packing of 3 (re-equilibrated once at p0 under the constant-kn law), tangent kruyt
    (the uniform-strain contact-stiffness operator, as YADE's getStressAndTangent) and, with
-   --tangents kruyt pstlo, pstlo as well. With --cell-option KEY=VALUE (repeatable; the cells'
-   demcell.RelaxationOptions, e.g. method=fire) every tangent runs a second time with those
-   cells, in the same run: the default cells and the cheaper ones against the same YADE part.
-   With --batched, every run of ours uses the demo's --batched cells (a rank's cells in one
-   struct of arrays: solve, homogenisation and Kruyt tangent one Numba call each).
+   --tangents kruyt pstlo, pstlo as well; the cells are the demo's defaults (FIRE, batched:
+   docs/reference/femdem.md). With --cell-option KEY=VALUE (repeatable; the cells'
+   demcell.RelaxationOptions, e.g. method=local) every tangent runs a second time with those
+   cells, in the same run, against the same YADE part. With --like-yade ours runs once more
+   as YADE's cells run: the kruyt operator and cells that take YADE's mean number of DEM
+   steps per cell per Newton pass in this run and do not relax (--cell-option fixed_steps=N):
+   the like-for-like ratio of the same work.
    The scatter of the cell: the single-cell response of YADE RVEs from prepareRVE.py with
    makeCloud seeds 1..--scatter-seeds (cell_scatter), the yardstick of the curves' agreement.
    Newton tolerance: YADE stops when |du| / |u| < 1e-2 (L2 norms of the displacement
@@ -53,8 +55,8 @@ every 0.2 s): YADE's master and its pool workers, ours mpirun and its ranks.
 
     /usr/bin/python3 benchmarks/femdem/femdem_yade.py --out results/benchmarks/femdem_yade
     /usr/bin/python3 benchmarks/femdem/femdem_yade.py --increments 10 --tangents kruyt pstlo
-    /usr/bin/python3 benchmarks/femdem/femdem_yade.py --tangents pstlo --cell-option method=fire
-    /usr/bin/python3 benchmarks/femdem/femdem_yade.py --reuse-yade --cell-option method=fire --batched
+    /usr/bin/python3 benchmarks/femdem/femdem_yade.py --tangents pstlo kruyt --like-yade
+    /usr/bin/python3 benchmarks/femdem/femdem_yade.py --reuse-yade --tangents kruyt --cell-option method=local
 
 About 15 minutes for the default 5 increments on a 2-core machine at load 1.5-5 (YADE 9 min,
 50-160 s per increment; ours 3-4 min per tangent; the scatter estimate 20 s). Measured figures
@@ -85,6 +87,7 @@ PACKAGES = ("yade", "python3-escript")
 #: Newton tolerance on |du| / |u|
 WIDTH, HEIGHT, PRESSURE, PLATEN_STEP, YADE_RTOL = 0.05, 0.1, 1e5, 1e-4, 1e-2
 MESH = "8x16"
+CELLS = 512              # 8 x 16 quadrilaterals x 4 Gauss points
 
 
 def installed(package):
@@ -297,9 +300,10 @@ def ours_run(packing, law, increments, np_, tangent, force_rtol, relaxation_tol,
            "--kn", repr(law["kn"]), "--ks", repr(law["ks"]), "--friction", repr(law["friction"]),
            "--pressure", repr(PRESSURE), "--axial-strain", repr(increments * PLATEN_STEP / HEIGHT),
            "--steps", str(increments), "--tangent", tangent, "--force-rtol", repr(force_rtol),
-           "--relaxation-tol", repr(relaxation_tol), "--criterion", "force",
            "--accept-rtol", repr(max(3e-2, force_rtol)), "--fields", "displacement",
            "--write-every", str(increments + 10), "--out", out]
+    if relaxation_tol is not None:
+        cmd += ["--relaxation-tol", repr(relaxation_tol)]
     for option in cell_options:
         cmd += ["--cell-option", option]
     if batched:
@@ -347,7 +351,7 @@ def cell_scatter(yade, out, seeds, law, increments, width):
     makeCloud seeds (seed 1 is the example's), all under ours' law of the example's RVE:
     its spread is the scatter of a 400-disc cell, the yardstick of the curves' agreement.
     Returns {seed: [force at 0, 1, ..., increments x 1e-3 axial strain]}."""
-    import demcell as dc
+    from benchmarks.femdem.femdem_cases import homogeneous_path
     from cosserat_fenicsx.materials.dem import CellOptions, reference_cells
     curves = {}
     for seed in seeds:
@@ -363,18 +367,12 @@ def cell_scatter(yade, out, seeds, law, increments, width):
         opts = CellOptions(packing=packing, pressure=PRESSURE, kn=law["kn"], ks=law["ks"], friction=law["friction"],
                            criterion="force")
         cell = reference_cells(opts, [law["friction"]])[0][0]
-        mask = np.array([[True, False], [False, False]])
         force = [float(cell.cauchy_stress()[1, 1]) * width]
-        for k in range(1, increments + 1):
-            F = cell.deformation_gradient().copy()
-            F[1, 1] = 1.0 - k * PLATEN_STEP / HEIGHT
-            F[0, 1] = F[1, 0] = 0.0
-            cell.set_deformation(F)
-            r = cell.solve(stress_mask=mask, stress_target=-PRESSURE * np.eye(2))
-            if not r.converged:
-                raise SystemExit(f"seed {seed}: the cell did not converge at increment {k}: {r.message}")
-            cell.commit()
-            force.append(float(cell.cauchy_stress()[1, 1]) * width)
+        try:
+            path = homogeneous_path(cell, [-k * PLATEN_STEP / HEIGHT for k in range(1, increments + 1)], PRESSURE)
+        except RuntimeError as error:
+            raise SystemExit(f"seed {seed}: {error}")
+        force += [float(sigma[1, 1]) * width for sigma in path]
         curves[seed] = force
         print(f"cell of seed {seed}: force {np.round(force, 1).tolist()} N/m", flush=True)
     return curves
@@ -491,15 +489,19 @@ def main(argv=None):
     p.add_argument("--force-rtol", type=float, default=None,
                    help="our Newton tolerance FNORM/RNORM (default: the equivalent of YADE's |du|/|u| < 1e-2 "
                         "from YADE's curve in this run, module docstring)")
-    p.add_argument("--relaxation-tol", type=float, default=1e-3,
-                   help="our cells' unbalanced-force ratio (default 1e-3, the project's; YADE's cells do not "
-                        "relax: about 100 steps per call)")
+    p.add_argument("--relaxation-tol", type=float, default=None,
+                   help="our cells' relaxation tolerance (default: the demo's, docs/reference/femdem.md; YADE's "
+                        "cells do not relax: about 100 steps per call)")
+    p.add_argument("--like-yade", action="store_true",
+                   help="run ours once more as YADE runs: its operator (kruyt) and cells that do not relax "
+                        "(--cell-option fixed_steps=N, N = YADE's mean DEM steps per cell per Newton pass in "
+                        "this run): the like-for-like ratio of the same work")
     p.add_argument("--cell-option", action="append", default=[], metavar="KEY=VALUE",
                    help="run every tangent a second time with these cells (demcell.RelaxationOptions, e.g. "
                         "method=fire; repeat for more; passed on to demos/femdem_biaxial.py)")
     p.add_argument("--batched", action="store_true",
-                   help="ours with batched cells (demos/femdem_biaxial.py --batched); the runs are labelled "
-                        "'batched', so that --reuse-yade keeps the per-cell runs beside them")
+                   help="label ours' runs 'batched' and pass --batched (the demo's default since the defaults "
+                        "study), so that --reuse-yade keeps older per-cell runs beside them")
     p.add_argument("--scatter-seeds", type=int, default=6,
                    help="YADE RVEs (prepareRVE.py seeds 1..N) whose single-cell response gives the scatter of "
                         "the cell (default 6; 0: skip)")
@@ -584,12 +586,23 @@ def reused_record(record, a):
     return res
 
 
+def yade_steps_per_cell_pass(y):
+    """YADE's DEM steps per cell per Newton pass (its ns = int(max(1e5 max|D|, 2)), the mean over
+    the cells and passes of its run, rounded): the fixed_steps of ours' like-for-like cells."""
+    passes = sum(i["passes"] for i in y["increments"]) * CELLS
+    return max(1, int(round(sum(i["dem_steps"] for i in y["increments"]) / passes)))
+
+
 def run_ours(res, a, law, packing, rtol):
-    """Ours' runs (every tangent, then every tangent with --cell-option), the scatter of the
-    cell and the report, added to ``res`` and written as they go."""
+    """Ours' runs (every tangent, then every tangent with --cell-option, then with --like-yade
+    the Kruyt operator, YADE's, with cells that take YADE's DEM steps per pass), the scatter of
+    the cell and the report, added to ``res`` and written as they go."""
     y = res["yade"]
     record = os.path.join(a.out, "femdem_yade.json")
     variants = [(t, ()) for t in a.tangents] + ([(t, tuple(a.cell_option)) for t in a.tangents] if a.cell_option else [])
+    if a.like_yade:
+        res["yade_steps_per_cell_pass"] = yade_steps_per_cell_pass(y)
+        variants.append(("kruyt", (f"fixed_steps={res['yade_steps_per_cell_pass']}",)))
     for tangent, cell_options in variants:
         words = run_words(tangent, cell_options, a.batched)
         name = " ".join(words)
@@ -617,7 +630,7 @@ def run_ours(res, a, law, packing, rtol):
                                    min=f.min(0).tolist(), max=f.max(0).tolist())
     for o in [res["yade"]] + res["ours"]:       # cost of one cell pass (one cell, one Newton pass)
         inc = o["increments"]
-        passes = sum(i["passes"] for i in inc) * 512
+        passes = sum(i["passes"] for i in inc) * CELLS
         o["per_cell_pass"] = dict(wall_ms_x_np=1e3 * a.np * sum(i["wall"] for i in inc) / passes,
                                   cpu_ms=1e3 * sum(i["cpu"] for i in inc) / passes,
                                   dem_steps=sum(i["dem_steps"] for i in inc) / passes)

@@ -118,8 +118,8 @@ class FemDemSettings:
                                      "in every run, whatever the machine's load)")
     balance_passes: bool = setting(False, help="... at the start of every Newton pass, by the cell work of the pass "
                                                "before, instead of after every step (docs/results/balancing.md)")
-    batched: bool = setting(False, help="the rank's cells in one struct of arrays, solved by one Numba call (same "
-                                        "results; docs/reference/femdem.md)")
+    batched: bool = setting(True, help="the rank's cells in one struct of arrays, solved by one Numba call (the "
+                                       "same results as one cell at a time, --no-batched; docs/reference/femdem.md)")
     cell_threads: int = setting(1, COUNT, "Numba threads per rank over the cells, with --batched "
                                           "(ranks x threads <= cores)")
     cell_device: str = setting("cpu", choices=("cpu", "gpu"),
@@ -160,13 +160,16 @@ class FemDemSettings:
         if self.cell.micro_bc == "frame":
             from ..materials.dem.cells import FRAME_TANGENTS
             for name, on, why in (("mode micropolar", self.mode == "micropolar", "a micropolar cell is periodic"),
-                                  ("batched", self.batched or self.cell_device == "gpu",
-                                   "the cell stores batch periodic cells"),
+                                  ("cell_device gpu", self.cell_device == "gpu", "the cell stores batch periodic cells"),
                                   ("balance", self.balance, "cells move between ranks as periodic states"),
                                   (f"tangent {self.tangent}", self.tangent not in FRAME_TANGENTS,
+                                   f"a frame cell has {', '.join(FRAME_TANGENTS)}"),
+                                  (f"fallback_tangent {self.fallback_tangent}",
+                                   self.fallback_tangent not in FRAME_TANGENTS + ("none",),
                                    f"a frame cell has {', '.join(FRAME_TANGENTS)}")):
                 if on:
                     raise ValueError(f"femdem: micro_bc 'frame' cannot be used with {name} ({why})")
+            self.batched = False         # frame cells are solved one at a time (the stores batch periodic cells)
         if self.balance_passes and not self.balance:
             raise ValueError("femdem: balance_passes (--balance-passes) is a way to balance: it needs balance "
                              "(--balance)")
@@ -175,9 +178,12 @@ class FemDemSettings:
             reason = available()
             if reason:
                 raise ValueError(f"femdem: cell_device gpu: {reason}")
+            if self.cell.relaxation().fixed:
+                raise ValueError("femdem: cell_device gpu: fixed_steps (cells that do not relax) runs on CPU cells "
+                                 "only")
             self.batched = True          # a GPU holds the rank's cells as one batch
         if self.cell_threads > 1 and not self.batched:
-            raise ValueError("femdem: cell_threads > 1 needs batched cells (--batched)")
+            raise ValueError("femdem: cell_threads > 1 needs batched cells (the default: leave out --no-batched)")
         import numba
         if self.cell_threads > numba.config.NUMBA_NUM_THREADS:
             raise ValueError(f"femdem: cell_threads = {self.cell_threads} exceeds NUMBA_NUM_THREADS = "

@@ -70,6 +70,8 @@ class DeviceCellBatch(CellStore):
             self._take_rows(cells, np.asarray(rows, dtype=np.int64))
             return
         cells = list(cells)
+        if any(c.options.fixed for c in cells):
+            raise InputError("fixed_steps (cells that do not relax) runs on CPU cells only, not on a GPU")
         if not (isinstance(threads, (int, np.integer)) and 1 <= threads <= MAX_THREADS):
             raise InputError(f"threads per cell must be an integer in [1, {MAX_THREADS}], got {threads!r}")
         self.threads = int(threads)

@@ -50,6 +50,14 @@ def check_tangent(tangent, mode):
 #: the cell's boundary conditions: periodic images (demcell.DemCell) or paper 000's servo-
 #: controlled frame of boundary particles (demcell.frame.FrameCell)
 MICRO_BCS = ("periodic", "frame")
+#: the cells' relaxation where it differs from demcell.RelaxationOptions' own defaults: FIRE
+#: (Bitzek et al. 2006; time step adapted up to fire_dt_max = 2 x the stable one x dt_safety 0.25),
+#: damping 0.7 (000 Table 3) for the local damping of `--cell-option method=local`. FIRE reaches
+#: the quasi-static answer as closely as local damping does, at about half the DEM steps
+#: (benchmarks/femdem/femdem_defaults.py, docs/results/femdem.md "Default cells")
+RELAXATION = {"method": "fire", "damping": 0.7}
+#: ... and of frame cells (micro_bc 'frame'): local damping, as 000 section 3.2.1 (demcell.frame)
+FRAME_RELAXATION = {"method": "local", "damping": 0.7}
 #: DEM steps allowed per cell solve at most (the relaxation kernel counts in int64; a
 #: billion steps is days of one cell)
 MAX_STEPS = 10 ** 9
@@ -72,7 +80,7 @@ class CellOptions:
     relaxation_tol: float = 1e-3     # E_kin/E_pot (energy) or unbalanced-force ratio (force)
     criterion: str = "force"          # 001: max unbalanced force / mean contact force (docs/reference/femdem.md)
     max_steps: int = 200_000         # DEM steps allowed per solve after the loading ramp
-    extra: dict = field(default_factory=dict)   # further demcell.RelaxationOptions
+    extra: dict = field(default_factory=dict)   # further demcell.RelaxationOptions (over RELAXATION)
     micro_bc: str = "periodic"       # "frame": paper 000's frame cell (demcell.frame) cut from the reference cell
     frame_thickness: float = None    # frame width in mean diameters (None: one particle layer)
     frame_tol: float = 1e-3          # the frame servo's eps_a (demcell.frame.FrameOptions)
@@ -129,9 +137,9 @@ class CellOptions:
 
     def relaxation(self):
         import demcell as dc
-        return dc.RelaxationOptions.from_kwargs(**dict(dict(tol=self.relaxation_tol, damping=0.7,
-                                                            criterion=self.criterion, max_steps=self.max_steps),
-                                                       **self.extra))
+        base = FRAME_RELAXATION if self.micro_bc == "frame" else RELAXATION
+        return dc.RelaxationOptions.from_kwargs(**dict(dict(base, tol=self.relaxation_tol, criterion=self.criterion,
+                                                            max_steps=self.max_steps), **self.extra))
 
     def load_packing(self):
         import demcell as dc

@@ -241,6 +241,9 @@ class DemMaterial(Constitutive):
 
     def describe(self):
         """The mode (micropolar: with the cell moduli of the reference state, see
-        cells.micropolar_moduli, once the scene has set them), the tangent and the zones."""
+        cells.micropolar_moduli, once the scene has set them), the tangent, the zones, batched or
+        not and the cells' relaxation (demcell.RelaxationOptions, as the cells run it)."""
+        import dataclasses
         return dict(self.mode.describe(), tangent=self.tangent_name, n_zones=len(self.reference_cells),
+                    batched=self.batched, relaxation=dataclasses.asdict(self.reference_cells[0].options),
                     **self.store.describe())

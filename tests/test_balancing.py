@@ -404,7 +404,8 @@ def test_failing_guest_cell_cuts_the_step_naming_the_point(monkeypatch):
             m.every = 10 ** 6                     # the cells stay where they are now
 
     from cosserat_fenicsx.scenes.femdem_biaxial import FemDemBiaxial
-    test = FemDemBiaxial(COMM, settings(balance=True, dt_min_fraction=2.0 ** -2), verbose=False)
+    # one DemCell per point (not the batched default): the test edits a guest cell's own options
+    test = FemDemBiaxial(COMM, settings(balance=True, batched=False, dt_min_fraction=2.0 ** -2), verbose=False)
     test.material.threshold = 0.0      # the forced exchange at the first commit, whatever the wall times
     message = ""
     try:

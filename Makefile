@@ -96,6 +96,7 @@ benchmark-femdem: benchmark-deps
 	$(MPIRUN) -n $(NP) $(PYTHON) benchmarks/femdem/femdem_regularisation.py --out $(BENCH)/femdem_regularisation
 	$(MPIRUN) -n $(NP) $(PYTHON) benchmarks/femdem/femdem_convergence.py --out $(BENCH)/femdem_convergence
 	$(MPIRUN) -n $(NP) $(PYTHON) benchmarks/femdem/femdem_rotation.py --out $(BENCH)/femdem_rotation
+	mkdir -p $(BENCH) && $(PYTHON) benchmarks/femdem/femdem_operator_spectrum.py > $(BENCH)/femdem_operator_spectrum.txt
 	$(MPIRUN) -n $(NP) $(PYTHON) benchmarks/femdem/femdem_micropolar.py --out $(BENCH)/femdem_micropolar
 	$(MPIRUN) -n $(NP) $(PYTHON) benchmarks/femdem/femdem_balance.py --out $(BENCH)/femdem_balance
 	$(PYTHON) benchmarks/femdem/femdem_scaling.py --out $(BENCH)/femdem_scaling

@@ -88,14 +88,18 @@ from mpi4py import MPI
 from cosserat_fenicsx import cli
 from cosserat_fenicsx.demo_run import DemoRun
 from cosserat_fenicsx.figures import pyplot
+from cosserat_fenicsx.materials.dem import CellOptions
 from cosserat_fenicsx.output import print0
 from cosserat_fenicsx.scenes.femdem_biaxial import FemDemBiaxial, FemDemSettings, max_over_ranks, parse_mesh
 from cosserat_fenicsx.shear_band import assess_band, no_band
-from cosserat_fenicsx.validation import (COUNT, DISCS, FRICTION, NON_NEGATIVE, NON_NEGATIVE_INTEGER, POSITIVE, UNIT_OPEN,
-                                         number)
+from cosserat_fenicsx.validation import COUNT, NON_NEGATIVE, NON_NEGATIVE_INTEGER, number
 
 #: the scene's settings given as options (their ranges and help: scenes/femdem_biaxial.py)
 DISCRETISATION = ["cell_type", "degree_u", "degree_phi"]
+#: the cells' settings given as options after --particles, --seed, --packing (their ranges and help:
+#: materials/dem/cells.py CellOptions)
+CELL = ("friction", "pressure", "kn", "ks", "rotation", "relaxation_tol", "criterion", "max_steps", "micro_bc",
+        "frame_thickness", "frame_tol")
 SPECIMEN = ["width", "height", "axial_strain", "steps", "weak_size", "weak_friction_factor"]
 COUPLING = ["mode", "mu_c", "l_c", "grain_diameter", "tangent", "fallback_tangent", "fallback_hold", "force_rtol"]
 CELLS = ["balance", "balance_threshold", "balance_cost", "balance_passes", "batched", "cell_threads", "cell_device"]
@@ -110,26 +114,9 @@ g = parser.add_argument_group("specimen and loading (000 section 4.1)")
 g.add_argument("--mesh", default="2x4", help="NXxNY rectangles (000: 1x1, 1x2, 2x4, 4x8; default %(default)s)")
 cli.add_settings(g, FemDemSettings, SPECIMEN)
 g = parser.add_argument_group("the cell (as demos/dem_cell.py)")
-g.add_argument("--particles", type=number(DISCS), default=228, help="number of discs (default 228, 000 Table 3)")
-g.add_argument("--seed", type=number(NON_NEGATIVE_INTEGER), default=0, help="packing seed (default 0)")
+cli.add_settings(g, CellOptions, ("particles", "seed"))
 g.add_argument("--packing", default=None, help="packing file (.npz from demos/dem_cell.py) instead of generating one")
-g.add_argument("--friction", type=number(FRICTION), default=0.4, help="Coulomb friction mu (default 0.4; inf: no sliding)")
-g.add_argument("--pressure", type=number(POSITIVE), default=10.0, help="confining pressure p0 [N/m] (default 10)")
-g.add_argument("--kn", type=number(POSITIVE), default=1e4, help="normal contact stiffness [N/m] (default 1e4)")
-g.add_argument("--ks", type=number(NON_NEGATIVE), default=2e3, help="tangential contact stiffness [N/m] (default 2e3)")
-g.add_argument("--no-rotation", action="store_true", help="lock particle rotations (000 section 4.3.2)")
-g.add_argument("--relaxation-tol", type=number(UNIT_OPEN), default=1e-3, help="cell relaxation tolerance of --criterion (default 1e-3: 001 section 2, 000 Table 3)")
-g.add_argument("--criterion", choices=("energy", "force"), default="force",
-               help="cell convergence test: unbalanced-force ratio (001, default) or E_kin/E_pot (000 eq. 31; "
-                    "near the peak it leaves a residual floor above --force-rtol, docs/reference/femdem.md)")
-g.add_argument("--max-dem-steps", type=number(low=1, high=1e9, integer=True), default=200_000, help="DEM steps allowed per cell solve (default %(default)s)")
-g.add_argument("--micro-bc", choices=("periodic", "frame"), default="periodic",
-               help="the cells' boundary: periodic (default) or frame (paper 000's frame of boundary particles held "
-                    "by a servo, demcell.frame, cut from the reference cell; docs/reference/frame_cell.md)")
-g.add_argument("--frame-thickness", type=number(POSITIVE), default=None,
-               help="frame: width in mean diameters (default: one particle layer)")
-g.add_argument("--frame-tol", type=number(POSITIVE), default=1e-3,
-               help="frame: the servo's tolerance eps_a in mean contact forces (default %(default)g)")
+cli.add_settings(g, CellOptions, CELL)
 g.add_argument("--cell-option", type=cli.key_value, action="append", default=[], metavar="KEY=VALUE",
                help="a further demcell.RelaxationOptions of the cells, e.g. method=local (local damping instead "
                     "of the default FIRE), dt_safety=0.5, fixed_steps=100 (YADE's way: N DEM steps per solve, no "
@@ -147,18 +134,16 @@ cli.add_settings(parser.add_argument_group("the cells' ranks and devices"), FemD
 
 
 def femdem_settings(args):
-    """The scene's settings from the options (imports demcell: only when they parsed)."""
-    from cosserat_fenicsx.materials.dem import CellOptions
+    """The scene's settings from the options."""
     nx, ny = parse_mesh(args.mesh)
     return FemDemSettings(
         nx=nx, ny=ny, **cli.settings_values(FemDemSettings, args, DISCRETISATION + SPECIMEN + COUPLING + CELLS),
         accept_rtol=args.accept_rtol if args.accept_rtol != 0 else None,
         stagnation_its=args.stagnation_its if args.stagnation_its != 0 else None,
-        cell=CellOptions(particles=args.particles, seed=args.seed, packing=args.packing, friction=args.friction,
-                         pressure=args.pressure, kn=args.kn, ks=args.ks, rotation=not args.no_rotation,
-                         relaxation_tol=args.relaxation_tol, criterion=args.criterion,
-                         max_steps=args.max_dem_steps, extra=dict(args.cell_option), micro_bc=args.micro_bc,
-                         frame_thickness=args.frame_thickness, frame_tol=args.frame_tol))
+        cell=CellOptions(**dict(cli.settings_values(CellOptions, args, ("particles", "seed") + CELL),
+                                packing=args.packing, extra=dict(args.cell_option),
+                                # a checkpoint's options may hold the older flag no_rotation instead
+                                rotation=args.rotation and not getattr(args, "no_rotation", False))))
 
 
 def check(args):

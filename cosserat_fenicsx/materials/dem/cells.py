@@ -22,6 +22,8 @@ import os
 
 import numpy as np
 
+from ...validation import (DISCS, FRICTION, NON_NEGATIVE, NON_NEGATIVE_INTEGER, POSITIVE, UNIT_OPEN, Range,
+                           setting)
 from demcell.frame.cell import FRAME_TANGENTS  # noqa: F401 (the tangents a frame cell has)
 from demcell.tangent import TANGENT_KINDS
 
@@ -68,22 +70,32 @@ OWN_SETTINGS = {"tol": "relaxation_tol (--relaxation-tol)", "criterion": "criter
 
 @dataclass
 class CellOptions:
-    """Micro-scale settings (000 Table 3 defaults; pressure as demos/dem_cell.py)."""
-    particles: int = 228
-    seed: int = 0
+    """Micro-scale settings (000 Table 3 defaults; pressure as demos/dem_cell.py). The fields
+    with a help text are demos/femdem_biaxial.py's cell options (cli.add_settings)."""
+    particles: int = setting(228, DISCS, "number of discs (000 Table 3)")
+    seed: int = setting(0, NON_NEGATIVE_INTEGER, "packing seed")
     packing: str = None              # .npz written by demos/dem_cell.py (or demcell.save_packing)
-    friction: float = 0.4
-    pressure: float = 10.0           # p0 [N/m]: compaction and isotropic stage
-    kn: float = 1.0e4                # [N/m]
-    ks: float = 2.0e3                # [N/m]
-    rotation: bool = True            # False: particle rotations locked (000 section 4.3.2)
-    relaxation_tol: float = 1e-3     # E_kin/E_pot (energy) or unbalanced-force ratio (force)
-    criterion: str = "force"          # 001: max unbalanced force / mean contact force (docs/reference/femdem.md)
-    max_steps: int = 200_000         # DEM steps allowed per solve after the loading ramp
+    friction: float = setting(0.4, FRICTION, "Coulomb friction mu (inf: no sliding)")
+    pressure: float = setting(10.0, POSITIVE, "confining pressure p0 [N/m] (compaction and isotropic stage)")
+    kn: float = setting(1.0e4, POSITIVE, "normal contact stiffness [N/m]")
+    ks: float = setting(2.0e3, NON_NEGATIVE, "tangential contact stiffness [N/m]")
+    rotation: bool = setting(True, help="particles rotate (--no-rotation: locked, 000 section 4.3.2)")
+    relaxation_tol: float = setting(1e-3, UNIT_OPEN, "cell relaxation tolerance of --criterion "
+                                    "(001 section 2, 000 Table 3)")
+    criterion: str = setting("force", choices=("energy", "force"),
+                             help="cell convergence test: unbalanced-force ratio (001) or E_kin/E_pot (000 eq. 31; "
+                                  "near the peak it leaves a residual floor above --force-rtol, "
+                                  "docs/reference/femdem.md)")
+    max_steps: int = setting(200_000, Range(1, MAX_STEPS, integer=True), "DEM steps allowed per cell solve "
+                             "after its loading ramp", flag="--max-dem-steps")
     extra: dict = field(default_factory=dict)   # further demcell.RelaxationOptions (over RELAXATION)
-    micro_bc: str = "periodic"       # "frame": paper 000's frame cell (demcell.frame) cut from the reference cell
-    frame_thickness: float = None    # frame width in mean diameters (None: one particle layer)
-    frame_tol: float = 1e-3          # the frame servo's eps_a (demcell.frame.FrameOptions)
+    micro_bc: str = setting("periodic", choices=MICRO_BCS,
+                            help="the cells' boundary: periodic, or frame (paper 000's frame of boundary particles "
+                                 "held by a servo, demcell.frame, cut from the reference cell; "
+                                 "docs/reference/frame_cell.md)")
+    frame_thickness: float = setting(None, POSITIVE, "frame: width in mean diameters (default: one particle layer)")
+    frame_tol: float = setting(1e-3, POSITIVE, "frame: the servo's tolerance eps_a in mean contact forces "
+                               "(demcell.frame.FrameOptions)")
 
     def check(self):
         """Every value in range and the packing file readable, before any cell exists.

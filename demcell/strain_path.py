@@ -27,7 +27,9 @@ def strain_path_step(cell, F, lat, lateral_stress, rtol=1e-4, max_iterations=30)
     steps = 0
     f0 = cell.deformation_gradient()[lat, lat]
     f1 = f0 + 0.3 * abs(F[1 - lat, 1 - lat] - cell.deformation_gradient()[1 - lat, 1 - lat]) + 1e-12
-    (r0, res), (r1, res) = residual(f0), residual(f1)
+    r0, res = residual(f0)
+    steps += res.steps
+    r1, res = residual(f1)
     steps += res.steps
     for _ in range(max_iterations):
         if abs(r1) <= rtol * abs(lateral_stress) or r1 == r0:

@@ -2,7 +2,6 @@
 the secant iteration lands on the confining stress, and the DEM steps it reports are those
 of every trial it solved."""
 import numpy as np
-
 import pytest
 
 from demcell.strain_path import strain_path_step

@@ -227,6 +227,11 @@ class ExplicitCosserat:
         self._inverse_mass[self._free] = 1.0 / mass[self._free]
         self._stable = None
 
+    @property
+    def free_dofs(self):
+        """Boolean mask over the owned dofs: neither Dirichlet nor massless (the dofs that move)."""
+        return self._free.copy()
+
     def add_mass(self, vec):
         """Add a mass Vec over W (the particles' row-sum lumped N^T m, N^T J [kg/m, kg m]),
         owned entries complete (ghost contributions already added). The acceleration is
@@ -317,8 +322,10 @@ class ExplicitCosserat:
         return dt
 
     def update_acceleration(self, coupling_force=None):
-        """a = M^-1 (f_c - K d) - c_m v at the current state (the start of a run, or after d or
-        v were set by hand)."""
+        """a = M^-1 (f_c - K d) - c_m v at the current state: the start of a run, or after owned
+        entries of d or v were set by hand (their ghosts are refreshed here)."""
+        self._forward(self.displacement)
+        self._forward(self.velocity)
         force = self._net_force(coupling_force)
         a = self.acceleration.array
         a[:] = self._inverse_mass * force - self.mass_damping * self.velocity.array

@@ -171,6 +171,21 @@ def test_inactive_cells_carry_no_mass_and_no_stiffness(element):
     assert COMM.allreduce(int((model.mass.array == 0.0).sum())) == 0
 
 
+def test_hrz_lumping_of_p2():
+    """Two triangles of area 1/2: HRZ gives rho A/19 at a vertex of one triangle and
+    2 x 16 rho A/57 at the midpoint of the shared diagonal (Hinton, Rock & Zienkiewicz 1976)."""
+    mesh, _, _ = meshes.rectangle(COMM, 1.0, 1.0, divisions=(1, 1), cell_type="triangle")
+    rho = 3.0
+    model = ExplicitCosserat(mesh, MicropolarElasticity(mu=1.0, lmbda=1.0, mu_c=0.5), rho, 0.01)
+    assert model.mass_info["hrz_factor"] == pytest.approx(30 / 19, rel=1e-12)
+    dofs = model.subspace("u1")[1]
+    masses = model.mass.array[dofs[dofs < len(model.mass.array)]]
+    low = COMM.allreduce(masses.min() if len(masses) else np.inf, op=MPI.MIN)
+    high = COMM.allreduce(masses.max() if len(masses) else 0.0, op=MPI.MAX)
+    assert low == pytest.approx(rho * 0.5 / 19, rel=1e-12)
+    assert high == pytest.approx(2 * 16 * rho * 0.5 / 57, rel=1e-12)
+
+
 def test_predict_correct_with_coupling_force_is_eq_33():
     """A constant force on free dofs: a = M^-1 f (undamped) after one step from rest."""
     model, _, _ = ver.rotation_mode(COMM, "Q1/Q1", divisions=(2, 2), phi0=0.0)

@@ -1,8 +1,10 @@
 """Stable time step of the explicit central-difference / velocity-Verlet scheme (003 eqs 31-34).
 
-Undamped velocity Verlet is stable for dt <= 2 / omega_max, omega_max^2 the largest eigenvalue
-of M^-1 K (M the lumped mass, K the stiffness, on the free dofs). Mass damping c_m does not lower
-this limit (it lowers it by nothing for c_m >= 0 in eq 33).
+Velocity Verlet is stable for dt <= 2 / omega_max, omega_max^2 the largest eigenvalue of
+M^-1 K (M the lumped mass, K the stiffness, on the free dofs). The mass damping of eq 33 does
+not move this limit: the scheme is Newmark beta = 0, gamma = 1/2 with the damping force at
+v^{n+1}, whose critical Omega = omega dt is 2 for every damping ratio (Hughes 1987, the
+Omega_crit formula at gamma = 1/2).
 
 Three numbers [s]:
 

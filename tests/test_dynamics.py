@@ -35,22 +35,25 @@ def test_rotation_mode_period(element):
 
 def _p_wave_error(element, nx):
     model, signal, omega = ver.p_wave(COMM, element, nx=nx, ny=max(1, nx // 4))
-    dt = 0.2 * model.stable_time_step()["power"]
+    stable = model.stable_time_step()
+    dt = 0.2 * stable["power"]
     t, s = ver.run(model, signal, dt, int(2.2 * 2 * math.pi / omega / dt))
     omega_h = ver.spatial_frequency(2 * math.pi / ver.zero_crossing_period(t, s), dt)
-    return omega_h / omega - 1.0
+    return omega_h / omega - 1.0, stable["power"] / stable["translational"]
 
 
 @pytest.mark.parametrize("element", ELEMENTS)
 def test_standing_p_wave_dispersion(element):
     """Standing P wave of the strip (verification.p_wave): the FE frequency (Verlet's time
     error removed) converges at rate 2 on two meshes; on Q1 it is the 1D lumped linear element's
-    (2 c/h) sin(k h / 2) exactly."""
-    coarse, fine = _p_wave_error(element, 4), _p_wave_error(element, 8)
+    (2 c/h) sin(k h / 2) exactly, and its stable step is h/c_p (the 1D closed form; the top
+    mode of u1 with Dirichlet ends sits just below k = pi/h)."""
+    (coarse, ratio_coarse), (fine, ratio_fine) = _p_wave_error(element, 4), _p_wave_error(element, 8)
     assert coarse < 0 and fine < 0                                    # lumped mass: too soft
     rate = math.log2(coarse / fine)
     assert 1.8 < rate < 2.2, (coarse, fine)
     if element == "Q1/Q1":
+        assert 1.0 < ratio_fine < ratio_coarse < 1.1
         for nx, error in ((4, coarse), (8, fine)):
             h, k = 1.0 / nx, math.pi
             assert error == pytest.approx(2 / h * math.sin(k * h / 2) / k - 1, rel=1e-3)   # c_p = 1

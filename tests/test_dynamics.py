@@ -109,6 +109,23 @@ def test_stable_step_rotational_closed_form_and_blow_up(element):
     assert refusing.time == 0.0 and np.array_equal(refusing.displacement.array, before)
 
 
+def test_mass_damping_keeps_the_stable_step():
+    """Newmark beta = 0, gamma = 1/2 with the damping at v^{n+1} (eq 33): omega dt = 2 stays the
+    limit whatever c_m (stable_step.py): heavily damped (c_m = omega_r), 3 % below it decays,
+    5 % above it still blows up."""
+    omega = math.sqrt(4 * 0.5 / (2.0 * 0.01))
+    model, signal, _ = ver.rotation_mode(COMM, "Q1/Q1", divisions=(2, 2), l_c=0.0, mass_damping=omega)
+    dt = model.stable_time_step()["power"]
+    t, s = ver.run(model, signal, 0.97 * dt, 400)
+    assert np.abs(s[-50:]).max() < 1e-3 * np.abs(s).max()
+    unstable, _, _ = ver.rotation_mode(COMM, "Q1/Q1", divisions=(2, 2), l_c=0.0, mass_damping=omega,
+                                       refuse_unstable=False)
+    unstable.stable_time_step()
+    with pytest.raises(DynamicsError, match="above the stable step"):
+        for _ in range(4000):
+            unstable.step(1.05 * dt)
+
+
 @pytest.mark.serial
 @pytest.mark.parametrize("element", ELEMENTS)
 def test_power_iteration_against_dense_eigenvalues(element):

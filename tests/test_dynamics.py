@@ -241,7 +241,8 @@ def test_refusals():
             ExplicitCosserat(mesh, elasticity, **args)
     with pytest.raises(InputError, match="mu_c > 0"):
         ExplicitCosserat(mesh, MicropolarElasticity(mu=1.0, lmbda=1.0, mu_c=0.0), 1.0, 0.01, element="Q1/Q1")
-    model = ExplicitCosserat(mesh, elasticity, 1.0, 0.01, element="Q1/Q1")
+    model = ExplicitCosserat(mesh, elasticity, 1.0, 0.01, element="Q1/Q1", inactive_cells=[])
+    assert model.total_mass == pytest.approx((1.0, 0.01))
     with pytest.raises(InputError, match="dt must be > 0"):
         model.step(-1.0)
     with pytest.raises(InputError, match="must follow predict"):

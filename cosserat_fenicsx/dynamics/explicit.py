@@ -118,14 +118,16 @@ class ExplicitCosserat:
         self.indicator.x.array[:] = 1.0
         n_local_cells = mesh.topology.index_map(tdim).size_local + mesh.topology.index_map(tdim).num_ghosts
         if inactive_cells is not None:
-            cells = np.asarray(inactive_cells)
+            cells = np.asarray(inactive_cells).ravel()
+            if cells.size == 0:
+                cells = cells.astype(np.int64)      # np.asarray([]) is float
             if cells.size and (cells.dtype.kind not in "iu" or cells.min() < 0 or cells.max() >= n_local_cells):
                 raise InputError(f"inactive_cells must be local cell indices in [0, {n_local_cells}), "
                                  f"got {cells.dtype} values in [{cells.min()}, {cells.max()}]")
             cell_dofs = compat.cell_dofs(self._dg0, n_local_cells)[:, 0]
             self.indicator.x.array[cell_dofs[cells]] = 0.0
             self.indicator.x.scatter_forward()   # owners' values win on ghost cells
-        self.inactive_cells = None if inactive_cells is None else np.asarray(inactive_cells)
+        self.inactive_cells = None if inactive_cells is None else cells
 
         # fields: d, v, a as Functions of W and their (ghosted) PETSc Vecs
         self.fields = {name: dolfinx.fem.Function(self.space, name=name)

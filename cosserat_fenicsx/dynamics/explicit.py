@@ -42,7 +42,7 @@ from .. import compat
 from ..elasticity import MicropolarElasticity
 from ..kinematics import curvature, strain
 from ..validation import NON_NEGATIVE, POSITIVE, InputError, check
-from .mass import lumped_mass
+from .mass import lumped_mass, mass_dot
 from .stable_step import power_step, rotational_step, start_vector, translational_step
 
 ELEMENTS = {"Q1/Q1": ("quadrilateral", 1, 1), "P2/P1": ("triangle", 2, 1)}
@@ -262,19 +262,12 @@ class ExplicitCosserat:
 
     def kinetic_energy(self):
         """1/2 v . M v [J/m] (global)."""
-        return 0.5 * self._mass_dot(self.velocity)
+        return 0.5 * mass_dot(self.velocity, self.mass)
 
     def strain_energy(self):
         """1/2 d . K d [J/m] (global)."""
         self.stiffness.mult(self.displacement, self._force)
         return 0.5 * self.displacement.dot(self._force)
-
-    def _mass_dot(self, x):
-        weighted = x.copy()
-        weighted.pointwiseMult(weighted, self.mass)
-        value = x.dot(weighted)
-        weighted.destroy()
-        return value
 
     # --- stable step ----------------------------------------------------------------
     def h_min(self):

@@ -31,6 +31,8 @@ import math
 
 import numpy as np
 
+from .mass import mass_dot
+
 POWER_ITERATIONS = 2000
 
 
@@ -64,7 +66,7 @@ def power_step(apply_stiffness, mass, free, x, rtol=1e-7, check=20, max_iteratio
     x.array[~free] = 0.0
     lam, previous, iterations = 0.0, None, 0
     for iterations in range(1, max_iterations + 1):
-        xmx = _mass_dot(x, mass)
+        xmx = mass_dot(x, mass)
         if not xmx > 0.0:
             break
         x.scale(1.0 / math.sqrt(xmx))         # x.Mx = 1
@@ -80,11 +82,3 @@ def power_step(apply_stiffness, mass, free, x, rtol=1e-7, check=20, max_iteratio
         return math.inf, lam, iterations
     return safety * 2.0 / math.sqrt(lam), lam, iterations
 
-
-def _mass_dot(x, mass):
-    """x . M x (global)."""
-    weighted = x.copy()
-    weighted.pointwiseMult(weighted, mass)
-    value = x.dot(weighted)
-    weighted.destroy()
-    return value

@@ -126,3 +126,13 @@ def set_bc(b, bcs, x0, scale):
         dolfinx.fem.petsc.set_bc(b, bcs, x0, scale)
     else:
         dolfinx.fem.petsc.set_bc(b, bcs, x0, alpha=scale)
+
+
+def cell_geometry_nodes(mesh):
+    """Geometry node indices of the local cells, array (n_cells, nodes_per_cell) into
+    mesh.geometry.x."""
+    dofmap = mesh.geometry.dofmap
+    if LEGACY:
+        per_cell = len(dofmap.links(0)) if dofmap.num_nodes else 0
+        return dofmap.array.reshape(-1, per_cell) if per_cell else np.zeros((0, 0), dtype=np.int32)
+    return np.asarray(dofmap)

@@ -128,6 +128,16 @@ def set_bc(b, bcs, x0, scale):
         dolfinx.fem.petsc.set_bc(b, bcs, x0, alpha=scale)
 
 
+def cell_geometry_nodes(mesh):
+    """Geometry node indices of the local cells, array (n_cells, nodes_per_cell) into
+    mesh.geometry.x."""
+    dofmap = mesh.geometry.dofmap
+    if LEGACY:
+        per_cell = len(dofmap.links(0)) if dofmap.num_nodes else 0
+        return dofmap.array.reshape(-1, per_cell) if per_cell else np.zeros((0, 0), dtype=np.int32)
+    return np.asarray(dofmap)
+
+
 def colliding_cells(mesh, points):
     """AdjacencyList of the local cells (owned and ghost) containing each point (n, 3)."""
     import dolfinx.geometry
@@ -142,9 +152,7 @@ def colliding_cells(mesh, points):
 
 def cell_geometry(mesh, cell):
     """Physical coordinates (n_nodes, gdim) of one local cell's geometry nodes."""
-    dofmap = mesh.geometry.dofmap
-    nodes = dofmap.links(cell) if LEGACY else np.asarray(dofmap)[cell]
-    return mesh.geometry.x[nodes, :mesh.geometry.dim]
+    return mesh.geometry.x[cell_geometry_nodes(mesh)[cell], :mesh.geometry.dim]
 
 
 def pull_back(mesh, points, coordinates):

@@ -148,7 +148,8 @@ def build_region(position, radius, mass, inertia, box, domain, layer="touching",
 
 
 def region_cells(mesh, box):
-    """Local cell indices (owned and ghost) of the elements inside Omega_D.
+    """Local indices of this rank's OWNED cells inside Omega_D (ExplicitCosserat's
+    inactive_cells).
 
     Refuses (one line) a rectangle that does not coincide with whole elements: every cell
     whose midpoint is inside must have all its vertices inside, and their areas must add up
@@ -180,7 +181,7 @@ def region_cells(mesh, box):
     if abs(area - expected) > 1e-9 * expected:
         raise InputError(f"DEM region {tuple(box)} is not a union of whole elements: the elements "
                          f"inside cover {area:g} m^2 of its {expected:g} m^2")
-    return chosen
+    return chosen[chosen < n_owned]
 
 
 def _polygon_area(xy):

@@ -54,7 +54,7 @@ class FineScale(abc.ABC):
     @abc.abstractmethod
     def drive_held(self, position, rotation):
         """Prescribe the held (virtual) discs' motion so that after the next step they are at
-        position (n_held, 2) [m] and rotation (n_held,) [rad]."""
+        position (n, 2) [m] and rotation (n,) [rad] (all discs; only the held rows are read)."""
 
     @abc.abstractmethod
     def advance(self, n_steps):
@@ -122,6 +122,12 @@ def virtual_pair_forces(state, order, is_virtual):
     return in_original_order(order, engine)
 
 
+def _declare_specimen():
+    """demcell's bounded specimen implements FineScale (it cannot import this module)."""
+    from demcell.specimen import Specimen
+    FineScale.register(Specimen)
+
+
 class BridgingCoupler:
     """Bridging-scale coupling of an ExplicitCosserat continuum with a DEM region.
 
@@ -142,6 +148,8 @@ class BridgingCoupler:
             raise InputError(f"substeps must be an integer >= 1, got {substeps!r}")
         if not (isinstance(dt, (int, float)) and math.isfinite(dt) and dt > 0.0):
             raise InputError(f"dt must be a finite number > 0 [s], got {dt!r}")
+        if self.is_root:
+            _declare_specimen()
         if self.is_root and not isinstance(fine, FineScale):
             raise InputError("the DEM region's engine must implement bridging.coupler.FineScale "
                              "(drive_held, advance, disc_forces)")
@@ -240,10 +248,15 @@ class BridgingCoupler:
             w0, c0 = _clock()
             reference = region.position[virtual]
             u0, v0, a0 = u_v[virtual], v_v[virtual], a_v[virtual]
+            # full arrays in the region's order; the engine reads the held (virtual) rows only
+            position = region.position.copy()
+            rotation = np.zeros(region.n_discs)
             for j in range(1, self.substeps + 1):
                 t = j * self.dt_fine
                 target = u0 + t * v0 + 0.5 * t * t * a0
-                self.fine.drive_held(reference + target[:, :2], target[:, 2])
+                position[virtual] = reference + target[:, :2]
+                rotation[virtual] = target[:, 2]
+                self.fine.drive_held(position, rotation)
                 self.fine.advance(1)
             self.timings.add("dem", w0, c0)
             w0, c0 = _clock()

@@ -46,7 +46,8 @@ def hexagonal_packing(domain, radius):
     return np.vstack(points)
 
 
-def build(radius, size=4.0, box=(1.0, 3.0, 1.0, 3.0), cells=4, substeps=2, mass_damping=0.0, comm=MPI.COMM_WORLD):
+def build(radius, size=4.0, box=(1.0, 3.0, 1.0, 3.0), cells=4, substeps=2, mass_damping=0.0, dirichlet=(),
+          comm=MPI.COMM_WORLD):
     """Continuum, region, engine (rank 0) and coupler of the hexagonal patch."""
     from demcell.contact_law import ContactLaw
     from demcell.estimates import hexagonal_moduli
@@ -58,7 +59,8 @@ def build(radius, size=4.0, box=(1.0, 3.0, 1.0, 3.0), cells=4, substeps=2, mass_
     elasticity = MicropolarElasticity(mu=moduli["G"], lmbda=moduli["lambda_"], mu_c=moduli["mu_c"], l_c=0.0)
     rho_c = DENSITY * math.pi / (2.0 * math.sqrt(3.0))     # disc mass per lattice cell area
     continuum = ExplicitCosserat(mesh, elasticity, rho_c, 0.5 * radius ** 2, mass_damping=mass_damping,
-                                 element="Q1/Q1", inactive_cells=region_cells(mesh, box))
+                                 element="Q1/Q1", inactive_cells=region_cells(mesh, box),
+                                 dirichlet=dirichlet)
     position = hexagonal_packing(domain, radius)
     r = np.full(len(position), radius)
     m = DENSITY * math.pi * r ** 2

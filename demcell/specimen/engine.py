@@ -6,7 +6,8 @@ Each step (inside Numba, in chunks of ``options.boundary_interval`` steps):
      pressure on the outside arcs of the free-side discs and the membrane between them
      (boundary.pressure_forces / membrane_forces, 004 eqs. 7.44-7.46) into external_force;
   3. gather and leapfrog (integrate.step_discs, 004 eqs. 7.15-7.17);
-  4. the walls move (prescribed velocity or stress servo, walls.move_walls);
+  2b. the rigid plate, if any (plate.plate_forces: a finite footing, 003 section 3);
+  4. the walls and the plate move (prescribed velocity or stress servo, walls.move_walls);
   5. the neighbour list is stale when 2 max |u| > skin (or max |u| + the wall motion > skin):
      the chunk returns and Python rebuilds it (contacts.build_pairs, history merged).
 Between chunks Python finds the free-side chains again (boundary.boundary_loop and
@@ -30,6 +31,7 @@ from .boundary import boundary_loop, escaped_discs, membrane_forces, pressure_fo
 from .contacts import (P_PARALLEL_MIN, P_WALL_DN, P_WALL_RATIO, branch, build_pairs, contact_geometry, elastic_energy,
                        law_scalars, law_vector, merge_history, one_pair, pairs_of_j, spatial_order)
 from .integrate import block, n_blocks
+from .plate import PL_ACTIVE, PL_VX, PL_VY, PL_X0, PL_Y, Plate, move_plate, no_plate, plate_candidates, plate_forces
 from .state import SpecimenOptions, SpecimenState
 from .walls import WALL_AXIS, WALL_SIGN, WallControl, move_walls, programme_arrays, wall_candidates, wall_forces
 
@@ -37,7 +39,7 @@ DONE, REBUILD, NONFINITE = range(3)
 #: inertial number above which a run is no longer quasi-static (warned once)
 INERTIAL_LIMIT = 1.0e-3
 # slots of the control vector of the chunk kernel
-(C_GX, C_GY, C_DAMP, C_SKIN, C_PRESSURE, C_EM, C_WIDTH, C_LATERAL, C_WALL_MU, N_CTRL) = range(10)
+(C_GX, C_GY, C_DAMP, C_SKIN, C_PRESSURE, C_EM, C_WIDTH, C_LATERAL, C_WALL_MU, C_MASS_DAMP, N_CTRL) = range(11)
 
 
 def check_time_step(dt, mass, kn):
@@ -66,12 +68,14 @@ def lateral_forces(position, radius, chain, chain_start, pressure, stiffness, ou
 
 
 @njit(cache=True, parallel=True)
-def advance(n_steps, position, velocity, rotation, spin, radius, mass, inertia, external_force, external_moment,
-            on_wall, held, pair_i, pair_j, touching, sliding, fn, fs, mr, work, geo, row, jstart, jcol, cand_disc,
-            cand_wall, cand_fs, chain, chain_start, build_position, build_wall, wall_position, wall_velocity,
-            wall_active, wall_force, mode, velocity_prog, target, gain, vmax, par, ctrl, block_max):
+def advance_steps(n_steps, position, velocity, rotation, spin, radius, mass, inertia, external_force,
+                  external_moment, on_wall, held, pair_i, pair_j, touching, sliding, fn, fs, mr, work, geo, row, jstart,
+                  jcol, cand_disc, cand_wall, cand_fs, chain, chain_start, build_position, build_wall, wall_position,
+                  wall_velocity, wall_active, wall_force, mode, velocity_prog, target, gain, vmax, par, ctrl, block_max,
+                  plate, plate_cand, plate_fs, plate_force, build_plate, net):
     """Up to n_steps steps (module docstring); returns (steps done, status): DONE, REBUILD
-    (the neighbour list is stale) or NONFINITE.
+    (the neighbour list is stale) or NONFINITE. net (n, 3): each disc's contact plus
+    external force and moment of the last step.
 
     The two parallel loops (pairs, then blocks of discs) are written here rather than called
     (contacts.pair_forces, integrate.block are their bodies): a cached Numba kernel calling
@@ -93,6 +97,7 @@ def advance(n_steps, position, velocity, rotation, spin, radius, mass, inertia, 
     width = ctrl[C_WIDTH]
     membrane = ctrl[C_LATERAL] > 0.5
     wall_mu = ctrl[C_WALL_MU]
+    cm = ctrl[C_MASS_DAMP]
     for s in range(n_steps):
         # 1. contact law per pair
         if parallel:
@@ -117,20 +122,33 @@ def advance(n_steps, position, velocity, rotation, spin, radius, mass, inertia, 
         for c in range(chain.shape[0]):
             external_force[chain[c], 0] = 0.0
             external_force[chain[c], 1] = 0.0
+        for c in range(plate_cand.shape[0]):
+            p = plate_cand[c]
+            external_force[p, 0] = 0.0
+            external_force[p, 1] = 0.0
+            external_moment[p] = 0.0
         wall_forces(cand_disc, cand_wall, cand_fs, position, velocity, spin, radius, mass, wall_position,
                     wall_velocity, kn, ks, wall_dn, wall_ratio, clip, wall_mu, dt, external_force, external_moment,
                     wall_force, on_wall)
+        if plate_cand.shape[0] > 0:
+            plate_forces(plate_cand, position, velocity, spin, radius, mass, plate, plate_fs, kn, ks, wall_dn,
+                         wall_ratio, clip, dt, external_force, external_moment, plate_force)
+        else:
+            plate_force[0] = 0.0
+            plate_force[1] = 0.0
         if membrane:
             lateral_forces(position, radius, chain, chain_start, pressure, stiffness, external_force)
         # 3. gather and leapfrog, the staleness bound reduced over the blocks in order
         if parallel:
             for b in prange(nb):
                 block_max[b] = block(b, row, jstart, jcol, work, position, velocity, rotation, spin, mass, inertia,
-                                     external_force, external_moment, gx, gy, damp, dt, rot, build_position, held)
+                                     external_force, external_moment, gx, gy, damp, cm, dt, rot, build_position,
+                                     held, net)
         else:
             for b in range(nb):
                 block_max[b] = block(b, row, jstart, jcol, work, position, velocity, rotation, spin, mass, inertia,
-                                     external_force, external_moment, gx, gy, damp, dt, rot, build_position, held)
+                                     external_force, external_moment, gx, gy, damp, cm, dt, rot, build_position,
+                                     held, net)
         u2 = 0.0
         for b in range(nb):
             if block_max[b] > u2:
@@ -139,11 +157,13 @@ def advance(n_steps, position, velocity, rotation, spin, radius, mass, inertia, 
         # 4. walls
         move_walls(wall_position, wall_velocity, wall_active, wall_force, mode, velocity_prog, target, gain, vmax,
                    width, dt)
+        move_plate(plate, dt)
         if not (umax < math.inf):
             return s + 1, NONFINITE
         wmax = 0.0
         for w in range(4):
             wmax = max(wmax, abs(wall_position[w] - build_wall[w]))
+        wmax = max(wmax, math.hypot(plate[PL_X0] - build_plate[0], plate[PL_Y] - build_plate[1]))
         if 2.0 * umax > skin or umax + wmax > skin:
             return s + 1, REBUILD
     return n_steps, DONE
@@ -229,6 +249,13 @@ class Specimen:
         self.external_moment = np.zeros(state.n_discs)
         self.held = np.zeros(state.n_discs, np.int8)
         self.block_max = np.zeros(n_blocks(state.n_discs))
+        self.plate_vector = no_plate()
+        self.plate_force = np.zeros(2)
+        self.plate_fs = np.zeros(state.n_discs)
+        self.plate_cand = np.zeros(0, np.int64)
+        self.build_plate = np.zeros(2)
+        self.net = np.zeros((state.n_discs, 3))
+        self._held_target = None
         self._warned_inertial = False
         self._warned_sides = False
         self.history = []
@@ -266,6 +293,11 @@ class Specimen:
         self.work = np.zeros((new_i.shape[0], 4))
         self.geo = np.zeros((new_i.shape[0], 3))
         old = getattr(self, "cand_disc", None)
+        old_plate = self.plate_cand
+        self.plate_cand = plate_candidates(st.position, st.radius, self.plate_vector, self.skin)
+        self.build_plate = self.plate_vector[[PL_X0, PL_Y]].copy()
+        gone_plate = np.setdiff1d(old_plate, self.plate_cand)
+        self.plate_fs[gone_plate] = 0.0
         disc, wall = wall_candidates(st.position, st.radius, st.wall_position, st.wall_active, self.skin)
         cand_fs = np.zeros(disc.shape[0])
         if old is not None and self.options.wall_friction > 0.0:
@@ -276,7 +308,7 @@ class Specimen:
         self.build_wall = st.wall_position.copy()
         if old is not None:
             # discs no longer near a wall lose their wall load; the others keep the last step's
-            gone = np.setdiff1d(old, disc)
+            gone = np.setdiff1d(np.union1d(old, old_plate), np.union1d(disc, self.plate_cand))
             gone = gone[~np.isin(gone, self.chain)]
             st.external_force[gone] = 0.0
             self.external_moment[gone] = 0.0
@@ -446,19 +478,8 @@ class Specimen:
             n_steps = int(round(duration / opt.dt))
         n_steps = checks.number("n_steps", n_steps, Range(0, checks.MAX_BUDGET, integer=True))
         every = checks.number("every", every, Range(1, integer=True))
-        if opt.threads is not None:
-            import numba
-            numba.set_num_threads(min(opt.threads, numba.config.NUMBA_NUM_THREADS))
+        programme, ctrl = self._prepare()
         st = self.state
-        mode, vel, target, gain, vmax = programme_arrays(self.controls, self._default_speed())
-        ctrl = np.zeros(N_CTRL)
-        ctrl[C_GX], ctrl[C_GY] = opt.gravity
-        ctrl[C_DAMP] = opt.local_damping
-        ctrl[C_SKIN] = self.skin
-        ctrl[C_PRESSURE] = self.pressure
-        ctrl[C_EM] = opt.membrane_stiffness
-        ctrl[C_LATERAL] = 1.0 if opt.lateral == "membrane" else 0.0
-        ctrl[C_WALL_MU] = opt.wall_friction
         interval = opt.boundary_interval
         if opt.lateral == "membrane" and self.chain.size == 0:
             self._update_boundary()
@@ -469,28 +490,9 @@ class Specimen:
         while left > 0:
             ctrl[C_WIDTH] = self.lateral_width()
             k = min(left, interval - since)
-            c0, w0 = _time.process_time(), _time.perf_counter()
-            done, status = advance(k, st.position, st.velocity, st.rotation, st.spin, st.radius, st.mass, st.inertia,
-                                   st.external_force, self.external_moment, st.on_wall, self.held, st.pair_i,
-                                   st.pair_j,
-                                   st.touching, st.sliding, st.fn, st.fs, st.mr, self.work, self.geo, self.row,
-                                   self.jstart,
-                                   self.jcol, self.cand_disc, self.cand_wall, self.cand_fs, self.chain,
-                                   self.chain_start, self.build_position, self.build_wall, st.wall_position,
-                                   st.wall_velocity, st.wall_active, st.wall_force, mode, vel, target, gain, vmax,
-                                   self.par, ctrl, self.block_max)
-            self.cpu_seconds += _time.process_time() - c0
-            self.wall_seconds += _time.perf_counter() - w0
-            self.pair_updates += done * st.n_pairs
-            st.step += done
-            st.time += done * opt.dt
+            done = self._chunk(k, programme, ctrl)
             left -= done
             since = (since + done) % interval
-            if status == NONFINITE:
-                self._check_finite()
-                raise LostDiscsError(f"non-finite state at t = {st.time:g} s (time step too large?)")
-            if status == REBUILD:
-                self._rebuild()
             if since == 0 or left == 0:
                 if since == 0:
                     self._update_boundary()
@@ -505,6 +507,134 @@ class Specimen:
         if last is None:
             last = self.measure()
         return last
+
+    def advance(self, n_steps):
+        """n_steps steps and nothing else: no measurement, no history, no boundary-line
+        detection (so not for a membrane specimen); the kernel runs from one neighbour
+        rebuild to the next without returning to Python. For a caller that steps the
+        specimen itself (the bridging-scale coupler's sub-steps, 003 eqs. 25-30). The checks of
+        ``measure`` (lost discs) are not made; a non-finite state still raises."""
+        n_steps = checks.number("n_steps", n_steps, Range(0, checks.MAX_BUDGET, integer=True))
+        if self.options.lateral == "membrane":
+            raise InputError("Specimen.advance has no free-side update: run a membrane specimen with run()")
+        programme, ctrl = self._prepare()
+        ctrl[C_WIDTH] = self.lateral_width()
+        left = n_steps
+        while left > 0:
+            left -= self._chunk(left, programme, ctrl)
+
+    def _prepare(self):
+        """The wall programme arrays and the control vector of the kernel."""
+        opt = self.options
+        if opt.threads is not None:
+            import numba
+            numba.set_num_threads(min(opt.threads, numba.config.NUMBA_NUM_THREADS))
+        programme = programme_arrays(self.controls, self._default_speed())
+        ctrl = np.zeros(N_CTRL)
+        ctrl[C_GX], ctrl[C_GY] = opt.gravity
+        ctrl[C_DAMP] = opt.local_damping
+        ctrl[C_SKIN] = self.skin
+        ctrl[C_PRESSURE] = self.pressure
+        ctrl[C_EM] = opt.membrane_stiffness
+        ctrl[C_LATERAL] = 1.0 if opt.lateral == "membrane" else 0.0
+        ctrl[C_WALL_MU] = opt.wall_friction
+        ctrl[C_MASS_DAMP] = opt.mass_damping
+        return programme, ctrl
+
+    def _chunk(self, k, programme, ctrl):
+        """At most k steps of the kernel (one step if held targets are pending: the held discs
+        are then put exactly on them); the clock, the timers and a rebuild after it. Returns
+        the steps done; a non-finite state raises LostDiscsError."""
+        st = self.state
+        opt = self.options
+        mode, vel, target, gain, vmax = programme
+        if self._held_target is not None:
+            k = min(k, 1)
+        c0, w0 = _time.process_time(), _time.perf_counter()
+        done, status = advance_steps(k, st.position, st.velocity, st.rotation, st.spin, st.radius, st.mass,
+                                     st.inertia, st.external_force, self.external_moment, st.on_wall, self.held,
+                                     st.pair_i, st.pair_j, st.touching, st.sliding, st.fn, st.fs, st.mr, self.work,
+                                     self.geo, self.row, self.jstart, self.jcol, self.cand_disc, self.cand_wall,
+                                     self.cand_fs, self.chain, self.chain_start, self.build_position, self.build_wall,
+                                     st.wall_position, st.wall_velocity, st.wall_active, st.wall_force, mode, vel,
+                                     target, gain, vmax, self.par, ctrl, self.block_max, self.plate_vector,
+                                     self.plate_cand, self.plate_fs, self.plate_force, self.build_plate, self.net)
+        self.cpu_seconds += _time.process_time() - c0
+        self.wall_seconds += _time.perf_counter() - w0
+        self.pair_updates += done * st.n_pairs
+        st.step += done
+        st.time += done * opt.dt
+        if self._held_target is not None and done > 0:
+            idx, x, theta = self._held_target
+            st.position[idx] = x
+            if self.law.rotations:
+                st.rotation[idx] = theta
+            self._held_target = None
+        if status == NONFINITE:
+            self._check_finite()
+            raise LostDiscsError(f"non-finite state at t = {st.time:g} s (time step too large?)")
+        if status == REBUILD:
+            self._rebuild()
+        return done
+
+    # ------------------------------------------------------------------ coupling interface
+    def drive_held(self, position, rotation):
+        """Prescribe the held discs' next configuration: position (n, 2) [m] and rotation (n,)
+        [rad], in the original disc order (only the held discs' rows are read). Their velocity
+        and spin become (target - current) / dt, and after the next step they sit exactly on
+        the targets (003 eq. 17: the virtual interface particles follow the continuum)."""
+        n = self.state.n_discs
+        position = checks.array("position", position, (n, 2))[self.order]
+        rotation = checks.array("rotation", rotation, (n,))[self.order]
+        idx = np.flatnonzero(self.held)
+        if idx.size == 0:
+            raise InputError("drive_held: no disc is held (Specimen.hold first)")
+        st = self.state
+        dt = self.options.dt
+        x = position[idx].copy()
+        theta = rotation[idx].copy()
+        st.velocity[idx] = (x - st.position[idx]) / dt
+        st.spin[idx] = (theta - st.rotation[idx]) / dt if self.law.rotations else 0.0
+        self._held_target = (idx, x, theta)
+
+    def disc_forces(self):
+        """(n, 3) array, original disc order: the net force (f_x, f_y) [N/m] and moment [N m/m]
+        of the last step on every disc, held ones included: its contacts plus the walls, the
+        plate and the pressure (003 eq. 9: f_int + f_ext at the centroid; no gravity, no
+        damping). Zeros before the first step."""
+        out = np.empty_like(self.net)
+        out[self.order] = self.net
+        return out
+
+    # ------------------------------------------------------------------ rigid plate
+    def set_plate(self, plate):
+        """Put a rigid plate (plate.Plate) on the specimen from the next step on (None: take it
+        away). Its position is then advanced by the engine (``plate_position``)."""
+        if plate is None:
+            self.plate_vector = no_plate()
+        else:
+            checks.instance("plate", plate, Plate)
+            self.plate_vector = plate.vector(self.law.friction)
+        self.plate_force[:] = 0.0
+        self._rebuild()
+
+    def set_plate_velocity(self, vx, vy):
+        """Plate velocity (v_x, v_y) [m/s] from the next step on."""
+        if self.plate_vector[PL_ACTIVE] < 0.5:
+            raise InputError("the specimen has no plate (set_plate first)")
+        self.plate_vector[PL_VX] = checks.number("vx", vx)
+        self.plate_vector[PL_VY] = checks.number("vy", vy)
+
+    def plate_position(self):
+        """(x0, x1, y) [m] of the plate now (nan without a plate)."""
+        if self.plate_vector[PL_ACTIVE] < 0.5:
+            return (math.nan, math.nan, math.nan)
+        return tuple(float(v) for v in self.plate_vector[:3])
+
+    def plate_reaction(self):
+        """(2,) force the plate exerted on the discs in the last step [N per m of depth]; the
+        load on a footing pushed down is -plate_reaction()[1]."""
+        return self.plate_force.copy()
 
     def isotropic_stage(self, pressure, stress_tolerance=1e-3, energy_tolerance=1e-6, max_time=30.0,
                         max_speed=None, gain=None):

@@ -10,6 +10,15 @@ and the same for the rotation with the inertia. The state's ``velocity`` and ``s
 half-step values. A held disc (``held[p]`` = 1: a frame particle of demcell.frame, whose
 motion is prescribed) ignores its forces: it drifts with the velocity and spin set for it. Optional local non-viscous damping (000 section 3.2.1, eq. 30):
 F_c <- F_c - alpha |F_c| sign(v_c) per component, for quasi-static preparation only.
+Optional mass damping c_m [1/s] (003 eqs. 9, 29): a force -c_m m v (moment -c_m I omega) with
+the velocity taken trapezoidally, v = (v_{n-1/2} + v_{n+1/2}) / 2, so that
+
+    v_{n+1/2} = [(1 - c_m dt/2) v_{n-1/2} + F dt / m] / (1 + c_m dt/2).
+
+This is 003's velocity Verlet with eqs. 27-30 written for the half-step velocity
+u_{n+1/2} = v_n + dt a_n / 2: substituting eq. 29 into u_{n+3/2} = u_{n+1/2} + dt a_{n+1}
+gives the line above, so the positions are those of eqs. 27-30 exactly. A free disc's speed
+decays by (1 - c_m dt/2) / (1 + c_m dt/2) per step, exp(-c_m t) to O((c_m dt)^3) per step.
 Rotations locked (ContactLaw.rotations False): spin and rotation stay zero.
 
 One pass over the discs does the gather of the contact forces (contacts.gather_disc), adds
@@ -29,9 +38,9 @@ BLOCK = 512
 
 @njit(cache=True)
 def leapfrog_disc(p, fx, fy, mo, position, velocity, rotation, spin, mass, inertia, external_force,
-                  external_moment, gx, gy, damp, dt, rot, build_position, held):
+                  external_moment, gx, gy, damp, cm, dt, rot, build_position, held):
     """Advance disc p by one step from its contact resultant (fx, fy [N], mo [N m]), or, if
-    held[p], by its prescribed velocity and spin; returns |x_p - x_p^build|^2 [m^2] (inf if
+    held[p], by its prescribed velocity and spin; cm: mass damping c_m [1/s]; returns |x_p - x_p^build|^2 [m^2] (inf if
     not finite)."""
     if held[p] != 0:
         return drift_held(p, position, velocity, rotation, spin, dt, rot, build_position)
@@ -43,15 +52,18 @@ def leapfrog_disc(p, fx, fy, mo, position, velocity, rotation, spin, mass, inert
         if velocity[p, 1] != 0.0:
             fy -= damp * abs(fy) * math.copysign(1.0, velocity[p, 1])
     inv_m = 1.0 / mass[p]
-    velocity[p, 0] += fx * dt * inv_m
-    velocity[p, 1] += fy * dt * inv_m
+    # with cm = 0, keep = 1 and gain = dt exactly: the undamped update bit for bit
+    keep = (1.0 - 0.5 * cm * dt) / (1.0 + 0.5 * cm * dt)
+    gain = dt / (1.0 + 0.5 * cm * dt)
+    velocity[p, 0] = keep * velocity[p, 0] + fx * gain * inv_m
+    velocity[p, 1] = keep * velocity[p, 1] + fy * gain * inv_m
     position[p, 0] += velocity[p, 0] * dt
     position[p, 1] += velocity[p, 1] * dt
     if rot:
         mo += external_moment[p]
         if damp > 0.0 and spin[p] != 0.0:
             mo -= damp * abs(mo) * math.copysign(1.0, spin[p])
-        spin[p] += mo * dt / inertia[p]
+        spin[p] = keep * spin[p] + mo * gain / inertia[p]
         rotation[p] += spin[p] * dt
     else:
         spin[p] = 0.0
@@ -84,16 +96,21 @@ def displacement2(p, position, build_position):
 
 @njit(cache=True)
 def block(b, row, jstart, jcol, work, position, velocity, rotation, spin, mass, inertia, external_force,
-          external_moment, gx, gy, damp, dt, rot, build_position, held):
+          external_moment, gx, gy, damp, cm, dt, rot, build_position, held, net):
     """Gather + leapfrog of the discs of block b (BLOCK discs); returns their largest
-    |x - x_build|^2. The engine's time loop runs the blocks in a parallel loop and takes the
+    |x - x_build|^2. net (n, 3): the contact resultant plus the external force and moment
+    (walls, plate, pressure) of every disc, held ones included, written before the step
+    [N, N m]. The engine's time loop runs the blocks in a parallel loop and takes the
     maximum over the blocks in block order."""
     n = position.shape[0]
     umax = 0.0
     for p in range(b * BLOCK, min(n, (b + 1) * BLOCK)):
         fx, fy, mo = gather_disc(p, row, jstart, jcol, work)
+        net[p, 0] = fx + external_force[p, 0]
+        net[p, 1] = fy + external_force[p, 1]
+        net[p, 2] = mo + external_moment[p]
         u2 = leapfrog_disc(p, fx, fy, mo, position, velocity, rotation, spin, mass, inertia, external_force,
-                           external_moment, gx, gy, damp, dt, rot, build_position, held)
+                           external_moment, gx, gy, damp, cm, dt, rot, build_position, held)
         if u2 > umax:
             umax = u2
     return umax

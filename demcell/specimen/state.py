@@ -223,6 +223,8 @@ class SpecimenOptions:
         004 eq. 7.11 reads (True), or the elastic part kn overlap as the periodic cell (False);
     local_damping alpha [-]: non-viscous damping f - alpha |f| sign(v) (000 section 3.2.1),
         for quasi-static preparation; 0 in a dynamic run (004 uses only the dashpots);
+    mass_damping c_m [1/s]: velocity-proportional damping -c_m m v and -c_m I omega on the free
+        discs, trapezoidal in time (003 eqs. 9, 29; integrate.py); 0: none;
     gravity (g_x, g_y) [m/s^2];
     skin [m]: Verlet skin (None: 0.3 times the largest radius);
     lateral: "walls" | "membrane" | "periodic" | "none" (no wall at all: boundary conditions
@@ -242,6 +244,7 @@ class SpecimenOptions:
     clip_normal: bool = True
     coulomb_on_total_normal: bool = True
     local_damping: float = 0.0
+    mass_damping: float = 0.0
     gravity: tuple = (0.0, 0.0)
     skin: float = None
     lateral: str = "walls"
@@ -265,6 +268,10 @@ class SpecimenOptions:
             s(self, name, bool(getattr(self, name)))
         s(self, "local_damping", checks.number("SpecimenOptions.local_damping", self.local_damping,
                                                Range(0.0, 1.0, high_open=True)))
+        s(self, "mass_damping", checks.number("SpecimenOptions.mass_damping", self.mass_damping, NON_NEGATIVE))
+        if self.mass_damping * self.dt >= 2.0:
+            raise InputError(f"SpecimenOptions.mass_damping c_m dt = {self.mass_damping * self.dt:g} must be below 2 "
+                             f"(above it the trapezoidal damping reverses the velocity every step)")
         s(self, "gravity", tuple(float(g) for g in checks.array("SpecimenOptions.gravity", self.gravity, (2,))))
         s(self, "skin", checks.optional("SpecimenOptions.skin", self.skin, POSITIVE))
         checks.choice("SpecimenOptions.lateral", self.lateral, LATERAL_KINDS)

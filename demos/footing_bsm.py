@@ -206,8 +206,9 @@ t0, c0 = time.perf_counter(), time.process_time()
 try:
     for step in range(1, n_steps + 1):
         with guard.deferred():
-            coupler.step()
-            if step % args.record_every == 0 or step == n_steps:
+            recording = step % args.record_every == 0 or step == n_steps
+            coupler.step(diagnose=recording)
+            if recording:
                 row = record()
                 guard.progress(settlement_mm=row["settlement_mm"], load_kN_per_m=row["load_kN_per_m"])
                 if (len(rows) - 1) % args.output_every == 0 or step == n_steps:

@@ -19,7 +19,7 @@ The coarse mass of the DEM-region nodes is the grains' row-sum lumped N_R^T m, N
 lumped), added once; the elements of the region carry no Cosserat stiffness or mass
 (ExplicitCosserat(inactive_cells=region_cells(...))). Diagnostic each step:
 max |N_R d - P q| / r_min = max |N_R (d - d_hat(q))| / r_min (how far the coarse nodes are
-from the projection of the grains).
+from the projection of the grains), every `diagnose_every` steps (or on request).
 
 MPI: the DEM lives on rank `root` (0); the continuum is distributed. Grain forces are
 broadcast, interpolated values reduced to the root (shape_map.py).
@@ -139,7 +139,7 @@ class BridgingCoupler:
     dt: coarse step [s]; substeps: m (the engine's dt must be dt / m).
     """
 
-    def __init__(self, continuum, region, fine, dt, substeps, fine_dt=None, root=0):
+    def __init__(self, continuum, region, fine, dt, substeps, fine_dt=None, root=0, diagnose_every=10):
         self.continuum, self.region, self.fine = continuum, region, fine
         self.comm = continuum.comm
         self.root = root
@@ -161,6 +161,9 @@ class BridgingCoupler:
         w0, c0 = _clock()
         spaces = {name: continuum.subspace(name) for name in ("u1", "u2", "phi")}
         self.shape = CosseratShapeMap(continuum.space, region.position, spaces=spaces)
+        # the virtual grains alone: the interface data of every step
+        self.shape_virtual = CosseratShapeMap(continuum.space, region.position[region.virtual], spaces=spaces)
+        self.diagnose_every = int(diagnose_every)
         n_real = region.n_real
         n_u, n_phi = self.shape.matrices(root)
         elements = self.shape.counted_elements(root)
@@ -229,15 +232,16 @@ class BridgingCoupler:
                                   f"(step {self.steps}): {causes[0]}")
 
     # ------------------------------------------------------------------ time loop
-    def step(self):
-        """One coarse step with m DEM sub-steps (module docstring)."""
+    def step(self, diagnose=None):
+        """One coarse step with m DEM sub-steps (module docstring). diagnose: compute the
+        mismatch max |N_R d - P q| / r_min after it (default: every diagnose_every steps)."""
+        if diagnose is None:
+            diagnose = (self.steps + 1) % self.diagnose_every == 0
         c = self.continuum
         region = self.region
         virtual = region.virtual
         w0, c0 = _clock()
-        u_v = self.shape.interpolate(c.displacement, self.root)
-        v_v = self.shape.interpolate(c.velocity, self.root)
-        a_v = self.shape.interpolate(c.acceleration, self.root)
+        interface = self.shape_virtual.interpolate([c.displacement, c.velocity, c.acceleration], self.root)
         self.timings.add("interface", w0, c0)
         w0, c0 = _clock()
         c.predict(self.dt)
@@ -247,7 +251,7 @@ class BridgingCoupler:
         if self.is_root:
             w0, c0 = _clock()
             reference = region.position[virtual]
-            u0, v0, a0 = u_v[virtual], v_v[virtual], a_v[virtual]
+            u0, v0, a0 = interface
             # full arrays in the region's order; the engine reads the held (virtual) rows only
             position = region.position.copy()
             rotation = np.zeros(region.n_discs)
@@ -272,24 +276,29 @@ class BridgingCoupler:
                          f"(first: grain {int(escaped[0])} at "
                          f"({region.position[escaped[0], 0] + q[escaped[0], 0]:.4g}, "
                          f"{region.position[escaped[0], 1] + q[escaped[0], 1]:.4g}) m)")
-            self._coarse_q = self.projection.coarse(q[region.real])
+            if diagnose:
+                self._coarse_q = self.projection.coarse(q[region.real])
             self.timings.add("projection", w0, c0)
         self._stop(cause)
         w0, c0 = _clock()
-        forces = self.comm.bcast(forces, root=self.root)
+        if self.comm.size > 1:
+            if not self.is_root:
+                forces = np.empty((self.region.n_discs, 3))
+            self.comm.Bcast(forces, root=self.root)
         self.coupling_force.set(0.0)
         self.shape.add_transpose(forces, self.coupling_force)
         self.timings.add("interface", w0, c0)
         w0, c0 = _clock()
         c.correct(self.dt, self.coupling_force)
         self.timings.add("fe", w0, c0)
-        w0, c0 = _clock()
-        nd = self.shape.interpolate(c.displacement, self.root)
-        if self.is_root:
-            mismatch = np.abs(nd[region.real] - self._coarse_q)
-            self.last_mismatch = float(np.max(np.hypot(mismatch[:, 0], mismatch[:, 1]))) / self.r_min
-            self.max_mismatch = max(self.max_mismatch, self.last_mismatch)
-        self.timings.add("projection", w0, c0)
+        if diagnose:
+            w0, c0 = _clock()
+            nd = self.shape.interpolate(c.displacement, self.root)
+            if self.is_root:
+                mismatch = np.abs(nd[region.real] - self._coarse_q)
+                self.last_mismatch = float(np.max(np.hypot(mismatch[:, 0], mismatch[:, 1]))) / self.r_min
+                self.max_mismatch = max(self.max_mismatch, self.last_mismatch)
+            self.timings.add("projection", w0, c0)
         self.steps += 1
 
     def run(self, n_steps, on_step=None):

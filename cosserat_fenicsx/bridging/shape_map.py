@@ -155,37 +155,56 @@ class CosseratShapeMap:
         self.maps = {name: ScalarShapeMap(spaces[name][0], points, spaces[name][1])
                      for name in self.COMPONENTS}
         self.n_particles = self.maps["u1"].n_particles
+        # this rank's rows of N as one sparse matrix (3 n, local W dofs incl. ghosts): row
+        # 3 p + c holds component c of particle p (zero rows for particles counted elsewhere)
+        index_map = space.dofmap.index_map
+        n_local = (index_map.size_local + index_map.num_ghosts) * space.dofmap.index_map_bs
+        rows, cols, vals = [], [], []
+        for c, name in enumerate(self.COMPONENTS):
+            m = self.maps[name]
+            rows.append(np.repeat(3 * m.particles + c, m.dofs.shape[1]))
+            cols.append(m.parent_dofs.ravel())
+            vals.append(m.values.ravel())
+        self.local_matrix = scipy.sparse.csr_matrix(
+            (np.concatenate(vals), (np.concatenate(rows), np.concatenate(cols))),
+            shape=(3 * self.n_particles, n_local))
+        self.local_transpose = self.local_matrix.T.tocsr()
+        self._work = None
 
     def interpolate(self, vec, root=0):
         """(n, 3) values of (u1, u2, phi) at the particles on root (None elsewhere), from a
-        Vec over W whose ghosts are refreshed first."""
-        vec.ghostUpdate(addv=PETSc.InsertMode.INSERT, mode=PETSc.ScatterMode.FORWARD)
-        local = np.zeros((self.n_particles, 3))
-        with vec.localForm() as loc:
-            values = loc.array_r
-            for c, name in enumerate(self.COMPONENTS):
-                m = self.maps[name]
-                local[m.particles, c] = m.interpolate_local(values)
-        out = np.zeros_like(local)
-        if root is None:
-            self.comm.Allreduce(local, out, op=MPI.SUM)
-            return out
-        self.comm.Reduce(local, out, op=MPI.SUM, root=root)
-        return out if self.comm.rank == root else None
+        Vec over W whose ghosts are refreshed first. A list of Vecs gives a list of arrays
+        (one reduction for all)."""
+        vecs = vec if isinstance(vec, (list, tuple)) else [vec]
+        local = np.zeros((len(vecs), self.n_particles, 3))
+        for k, v in enumerate(vecs):
+            v.ghostUpdate(addv=PETSc.InsertMode.INSERT, mode=PETSc.ScatterMode.FORWARD)
+            with v.localForm() as loc:
+                local[k] = (self.local_matrix @ loc.array_r).reshape(-1, 3)
+        if self.comm.size == 1:
+            out = local
+        else:
+            out = np.zeros_like(local)
+            if root is None:
+                self.comm.Allreduce(local, out, op=MPI.SUM)
+            else:
+                self.comm.Reduce(local, out, op=MPI.SUM, root=root)
+                if self.comm.rank != root:
+                    return None
+        return list(out) if isinstance(vec, (list, tuple)) else out[0]
 
     def add_transpose(self, forces, vec):
         """vec += N^T F (forces (n, 3): f1 [N/m], f2 [N/m], moment [N m/m] per particle,
         the same array on every rank), assembled over ranks (ghost ADD, then ghosts refreshed)."""
-        forces = np.asarray(forces, dtype=float)
-        work = vec.duplicate()
+        forces = np.asarray(forces, dtype=float).reshape(-1)
+        if self._work is None or self._work.getSize() != vec.getSize():
+            self._work = vec.duplicate()
+        work = self._work
         with work.localForm() as loc:
-            loc.array[:] = 0.0
-            for c, name in enumerate(self.COMPONENTS):
-                self.maps[name].add_transpose_local(forces[:, c], loc.array)
+            loc.array[:] = self.local_transpose @ forces
         # this rank's contributions to ghost dofs go to their owners
         work.ghostUpdate(addv=PETSc.InsertMode.ADD, mode=PETSc.ScatterMode.REVERSE)
         vec.axpy(1.0, work)
-        work.destroy()
         vec.ghostUpdate(addv=PETSc.InsertMode.INSERT, mode=PETSc.ScatterMode.FORWARD)
 
     def matrices(self, root=0):

@@ -233,3 +233,74 @@ def read_discs(path, density=None, tiles=(1, 1), periodic_sides=False):
     if density is None:
         raise InputError(f"packing file {path} has no masses: give the grain density [kg/m^2]")
     return discs_from(table["position"], table["radius"], density, info=info)
+
+
+def rotated_square_lattice(box, radius, density):
+    """003's packings A and B (section 3: r = 0.05 m and 0.03 m): equal discs on a square
+    lattice rotated by 45 degrees, so that every contact normal lies at +-45 degrees to the
+    horizontal and every interior disc has 4 neighbours exactly 2 r away (no overlap).
+
+    Rows are sqrt(2) r apart, the discs of a row 2 sqrt(2) r apart, every other row shifted by
+    sqrt(2) r; the first row and the first column touch the lower and left faces of box =
+    (x_min, x_max, y_min, y_max) [m], and every disc lies wholly inside it. density [kg/m^2]:
+    mass rho pi r^2 per unit depth (003 Table 1: 2600 kg/m^3 with 1 m depth)."""
+    box = tuple(float(b) for b in checks.array("box", box, (4,)))
+    radius = checks.number("radius", radius, POSITIVE)
+    density = checks.number("density", density, POSITIVE)
+    x0, x1, y0, y1 = box
+    a = math.sqrt(2.0) * radius
+    if not (x1 - x0 >= 2.0 * radius + a and y1 - y0 >= 2.0 * radius + a):
+        raise InputError(f"box {box} is too small for a rotated square lattice of radius {radius:g} m "
+                         f"(at least {2.0 * radius + a:.3g} m each way)")
+    ny = int(math.floor((y1 - y0 - 2.0 * radius) / a + 1e-9)) + 1
+    rows = []
+    for j in range(ny):
+        xs = np.arange(x0 + radius + (j % 2) * a, x1 - radius + 1e-9 * radius, 2.0 * a)
+        rows.append(np.column_stack([xs, np.full(xs.size, y0 + radius + j * a)]))
+    position = np.concatenate(rows)
+    checks.number("number of discs", position.shape[0], DISCS)
+    info = {"source": "square lattice rotated 45 degrees (003 packings A/B)", "radius": radius, "rows": ny,
+            "density": density}
+    return discs_from(position, np.full(position.shape[0], radius), density, box=box, info=info)
+
+
+def random_dense(box, r_min, r_max, density, n_cell=600, seed=0, law=None):
+    """003's packing C (section 3: random, r = 0.02-0.05 m): radii uniform in [r_min, r_max]
+    [m], filling box = (x_min, x_max, y_min, y_max) [m] densely.
+
+    003 uses Bagi's inward packing (not available here). Instead a periodic cell of n_cell
+    discs is compacted isotropically without friction (demcell.packing.generate_packing, to
+    1e-4 kn, overlaps of about 2e-4 radii) and tiled over the box (``tiled_cell``); the discs
+    lying wholly inside the box are kept. The packing therefore repeats with the cell's
+    period (about sqrt(n_cell) mean diameters), and the discs cut at the box's faces leave
+    gaps of up to a diameter against the walls. Masses from density [kg/m^2] times pi r^2."""
+    from ..contact_law import ContactLaw
+    from ..packing import generate_packing
+    box = tuple(float(b) for b in checks.array("box", box, (4,)))
+    r_min = checks.number("r_min", r_min, POSITIVE)
+    r_max = checks.number("r_max", r_max, POSITIVE)
+    if not r_max >= r_min:
+        raise InputError(f"random_dense needs r_max >= r_min, got {r_min:g}, {r_max:g} m")
+    density = checks.number("density", density, POSITIVE)
+    law = ContactLaw(kn=2.5e8, ks=5.0e7, friction=0.5) if law is None else law
+    cell, cell_info = generate_packing(n_particles=n_cell, pressure=1e-4 * law.kn, law=law, r_min=r_min,
+                                       radius_ratio=r_max / r_min, seed=seed, density=density)
+    # the cell tiled by its own lattice vectors (exact for a slightly sheared cell too) over a
+    # range of copies that covers the box, then cut to the discs wholly inside it
+    h = np.asarray(cell.h, dtype=float)
+    frac = np.mod(np.asarray(cell.s, dtype=float), 1.0)
+    corners = np.array([[box[0], box[2]], [box[1], box[2]], [box[0], box[3]], [box[1], box[3]]])
+    span = corners @ np.linalg.inv(h).T
+    a0, b0 = np.floor(span.min(axis=0)).astype(int) - 1
+    a1, b1 = np.ceil(span.max(axis=0)).astype(int) + 1
+    checks.number("discs of the tiling", (a1 - a0) * (b1 - b0) * frac.shape[0], DISCS)
+    pos = np.concatenate([(frac + np.array([a, b], dtype=float)) @ h.T
+                          for b in range(b0, b1) for a in range(a0, a1)])
+    r = np.tile(np.asarray(cell.radius, dtype=float), (a1 - a0) * (b1 - b0))
+    inside = ((pos[:, 0] - r >= box[0]) & (pos[:, 0] + r <= box[1]) & (pos[:, 1] - r >= box[2])
+              & (pos[:, 1] + r <= box[3]))
+    info = {"source": "tiled periodic cell compacted without friction (003 packing C stand-in)",
+            "r_min": r_min, "r_max": r_max, "n_cell": int(n_cell), "seed": int(seed), "density": density,
+            "cell_solid_fraction": float(cell_info["solid_fraction"]),
+            "cell_h": h.tolist()}
+    return discs_from(pos[inside], r[inside], density, box=box, info=info)

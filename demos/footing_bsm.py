@@ -67,6 +67,10 @@ parser.add_argument("--substeps", type=number(Range(1, 1000, integer=True)), def
                     help="DEM sub-steps per coarse step m (default: the largest the coarse stable step allows)")
 parser.add_argument("--domain-width", type=number(Range(6.0, 200.0)), default=18.0,
                     help="width of the foundation [m] (003: 18); the DEM region stays 6 m wide, centred")
+parser.add_argument("--continuum", choices=("003", "lattice"), default="003",
+                    help="continuum moduli: 003's (E = 500 MPa, nu = 0.2, G_c = 70 MPa) or, for packings A/B, the "
+                         "orientation average of the rotated square lattice's affine moduli (G = (kN + kS)/4, "
+                         "lambda = (kN - kS)/4, mu_c = kS/2)")
 parser.add_argument("--rough", action="store_true", help="rough plate (Coulomb friction mu_s; default smooth)")
 parser.add_argument("--record-every", type=number(Range(1, integer=True)), default=5,
                     help="coarse steps between two history rows (default %(default)s)")
@@ -88,6 +92,14 @@ BOX = (0.5 * WIDTH - 3.0, 0.5 * WIDTH + 3.0, 6.0, 9.0)
 E_MOD, NU, G_C, L_C = 500e6, 0.2, 70e6, 0.05
 G = E_MOD / (2 * (1 + NU))
 LAMBDA = 2 * G * NU / (1 - 2 * NU)
+if args.continuum == "lattice":
+    # the +-45 degree square lattice (l = 2 r, area 4 r^2 per disc, two contacts per disc):
+    # C1111 = C1212 = (kN + kS)/2, C1122 = C1221 = (kN - kS)/2, C2121 = C1111; cubic, so the
+    # isotropic moduli are orientation averages (bulk, mean shear, skew part)
+    if args.packing == "C":
+        parser.refuse("--continuum lattice is defined for the lattices A and B only")
+    from demcell.specimen.footing import KN, KS
+    G, LAMBDA, G_C = (KN + KS) / 4.0, (KN - KS) / 4.0, KS / 2.0
 elasticity = MicropolarElasticity(mu=G, lmbda=LAMBDA, mu_c=G_C, l_c=L_C * math.sqrt(G / (2 * G_C)))
 guard = RunGuard(comm, os.path.join(args.out, "summary.json"), label="footing_bsm",
                  entries={"packing": args.packing, "element": args.element, "speed": args.speed,
@@ -227,7 +239,8 @@ loads = np.array([r["load_kN_per_m"] for r in rows])
 settlements = np.array([r["settlement_mm"] for r in rows])
 peak = int(np.argmax(loads))
 summary = {"packing": args.packing, "element": args.element, "speed": args.speed, "depth": args.depth,
-           "mass_damping": args.mass_damping, "rough": args.rough, "ranks": comm.size,
+           "mass_damping": args.mass_damping, "rough": args.rough, "ranks": comm.size, "continuum": args.continuum,
+           "moduli": {"G": G, "lambda": LAMBDA, "G_c": G_C},
            "grains_real": region.n_real, "grains_virtual": region.n_virtual, "grains_full_domain": n_full,
            "grain_ratio_full_over_bsm": n_full / (region.n_real + region.n_virtual),
            "dt": dt, "substeps": substeps, "dt_fine": dt_fine, "coarse_steps": n_steps,
@@ -235,7 +248,8 @@ summary = {"packing": args.packing, "element": args.element, "speed": args.speed
            "final_load_kN_per_m": float(loads[-1]), "peak_load_kN_per_m": float(loads[peak]),
            "peak_settlement_mm": float(settlements[peak]),
            "max_mismatch_over_rmin": comm.bcast(coupler.max_mismatch, root=ROOT),
-           "wall_s": wall, "cpu_s": cpu, "setup_wall_s": setup_seconds, "time_split": timing,
+           "wall_s": wall, "cpu_s": cpu, "setup_wall_s": setup_seconds,
+           "coupler_setup_wall_s": coupler.setup_seconds, "time_split": timing,
            "load_average": os.getloadavg(), "region": region.summary(),
            "l_c_project": elasticity.l_c, "rho_c": rho_c, "micro_inertia": j}
 if comm.rank == ROOT:

@@ -105,6 +105,15 @@ guard = RunGuard(comm, os.path.join(args.out, "summary.json"), label="footing_bs
                  entries={"packing": args.packing, "element": args.element, "speed": args.speed,
                           "depth": args.depth, "mass_damping": args.mass_damping, "ranks": comm.size})
 
+# %% the mesh, and the region checked against it before any work (whole elements)
+cell = dolfinx.mesh.CellType.quadrilateral if args.element == "Q1/Q1" else dolfinx.mesh.CellType.triangle
+mesh = dolfinx.mesh.create_rectangle(comm, [np.array([0.0, 0.0]), np.array([WIDTH, HEIGHT])],
+                                     [int(round(WIDTH)), int(round(HEIGHT))], cell)
+try:
+    inactive = region_cells(mesh, BOX)
+except ValueError as error:
+    guard.refuse(error)
+
 # %% the grains: the full-domain packing (the same grains a full-DEM run uses), cut to the
 # region and its virtual layer (rank 0 builds, every rank gets the arrays)
 t_setup = time.perf_counter()
@@ -121,15 +130,12 @@ print0(comm, f"packing {args.packing}: {region.n_real} grains in the DEM region 
              f"(full domain: {n_full} grains)")
 
 # %% the continuum: mass rho_s * solid fraction, micro-inertia <r^2>/2 (003-bsm.md section 5 [R])
-cell = dolfinx.mesh.CellType.quadrilateral if args.element == "Q1/Q1" else dolfinx.mesh.CellType.triangle
-mesh = dolfinx.mesh.create_rectangle(comm, [np.array([0.0, 0.0]), np.array([WIDTH, HEIGHT])],
-                                     [int(round(WIDTH)), int(round(HEIGHT))], cell)
 rho_c = density * solid_fraction
 j = 0.5 * float(np.mean(radius ** 2))
 dirichlet = [("u1", lambda x: np.isclose(x[1], 0.0), 0.0), ("u2", lambda x: np.isclose(x[1], 0.0), 0.0),
              ("u1", lambda x: np.isclose(x[0], 0.0) | np.isclose(x[0], WIDTH), 0.0)]
 continuum = ExplicitCosserat(mesh, elasticity, rho_c, j, mass_damping=args.mass_damping, element=args.element,
-                             inactive_cells=region_cells(mesh, BOX), dirichlet=dirichlet)
+                             inactive_cells=inactive, dirichlet=dirichlet)
 
 # %% the DEM region on rank 0: Table 1 law, the plate on the grains under it, virtual grains held
 engine, engine_info = None, None

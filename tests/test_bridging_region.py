@@ -59,7 +59,7 @@ def test_region_must_be_whole_elements():
     assert MPI.COMM_WORLD.allreduce(len(cells)) == 4
     with pytest.raises(InputError, match="whole elements"):
         region_cells(mesh, (2.5, 4.0, 1.0, 3.0))
-    with pytest.raises(InputError, match="cuts element"):
+    with pytest.raises(InputError, match="cuts an element"):
         region_cells(mesh, (2.0, 4.6, 1.0, 3.0))
     with pytest.raises(InputError, match="must be"):
         region_cells(mesh, (4.0, 2.0, 1.0, 3.0))

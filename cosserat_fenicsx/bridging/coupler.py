@@ -255,17 +255,21 @@ class BridgingCoupler:
             # full arrays in the region's order; the engine reads the held (virtual) rows only
             position = region.position.copy()
             rotation = np.zeros(region.n_discs)
-            for j in range(1, self.substeps + 1):
-                t = j * self.dt_fine
-                target = u0 + t * v0 + 0.5 * t * t * a0
-                position[virtual] = reference + target[:, :2]
-                rotation[virtual] = target[:, 2]
-                self.fine.drive_held(position, rotation)
-                self.fine.advance(1)
+            try:
+                for j in range(1, self.substeps + 1):
+                    t = j * self.dt_fine
+                    target = u0 + t * v0 + 0.5 * t * t * a0
+                    position[virtual] = reference + target[:, :2]
+                    rotation[virtual] = target[:, 2]
+                    self.fine.drive_held(position, rotation)
+                    self.fine.advance(1)
+            except (RuntimeError, ValueError, FloatingPointError) as error:
+                # the engine's own stop (lost discs, non-finite state) reaches every rank
+                cause = f"the DEM region stopped: {error}"
             self.timings.add("dem", w0, c0)
             w0, c0 = _clock()
             forces = self.coupling_forces()
-            if not np.all(np.isfinite(forces)):
+            if cause is None and not np.all(np.isfinite(forces)):
                 cause = "a grain force is not finite"
             self.timings.add("interface", w0, c0)
             w0, c0 = _clock()

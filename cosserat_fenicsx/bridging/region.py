@@ -167,15 +167,21 @@ def region_cells(mesh, box):
     inside = ((mid[:, 0] > box[0]) & (mid[:, 0] < box[1]) & (mid[:, 1] > box[2]) & (mid[:, 1] < box[3]))
     chosen = cells[inside]
     area = 0.0
+    cut = None
     for cell in chosen:
         xy = compat.cell_geometry(mesh, cell)[:, :2]
         if (np.any(xy[:, 0] < box[0] - tol) or np.any(xy[:, 0] > box[1] + tol)
                 or np.any(xy[:, 1] < box[2] - tol) or np.any(xy[:, 1] > box[3] + tol)):
             bad = ", ".join(f"({x:g}, {y:g})" for x, y in xy)
-            raise InputError(f"DEM region {tuple(box)} cuts element {int(cell)} (vertices {bad}): "
-                             f"it must coincide with whole elements")
+            cut = (f"DEM region {tuple(box)} cuts an element (vertices {bad}): "
+                   f"it must coincide with whole elements")
+            break
         if cell < n_owned:
             area += _polygon_area(xy)
+    # every rank learns of a cut found by any (no rank left waiting in a collective)
+    cuts = [c for c in mesh.comm.allgather(cut) if c]
+    if cuts:
+        raise InputError(cuts[0])
     area = mesh.comm.allreduce(area, op=MPI.SUM)
     expected = (box[1] - box[0]) * (box[3] - box[2])
     if abs(area - expected) > 1e-9 * expected:

@@ -11,7 +11,9 @@ from benchmarks.bsm.patch_test import CASES, build, ghost_forces
 from cosserat_fenicsx.bridging.coupler import BridgingCoupler, BridgingStopped
 from cosserat_fenicsx.validation import InputError
 
-pytestmark = pytest.mark.serial
+from mpi4py import MPI
+
+ROOT = MPI.COMM_WORLD.rank == 0
 
 
 def test_ghost_forces_shrink_with_grain_size():
@@ -31,12 +33,14 @@ def test_confined_patch_relaxes_to_the_affine_state():
            ("u2", lambda x: np.isclose(x[1], 0.0), 0.0), ("u2", lambda x: np.isclose(x[1], size), -delta)]
     continuum, region, engine, coupler, _ = build(0.1, mass_damping=600.0, dirichlet=bcs)
     coupler.run(250)
-    q, nd, fine = coupler.fine_part()
-    affine = -strain * region.position[region.real]
-    # grains near the affine field (the ghost forces bend it near the interface)
-    assert np.abs(q[:, :2] - affine).max() < 0.03 * delta
-    assert np.abs(fine[:, :2]).max() < 0.01 * delta
-    assert coupler.last_mismatch < 1e-3
+    parts = coupler.fine_part()
+    if ROOT:
+        q, nd, fine = parts
+        affine = -strain * region.position[region.real]
+        # grains near the affine field (the ghost forces bend it near the interface)
+        assert np.abs(q[:, :2] - affine).max() < 0.03 * delta
+        assert np.abs(fine[:, :2]).max() < 0.01 * delta
+        assert coupler.last_mismatch < 1e-3
     for name, comp in (("u1", 0), ("u2", 1)):
         space, dofs = continuum.subspace(name)
         x = space.tabulate_dof_coordinates()[:, :2]
@@ -63,8 +67,9 @@ def test_mismatched_dem_step_is_refused():
 
 def test_grains_leaving_the_region_stop_the_run():
     continuum, region, engine, coupler, _ = build(0.1)
-    # throw one real grain out of the region at 2000 m/s
-    k = int(np.argmin(engine.order != 0))
-    engine.state.velocity[k] = (0.0, -2000.0)
-    with pytest.raises(BridgingStopped, match="left the DEM region"):
+    if ROOT:
+        # throw one real grain out of the region at 2000 m/s (the region lives on rank 0)
+        k = int(np.argmin(engine.order != 0))
+        engine.state.velocity[k] = (0.0, -2000.0)
+    with pytest.raises(BridgingStopped, match="left the DEM region|DEM region stopped"):
         coupler.run(20)

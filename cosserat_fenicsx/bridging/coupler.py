@@ -154,7 +154,7 @@ class BridgingCoupler:
                              "(drive_held, advance, disc_forces)")
         self.dt, self.substeps = float(dt), int(substeps)
         self.dt_fine = self.dt / self.substeps
-        if self.is_root and fine_dt is not None and abs(fine_dt - self.dt_fine) > 1e-12 * self.dt_fine:
+        if fine_dt is not None and abs(fine_dt - self.dt_fine) > 1e-12 * self.dt_fine:
             raise InputError(f"the DEM step {fine_dt:.6g} s must be dt / substeps = {self.dt_fine:.6g} s")
         self.timings = Timings()
         w0, c0 = _clock()

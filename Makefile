@@ -68,6 +68,7 @@ benchmark-deps: deps
 
 benchmark-verification: benchmark-deps
 	$(PYTHON) benchmarks/verification/convergence.py --np $(NP) --out $(BENCH)
+	$(PYTHON) benchmarks/verification/explicit_dynamics.py --out $(BENCH)/explicit_dynamics
 
 benchmark-ehlers: benchmark-deps
 	$(PYTHON) benchmarks/ehlers/ehlers_kernel_throughput.py --json $(BENCH)/ehlers_kernel_throughput.json

@@ -42,7 +42,7 @@ from .. import compat
 from ..elasticity import MicropolarElasticity
 from ..kinematics import curvature, strain
 from ..validation import NON_NEGATIVE, POSITIVE, InputError, check
-from .mass import lumped_mass
+from .mass import lumped_mass, mass_dot
 from .stable_step import power_step, rotational_step, start_vector, translational_step
 
 ELEMENTS = {"Q1/Q1": ("quadrilateral", 1, 1), "P2/P1": ("triangle", 2, 1)}
@@ -118,14 +118,16 @@ class ExplicitCosserat:
         self.indicator.x.array[:] = 1.0
         n_local_cells = mesh.topology.index_map(tdim).size_local + mesh.topology.index_map(tdim).num_ghosts
         if inactive_cells is not None:
-            cells = np.asarray(inactive_cells)
+            cells = np.asarray(inactive_cells).ravel()
+            if cells.size == 0:
+                cells = cells.astype(np.int64)      # np.asarray([]) is float
             if cells.size and (cells.dtype.kind not in "iu" or cells.min() < 0 or cells.max() >= n_local_cells):
                 raise InputError(f"inactive_cells must be local cell indices in [0, {n_local_cells}), "
                                  f"got {cells.dtype} values in [{cells.min()}, {cells.max()}]")
             cell_dofs = compat.cell_dofs(self._dg0, n_local_cells)[:, 0]
             self.indicator.x.array[cell_dofs[cells]] = 0.0
             self.indicator.x.scatter_forward()   # owners' values win on ghost cells
-        self.inactive_cells = None if inactive_cells is None else np.asarray(inactive_cells)
+        self.inactive_cells = None if inactive_cells is None else cells
 
         # fields: d, v, a as Functions of W and their (ghosted) PETSc Vecs
         self.fields = {name: dolfinx.fem.Function(self.space, name=name)
@@ -227,6 +229,11 @@ class ExplicitCosserat:
         self._inverse_mass[self._free] = 1.0 / mass[self._free]
         self._stable = None
 
+    @property
+    def free_dofs(self):
+        """Boolean mask over the owned dofs: neither Dirichlet nor massless (the dofs that move)."""
+        return self._free.copy()
+
     def add_mass(self, vec):
         """Add a mass Vec over W (the particles' row-sum lumped N^T m, N^T J [kg/m, kg m]),
         owned entries complete (ghost contributions already added). The acceleration is
@@ -255,19 +262,12 @@ class ExplicitCosserat:
 
     def kinetic_energy(self):
         """1/2 v . M v [J/m] (global)."""
-        return 0.5 * self._mass_dot(self.velocity)
+        return 0.5 * mass_dot(self.velocity, self.mass)
 
     def strain_energy(self):
         """1/2 d . K d [J/m] (global)."""
         self.stiffness.mult(self.displacement, self._force)
         return 0.5 * self.displacement.dot(self._force)
-
-    def _mass_dot(self, x):
-        weighted = x.copy()
-        weighted.pointwiseMult(weighted, self.mass)
-        value = x.dot(weighted)
-        weighted.destroy()
-        return value
 
     # --- stable step ----------------------------------------------------------------
     def h_min(self):
@@ -317,8 +317,10 @@ class ExplicitCosserat:
         return dt
 
     def update_acceleration(self, coupling_force=None):
-        """a = M^-1 (f_c - K d) - c_m v at the current state (the start of a run, or after d or
-        v were set by hand)."""
+        """a = M^-1 (f_c - K d) - c_m v at the current state: the start of a run, or after owned
+        entries of d or v were set by hand (their ghosts are refreshed here)."""
+        self._forward(self.displacement)
+        self._forward(self.velocity)
         force = self._net_force(coupling_force)
         a = self.acceleration.array
         a[:] = self._inverse_mass * force - self.mass_damping * self.velocity.array

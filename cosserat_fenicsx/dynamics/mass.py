@@ -74,3 +74,12 @@ def lumped_mass(space, indicator, density, micro_inertia, hrz_dofs, quadrature_d
         mass.ghostUpdate(addv=PETSc.InsertMode.INSERT, mode=PETSc.ScatterMode.FORWARD)
         info["hrz_factor"] = factor
     return mass, info
+
+
+def mass_dot(x, mass):
+    """x . M x with the lumped mass Vec M (global: every rank gets the same number)."""
+    weighted = x.copy()
+    weighted.pointwiseMult(weighted, mass)
+    value = x.dot(weighted)
+    weighted.destroy()
+    return value

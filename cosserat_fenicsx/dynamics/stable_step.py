@@ -1,8 +1,10 @@
 """Stable time step of the explicit central-difference / velocity-Verlet scheme (003 eqs 31-34).
 
-Undamped velocity Verlet is stable for dt <= 2 / omega_max, omega_max^2 the largest eigenvalue
-of M^-1 K (M the lumped mass, K the stiffness, on the free dofs). Mass damping c_m does not lower
-this limit (it lowers it by nothing for c_m >= 0 in eq 33).
+Velocity Verlet is stable for dt <= 2 / omega_max, omega_max^2 the largest eigenvalue of
+M^-1 K (M the lumped mass, K the stiffness, on the free dofs). The mass damping of eq 33 does
+not move this limit: the scheme is Newmark beta = 0, gamma = 1/2 with the damping force at
+v^{n+1}, whose critical Omega = omega dt is 2 for every damping ratio (Hughes 1987, the
+Omega_crit formula at gamma = 1/2).
 
 Three numbers [s]:
 
@@ -28,6 +30,8 @@ Three numbers [s]:
 import math
 
 import numpy as np
+
+from .mass import mass_dot
 
 POWER_ITERATIONS = 2000
 
@@ -62,7 +66,7 @@ def power_step(apply_stiffness, mass, free, x, rtol=1e-7, check=20, max_iteratio
     x.array[~free] = 0.0
     lam, previous, iterations = 0.0, None, 0
     for iterations in range(1, max_iterations + 1):
-        xmx = _mass_dot(x, mass)
+        xmx = mass_dot(x, mass)
         if not xmx > 0.0:
             break
         x.scale(1.0 / math.sqrt(xmx))         # x.Mx = 1
@@ -78,11 +82,3 @@ def power_step(apply_stiffness, mass, free, x, rtol=1e-7, check=20, max_iteratio
         return math.inf, lam, iterations
     return safety * 2.0 / math.sqrt(lam), lam, iterations
 
-
-def _mass_dot(x, mass):
-    """x . M x (global)."""
-    weighted = x.copy()
-    weighted.pointwiseMult(weighted, mass)
-    value = x.dot(weighted)
-    weighted.destroy()
-    return value

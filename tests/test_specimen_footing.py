@@ -154,3 +154,37 @@ def test_tiny_footing_A():
     k = (f[-1] - f[len(f) // 2]) / (s[-1] - s[len(s) // 2])
     assert low < k < high, (low, k, high)
     assert res.wall_seconds > 0.0 and res.cpu_seconds > 0.0
+
+
+def test_random_dense_packing_C():
+    """Packing C: radii within 0.02-0.05 m, every disc inside the box, overlaps only those of
+    the compaction (about 2e-4 of a radius at 1e-4 kn), a dense cell (frictionless compaction:
+    solid fraction above 0.8)."""
+    from demcell.specimen.specimens import random_dense
+    box = (0.0, 1.0, 0.0, 0.6)
+    d = random_dense(box, 0.02, 0.05, DENSITY, n_cell=30, seed=1)
+    p, r = d.position, d.radius
+    assert d.n_discs > 50
+    assert r.min() >= 0.02 and r.max() <= 0.05
+    assert np.all(p[:, 0] - r >= 0.0) and np.all(p[:, 0] + r <= 1.0)
+    assert np.all(p[:, 1] - r >= 0.0) and np.all(p[:, 1] + r <= 0.6)
+    dist = np.hypot(*(p[None] - p[:, None]).transpose(2, 0, 1))
+    np.fill_diagonal(dist, np.inf)
+    overlap = (r[None] + r[:, None] - dist) / np.minimum(r[None], r[:, None])
+    assert overlap.max() < 5e-3
+    assert d.info["cell_solid_fraction"] > 0.8
+    np.testing.assert_allclose(d.mass, DENSITY * np.pi * r ** 2)
+
+
+def test_footing_impact_load_is_wave_impedance():
+    """At 1 m/s (003's speed) the first load on packing A is the plane-wave impedance of the
+    lattice under the plate, rho_b c_p v B, rho_b = 2600 pi / 4 (square lattice), c_p =
+    sqrt(C22 / rho_b), C22 = (kn + ks) / 2, until the wave returns from the bottom (2 H / c_p)."""
+    res = run_footing("A", width=3.0, height=1.5, plate_width=1.0, speed=1.0, depth=2e-3, mass_damping=0.0,
+                      record_every=1, threads=1)
+    rho_b = DENSITY * math.pi / 4.0
+    c_p = math.sqrt(0.5 * (KN + KS) / rho_b)
+    impedance = rho_b * c_p * 1.0 * 1.0
+    window = (res.settlement > 0.5e-3) & (res.settlement < 2e-3)
+    assert 2e-3 < 2 * 1.5 / c_p
+    assert np.mean(res.load[window]) == pytest.approx(impedance, rel=0.05)      # measured 1.011

@@ -517,18 +517,25 @@ class Specimen:
         n_steps = checks.number("n_steps", n_steps, Range(0, checks.MAX_BUDGET, integer=True))
         if self.options.lateral == "membrane":
             raise InputError("Specimen.advance has no free-side update: run a membrane specimen with run()")
-        programme, ctrl = self._prepare()
+        programme, ctrl = self._prepare(reuse=True)
         ctrl[C_WIDTH] = self.lateral_width()
         left = n_steps
         while left > 0:
             left -= self._chunk(left, programme, ctrl)
 
-    def _prepare(self):
-        """The wall programme arrays and the control vector of the kernel."""
+    def _prepare(self, reuse=False):
+        """The wall programme arrays and the control vector of the kernel. reuse: those of the
+        last call if the wall controls, the options and the pressure are the same (a caller of
+        advance(1) per sub-step pays for them once; the default servo speed cap is then not
+        updated to the platen gap, as within one run)."""
         opt = self.options
         if opt.threads is not None:
             import numba
             numba.set_num_threads(min(opt.threads, numba.config.NUMBA_NUM_THREADS))
+        key = (tuple(self.controls), opt, self.pressure)
+        cached = getattr(self, "_prepared", None)
+        if reuse and cached is not None and cached[0] == key:
+            return cached[1], cached[2]
         programme = programme_arrays(self.controls, self._default_speed())
         ctrl = np.zeros(N_CTRL)
         ctrl[C_GX], ctrl[C_GY] = opt.gravity
@@ -539,6 +546,7 @@ class Specimen:
         ctrl[C_LATERAL] = 1.0 if opt.lateral == "membrane" else 0.0
         ctrl[C_WALL_MU] = opt.wall_friction
         ctrl[C_MASS_DAMP] = opt.mass_damping
+        self._prepared = (key, programme, ctrl)
         return programme, ctrl
 
     def _chunk(self, k, programme, ctrl):

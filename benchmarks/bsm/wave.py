@@ -90,7 +90,7 @@ def run(width, amplitude=1e-4, coupled=True, x0=2.0, probe=(3.0, 2.0), mass_damp
     hit = np.flatnonzero(np.hypot(xy[:, 0] - probe[0], xy[:, 1] - probe[1]) < 1e-9)
     hit = hit[dofs[hit] < n_owned]
     duration = (LX - x0) / c_p
-    times, values = [], []
+    times, values, energies = [], [], []
     for step in range(int(duration / dt)):
         if coupled:
             coupler.step()
@@ -99,7 +99,37 @@ def run(width, amplitude=1e-4, coupled=True, x0=2.0, probe=(3.0, 2.0), mass_damp
         value = float(continuum.displacement.array[dofs[hit[0]]]) if hit.size else 0.0
         times.append(continuum.time)
         values.append(comm.allreduce(value))
+        energies.append(energy(continuum, coupler))
+    run.energies = np.array(energies)
     return np.array(times), np.array(values), c_p
+
+
+def energy(continuum, coupler):
+    """Energy of the coupled system [J/m] (003-bsm.md T4): 1/2 v.Mv of the nodes (the region's
+    nodes carry the grains' lumped mass) + 1/2 d.K d of the continuum outside the region + the
+    fine kinetic energy 1/2 (Q qdot).M_p(Q qdot) of the real grains + the contact springs
+    except those between two virtual grains (left to the continuum). Grain velocities are the
+    leapfrog half-step ones."""
+    total = continuum.kinetic_energy() + continuum.strain_energy()
+    if coupler is None:
+        return total
+    grains = 0.0
+    if coupler.is_root:
+        from cosserat_fenicsx.bridging.coupler import in_original_order
+        engine, region = coupler.fine, coupler.region
+        st = engine.state
+        qdot = np.column_stack([in_original_order(engine.order, st.velocity),
+                                in_original_order(engine.order, st.spin)])[region.real]
+        fine = coupler.projection.fine(qdot)
+        weights = np.column_stack([region.mass, region.mass, region.inertia])[region.real]
+        grains += 0.5 * float(np.sum(weights * fine ** 2))
+        virtual = region.is_virtual[engine.order]
+        keep = (st.touching != 0) & ~(virtual[st.pair_i] & virtual[st.pair_j])
+        i, j = st.pair_i[keep], st.pair_j[keep]
+        gap = np.hypot(*(st.position[j] - st.position[i]).T)
+        h = np.maximum(st.radius[i] + st.radius[j] - gap, 0.0)
+        grains += float(np.sum(0.5 * KN * h ** 2 + st.fs[keep] ** 2 / (2.0 * KS)))
+    return total + MPI.COMM_WORLD.bcast(grains, root=0)
 
 
 def main():
@@ -111,7 +141,9 @@ def main():
     for width in args.widths:
         w0 = time.perf_counter()
         t, bsm, c_p = run(width)
+        e_bsm = run.energies
         _, fe, _ = run(width, coupled=False)
+        e_fe = run.energies
         # after the incident pulse has passed the probe (x = 3 m): t > (1 m + 3 w) / c_p
         after = t > (1.0 + 3.0 * width) / c_p
         before_far_end = t < (2 * (LX - 3.0) - 1.0) / c_p     # no echo of the right end yet
@@ -121,11 +153,16 @@ def main():
         transmitted_gap = float(np.max(np.abs(bsm - fe)))
         row = {"width_m": width, "wavelength_m": 4 * width, "reflection": reflected / incident,
                "energy_fraction": (reflected / incident) ** 2, "max_difference_over_incident": transmitted_gap / incident,
-               "c_p": c_p, "wall_s": time.perf_counter() - w0, "load_average": os.getloadavg()[0]}
+               "c_p": c_p, "wall_s": time.perf_counter() - w0, "load_average": os.getloadavg()[0],
+               "energy_drift_bsm": float(np.max(np.abs(e_bsm - e_bsm[0])) / e_bsm[0]),
+               "energy_drift_fe": float(np.max(np.abs(e_fe - e_fe[0])) / e_fe[0]),
+               "energy_end_bsm": float(e_bsm[-1] / e_bsm[0])}
         rows.append(row)
         if MPI.COMM_WORLD.rank == 0:
             print(f"pulse width {width:g} m (wavelength ~{4 * width:g} m, {4 * width / RADIUS:.0f} r): reflected "
                   f"amplitude {row['reflection']:.3%} of the incident, energy {row['energy_fraction']:.2e} "
+                  f"; energy (undamped) max drift {row['energy_drift_bsm']:.2%} (pure FE "
+                  f"{row['energy_drift_fe']:.2%}), end/start {row['energy_end_bsm']:.4f} "
                   f"({row['wall_s']:.1f} s wall, load {row['load_average']:.2f})", flush=True)
             os.makedirs(args.out, exist_ok=True)
             np.savetxt(os.path.join(args.out, f"probe_w{width:g}.csv"), np.column_stack([t, fe, bsm]),

@@ -73,3 +73,16 @@ def test_grains_leaving_the_region_stop_the_run():
         engine.state.velocity[k] = (0.0, -2000.0)
     with pytest.raises(BridgingStopped, match="left the DEM region|DEM region stopped"):
         coupler.run(20)
+
+
+def test_compressive_pulse_crosses_the_interface():
+    """T4/T5 (benchmarks/bsm/wave.py): a plane P pulse of wavelength ~ 16 h, 80 r through a
+    region with the continuum's exact moduli: small reflection, energy kept."""
+    from benchmarks.bsm.wave import run
+    t, bsm, c_p = run(1.0)
+    energies = run.energies
+    _, fe, _ = run(1.0, coupled=False)
+    window = t > 4.0 / c_p
+    # measured 0.68 % of the step and 0.46 % largest energy deviation
+    assert np.max(np.abs(bsm[window] - fe[window])) < 0.015 * 1e-4
+    assert np.max(np.abs(energies - energies[0])) < 0.01 * energies[0]

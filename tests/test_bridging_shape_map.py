@@ -139,3 +139,25 @@ def test_one_and_two_ranks_agree(tmp_path):
 
 if __name__ == "__main__":
     report(sys.argv[1])
+
+
+@pytest.mark.parametrize("case", list(CASES))
+def test_lumped_mass_positive_and_total(case):
+    """The grains' coarse mass: row sums for Q1/P1, HRZ for P2 (whose row sums go negative):
+    every dof >= 0, each component's total = the particles' total, weightless particles add 0."""
+    cell, du, dphi = CASES[case][:3]
+    space = cosserat_space(cell, du, dphi)
+    points = particles(200, seed=4)
+    shape = CosseratShapeMap(space, points)
+    weights = np.random.default_rng(2).uniform(1.0, 2.0, size=(len(points), 3))
+    weights[-20:] = 0.0
+    _, vec = fill(space, {})
+    vec.set(0.0)
+    shape.add_lumped_mass(weights, vec)
+    assert vec.array.min() >= 0.0 and np.isfinite(vec.array).all()
+    spaces = component_spaces(space)
+    n_owned = vec.getLocalSize()
+    for c, name in enumerate(("u1", "u2", "phi")):
+        dofs = spaces[name][1]
+        total = MPI.COMM_WORLD.allreduce(float(vec.array[dofs[dofs < n_owned]].sum()))
+        assert total == pytest.approx(weights[:, c].sum(), rel=1e-12)

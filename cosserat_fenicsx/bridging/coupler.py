@@ -16,7 +16,7 @@ One coarse step t_n -> t_n+1 = t_n + dt with m DEM sub-steps dt_m = dt / m:
     5. continuum corrector (eqs 33-34) with f_c.
 
 The coarse mass of the DEM-region nodes is the grains' row-sum lumped N_R^T m, N_R^T J (eq 5
-lumped), added once; the elements of the region carry no Cosserat stiffness or mass
+lumped; HRZ for P2, whose row sums can be negative), added once; the elements of the region carry no Cosserat stiffness or mass
 (ExplicitCosserat(inactive_cells=region_cells(...))). Diagnostic each step:
 max |N_R d - P q| / r_min = max |N_R (d - d_hat(q))| / r_min (how far the coarse nodes are
 from the projection of the grains), every `diagnose_every` steps (or on request).
@@ -185,7 +185,7 @@ class BridgingCoupler:
                                             region.inertia[:n_real]])
         added = continuum.mass.duplicate()
         added.set(0.0)
-        self.shape.add_transpose(weights, added)
+        self.shape.add_lumped_mass(weights, added)
         continuum.add_mass(added)
         added.destroy()
         stable = continuum.stable_time_step()

@@ -207,6 +207,36 @@ class CosseratShapeMap:
         vec.axpy(1.0, work)
         vec.ghostUpdate(addv=PETSc.InsertMode.INSERT, mode=PETSc.ScatterMode.FORWARD)
 
+    def add_lumped_mass(self, weights, vec):
+        """vec += the particles' lumped coarse mass (003 eq 5 lumped): weights (n, 3) are
+        (m, m, J) per particle [kg/m, kg m]. Row-sum N^T w where every shape value is >= 0
+        (Q1, P1); otherwise (P2, whose vertex functions are negative inside the element) the
+        HRZ diagonal: w N_i^2 summed per cell and scaled to the cell's total particle mass,
+        so that no dof gets a negative mass."""
+        weights = np.asarray(weights, dtype=float)
+        if self._work is None or self._work.getSize() != vec.getSize():
+            self._work = vec.duplicate()
+        work = self._work
+        with work.localForm() as loc:
+            loc.array[:] = 0.0
+            for c, name in enumerate(self.COMPONENTS):
+                m = self.maps[name]
+                w = weights[m.particles, c]
+                if self.comm.allreduce(bool(np.any(m.values < 0.0)), op=MPI.LOR):
+                    square = w[:, None] * m.values ** 2
+                    cells, index = np.unique(m.cells, return_inverse=True)
+                    total = np.bincount(index, weights=w, minlength=cells.size)
+                    diagonal = np.bincount(index, weights=square.sum(axis=1), minlength=cells.size)
+                    # cells holding only weightless (virtual) particles add nothing
+                    scale = np.divide(total, diagonal, out=np.zeros_like(total), where=diagonal > 0.0)
+                    contribution = square * scale[index][:, None]
+                else:
+                    contribution = w[:, None] * m.values
+                np.add.at(loc.array, m.parent_dofs.ravel(), contribution.ravel())
+        work.ghostUpdate(addv=PETSc.InsertMode.ADD, mode=PETSc.ScatterMode.REVERSE)
+        vec.axpy(1.0, work)
+        vec.ghostUpdate(addv=PETSc.InsertMode.INSERT, mode=PETSc.ScatterMode.FORWARD)
+
     def matrices(self, root=0):
         return self.maps["u1"].matrix(root), self.maps["phi"].matrix(root)
 

@@ -118,6 +118,7 @@ benchmark-dns: benchmark-deps
 # elastic FE footing, and the footing against the full DEM of the same grains
 benchmark-bsm: benchmark-deps
 	$(PYTHON) benchmarks/bsm/patch_test.py --radius 0.1 0.05 0.025 0.0125 --out $(BENCH)/bsm_patch
+	$(PYTHON) benchmarks/bsm/patch_drift.py --out $(BENCH)/bsm_patch_drift
 	$(PYTHON) benchmarks/bsm/wave.py --out $(BENCH)/bsm_wave
 	$(PYTHON) benchmarks/bsm/footing_fe.py --out $(BENCH)/bsm_footing_fe
 	$(PYTHON) benchmarks/bsm/footing_compare.py --out $(BENCH)/bsm_footing_compare

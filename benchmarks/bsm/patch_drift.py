@@ -25,13 +25,17 @@ def main():
     parser.add_argument("--relax", type=int, default=500)
     parser.add_argument("--steps", type=int, default=100000)
     parser.add_argument("--every", type=int, default=10000)
+    parser.add_argument("--substeps", type=int, default=2, help="DEM sub-steps per coarse step m")
+    parser.add_argument("--force-time", choices=("extrapolated", "lagged"), default="extrapolated")
     parser.add_argument("--out", default="results/bsm_patch_drift")
     args = parser.parse_args()
     size, strain = 4.0, 1e-4
     delta = strain * size
     bcs = [("u1", lambda x: np.isclose(x[0], 0.0), 0.0), ("u1", lambda x: np.isclose(x[0], size), -delta),
            ("u2", lambda x: np.isclose(x[1], 0.0), 0.0), ("u2", lambda x: np.isclose(x[1], size), -delta)]
-    continuum, region, engine, coupler, _ = build(args.radius, mass_damping=600.0, dirichlet=bcs)
+    continuum, region, engine, coupler, _ = build(args.radius, mass_damping=600.0, dirichlet=bcs,
+                                                  substeps=args.substeps)
+    coupler.force_time = args.force_time
     coupler.run(args.relax)
     # undamped from here on, both scales
     continuum.mass_damping = 0.0
@@ -50,7 +54,7 @@ def main():
         done += 1
         change_fe = MPI.COMM_WORLD.allreduce(float(np.abs(continuum.displacement.array - d0).max()), op=MPI.MAX)
         change_grains = float(np.abs(coupler.grain_motion()[:, :2] - q0[:, :2]).max()) if engine is not None else 0.0
-        row = {"steps": done, "time_s": continuum.time, "fe_change_over_delta": change_fe / delta,
+        row = {"steps": done, "substeps": coupler.substeps, "force_time": args.force_time, "time_s": continuum.time, "fe_change_over_delta": change_fe / delta,
                "grain_change_over_delta": MPI.COMM_WORLD.bcast(change_grains) / delta,
                "fe_kinetic_J_per_m": continuum.kinetic_energy(),
                "mismatch_over_rmin": MPI.COMM_WORLD.bcast(coupler.last_mismatch),

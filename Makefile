@@ -57,7 +57,7 @@ test-debian13:
 # YADE is only needed here (DEM speed and the FEM x DEM cross-check)
 BENCH_PACKAGES = yade python3-escript
 BENCH = $(OUT)/benchmarks
-BENCHMARK_GROUPS = verification ehlers dem femdem dns identification robustness slow-tests
+BENCHMARK_GROUPS = verification ehlers dem femdem dns bsm identification robustness slow-tests
 .PHONY: benchmark-deps $(BENCHMARK_GROUPS:%=benchmark-%)
 
 benchmark: $(BENCHMARK_GROUPS:%=benchmark-%)
@@ -113,6 +113,15 @@ benchmark-dns: benchmark-deps
 	$(PYTHON) benchmarks/dns/dns_004.py --nx 40 --ny 92 --out $(BENCH)/dns_004_study
 	$(PYTHON) benchmarks/dns/footing_dem.py --packing A --out $(BENCH)/footing_dem_A
 	$(PYTHON) benchmarks/dns/footing_dem.py --packing C --out $(BENCH)/footing_dem_C
+
+# the bridging-scale method (paper 003): ghost forces, a pulse across the interface, the
+# elastic FE footing, and the footing against the full DEM of the same grains
+benchmark-bsm: benchmark-deps
+	$(PYTHON) benchmarks/bsm/patch_test.py --radius 0.1 0.05 0.025 0.0125 --out $(BENCH)/bsm_patch
+	$(PYTHON) benchmarks/bsm/patch_drift.py --out $(BENCH)/bsm_patch_drift
+	$(PYTHON) benchmarks/bsm/wave.py --out $(BENCH)/bsm_wave
+	$(PYTHON) benchmarks/bsm/footing_fe.py --out $(BENCH)/bsm_footing_fe
+	$(PYTHON) benchmarks/bsm/footing_compare.py --out $(BENCH)/bsm_footing_compare
 
 benchmark-identification: benchmark-deps
 	$(PYTHON) benchmarks/identification/identification_sensitivity.py --out $(BENCH)/identification_sensitivity

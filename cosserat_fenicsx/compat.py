@@ -136,3 +136,42 @@ def cell_geometry_nodes(mesh):
         per_cell = len(dofmap.links(0)) if dofmap.num_nodes else 0
         return dofmap.array.reshape(-1, per_cell) if per_cell else np.zeros((0, 0), dtype=np.int32)
     return np.asarray(dofmap)
+
+
+def colliding_cells(mesh, points):
+    """AdjacencyList of the local cells (owned and ghost) containing each point (n, 3)."""
+    import dolfinx.geometry
+    if LEGACY:
+        tree = dolfinx.geometry.BoundingBoxTree(mesh, mesh.topology.dim)
+        candidates = dolfinx.geometry.compute_collisions(tree, points)
+    else:
+        tree = dolfinx.geometry.bb_tree(mesh, mesh.topology.dim)
+        candidates = dolfinx.geometry.compute_collisions_points(tree, points)
+    return dolfinx.geometry.compute_colliding_cells(mesh, candidates, points)
+
+
+def cell_geometry(mesh, cell):
+    """Physical coordinates (n_nodes, gdim) of one local cell's geometry nodes."""
+    return mesh.geometry.x[cell_geometry_nodes(mesh)[cell], :mesh.geometry.dim]
+
+
+def pull_back(mesh, points, coordinates):
+    """Reference coordinates (n, tdim) of physical points (n, gdim) in a cell."""
+    cmap = mesh.geometry.cmap
+    cmap = cmap() if callable(cmap) else cmap  # a method in some 0.8/0.9 builds
+    return np.asarray(cmap.pull_back(np.asarray(points, dtype=float), coordinates))
+
+
+def lagrange_degree(space):
+    """Polynomial degree of a scalar Lagrange space."""
+    element = space.ufl_element()
+    if LEGACY:
+        return element.degree()
+    return element.embedded_superdegree
+
+
+def basix_lagrange(mesh, degree):
+    """The basix Lagrange element whose reference dof order dolfinx uses for `degree` <= 2
+    (no variant dependence: vertex and edge-midpoint points only)."""
+    return basix.create_element(basix.ElementFamily.P, basix_cell(mesh), degree,
+                                basix.LagrangeVariant.gll_warped)

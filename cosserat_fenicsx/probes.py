@@ -1,5 +1,4 @@
 """Point evaluation of finite-element fields (profiles along lines), MPI-safe."""
-import dolfinx.geometry
 import numpy as np
 from mpi4py import MPI
 
@@ -8,13 +7,7 @@ from . import compat
 
 def _colliding_cells(mesh, points):
     """AdjacencyList: local cells containing each point."""
-    if compat.LEGACY:
-        tree = dolfinx.geometry.BoundingBoxTree(mesh, mesh.topology.dim)
-        candidates = dolfinx.geometry.compute_collisions(tree, points)
-    else:
-        tree = dolfinx.geometry.bb_tree(mesh, mesh.topology.dim)
-        candidates = dolfinx.geometry.compute_collisions_points(tree, points)
-    return dolfinx.geometry.compute_colliding_cells(mesh, candidates, points)
+    return compat.colliding_cells(mesh, points)
 
 
 def sample_line(function, points):

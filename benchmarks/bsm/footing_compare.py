@@ -1,0 +1,83 @@
+"""The strip footing by the bridging-scale method against the full DEM of the same grains
+(003-bsm.md T8, and the cost against the grain-count ratio): for each case, demos/footing_bsm.py
+is run as a user runs it, then demcell.specimen.footing.run_footing on the whole domain with
+the same packing, damping and speed; the plate loads at fixed settlements, the peaks and the
+loop wall times are tabulated (docs/results/bsm.md).
+
+    PYTHONPATH=. python3 benchmarks/bsm/footing_compare.py [--cases A:003:10 B:003:10 C:003:10 A:lattice:100]
+
+A case is PACKING:CONTINUUM:C_M[:SPEED[:DOMAIN_WIDTH]].
+"""
+import argparse
+import csv
+import json
+import os
+import subprocess
+import sys
+import time
+
+import numpy as np
+
+ROOT = os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
+SETTLEMENTS_MM = (5, 10, 15, 20, 30, 40, 50, 60)
+
+
+def compare(case, out):
+    fields = case.split(":")
+    packing, continuum, c_m = fields[0], fields[1], float(fields[2])
+    speed = float(fields[3]) if len(fields) > 3 else 1.0
+    width = float(fields[4]) if len(fields) > 4 else 18.0
+    run_dir = os.path.join(out, case.replace(":", "_"))
+    env = dict(os.environ, OMP_NUM_THREADS="1", PYTHONPATH=ROOT)
+    cmd = [sys.executable, os.path.join(ROOT, "demos", "footing_bsm.py"), "--packing", packing,
+           "--continuum", continuum, "--mass-damping", str(c_m), "--speed", str(speed),
+           "--domain-width", str(width), "--out", run_dir]
+    subprocess.run(cmd, check=True, env=env, capture_output=True, text=True)
+    with open(os.path.join(run_dir, "summary.json")) as f:
+        summary = json.load(f)
+    with open(os.path.join(run_dir, "history.csv")) as f:
+        rows = list(csv.DictReader(f))
+    s = np.array([float(r["settlement_mm"]) for r in rows])
+    load = np.array([float(r["load_kN_per_m"]) for r in rows])
+    from demcell.specimen.footing import run_footing
+    w0 = time.perf_counter()
+    full = run_footing(packing, width=width, depth=0.06, speed=speed, mass_damping=c_m, record_every=10, threads=1)
+    full_wall = time.perf_counter() - w0
+    reference = np.interp(s, 1e3 * full.settlement, 1e-3 * full.load)
+    result = {"case": case, "bsm": {}, "full_dem": {}, "grains_full": int(full.info["n_discs"]),
+              "grains_bsm": summary["grains_real"] + summary["grains_virtual"],
+              "grain_ratio": summary["grain_ratio_full_over_bsm"], "bsm_wall_s": summary["wall_s"],
+              "full_wall_s": full_wall, "full_cpu_s": full.cpu_seconds, "speedup": full_wall / summary["wall_s"],
+              "split_wall_s": summary["time_split"]["wall_s"], "load_average": os.getloadavg()[0],
+              "bsm_peak": [summary["peak_load_kN_per_m"], summary["peak_settlement_mm"]],
+              "full_peak": [1e-3 * float(full.load.max()), 1e3 * float(full.settlement[np.argmax(full.load)])]}
+    for mm in SETTLEMENTS_MM:
+        k = int(np.argmin(np.abs(s - mm)))
+        result["bsm"][mm], result["full_dem"][mm] = float(load[k]), float(reference[k])
+    first = np.argmax(np.abs(load - reference) > 0.01 * np.maximum(np.abs(reference), 100.0))
+    result["agree_within_1pc_until_mm"] = float(s[first]) if first > 0 else float(s[-1])
+    return result
+
+
+def main():
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--cases", nargs="+", default=["A:003:10", "B:003:10", "C:003:10", "A:lattice:100",
+                                                       "A:lattice:100:0.5", "A:003:10:1.0:54"])
+    parser.add_argument("--out", default="results/bsm_footing_compare")
+    args = parser.parse_args()
+    os.makedirs(args.out, exist_ok=True)
+    results = []
+    for case in args.cases:
+        r = compare(case, args.out)
+        results.append(r)
+        loads = " | ".join(f"{r['bsm'][mm]:.0f} / {r['full_dem'][mm]:.0f}" for mm in SETTLEMENTS_MM)
+        print(f"| {case} | {loads} | {r['bsm_peak'][0]:.0f} ({r['bsm_peak'][1]:.0f} mm) | "
+              f"{r['full_peak'][0]:.0f} ({r['full_peak'][1]:.0f} mm) | agree to 1 % until {r['agree_within_1pc_until_mm']:.1f} mm | "
+              f"wall {r['full_wall_s']:.1f} / {r['bsm_wall_s']:.1f} s = {r['speedup']:.1f}x (grain ratio "
+              f"{r['grain_ratio']:.1f}), load {r['load_average']:.1f}", flush=True)
+        with open(os.path.join(args.out, "footing_compare.json"), "w") as f:
+            json.dump(results, f, indent=1)
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,340 @@
+"""The coupled time loop of the bridging-scale method (003 eqs 25-34, spec sections 3-4).
+
+One coarse step t_n -> t_n+1 = t_n + dt with m DEM sub-steps dt_m = dt / m:
+
+    1. interface data at t_n: u_V = N_V d^n, v_V = N_V v^n, a_V = N_V a^n at the virtual
+       grains' reference centres (the coarse motion they follow);
+    2. continuum predictor (eqs 31-32): d^{n+1}, v~^{n+1};
+    3. m DEM sub-steps (eqs 27-30, the specimen's leapfrog with mass damping c_m): before
+       sub-step j+1 the virtual grains are driven to
+           u_V^[j+1] = u_V + t v_V + t^2/2 a_V,   t = (j+1) dt_m          (eqs 25-26)
+       (constant coarse acceleration; translations and the Cosserat rotation, eq 17);
+    4. coarse forces f_c = N_R^T F_R + N_V^T F_V (eq 16): F_R the net contact and plate forces
+       on the real grains, F_V the reactions of the real grains on the virtual ones (their
+       mutual contacts are dropped: the continuum carries that stiffness), both from the last
+       sub-step (spec decision 2: forces at q, not at N d + Q q);
+    5. continuum corrector (eqs 33-34) with f_c.
+
+The coarse mass of the DEM-region nodes is the grains' row-sum lumped N_R^T m, N_R^T J (eq 5
+lumped; HRZ for P2, whose row sums can be negative), added once; the elements of the region carry no Cosserat stiffness or mass
+(ExplicitCosserat(inactive_cells=region_cells(...))). Diagnostic each step:
+max |N_R d - P q| / r_min = max |N_R (d - d_hat(q))| / r_min (how far the coarse nodes are
+from the projection of the grains), every `diagnose_every` steps (or on request).
+
+MPI: the DEM lives on rank `root` (0); the continuum is distributed. Grain forces are
+broadcast, interpolated values reduced to the root (shape_map.py).
+
+The DEM engine is used through the `FineScale` interface (demcell.specimen.Specimen with the
+bridging extensions: drive_held, advance, disc_forces); its state is read through
+`state.position`, `state.rotation` and `order` (original index of each engine disc).
+"""
+import abc
+import math
+import time
+from dataclasses import dataclass, field
+
+import numpy as np
+from mpi4py import MPI
+
+from cosserat_fenicsx.bridging.projection import ScaleProjection
+from cosserat_fenicsx.bridging.shape_map import CosseratShapeMap
+from cosserat_fenicsx.validation import InputError
+
+PHASES = ("dem", "projection", "fe", "interface")
+
+
+class BridgingStopped(RuntimeError):
+    """The coupled run stopped; the message names the cause (grains left the region, ...)."""
+
+
+class FineScale(abc.ABC):
+    """What the coupler needs of the DEM region (demcell.specimen.Specimen provides it).
+    Disc arrays are in the original order of the region (real grains, then virtual)."""
+
+    @abc.abstractmethod
+    def drive_held(self, position, rotation):
+        """Prescribe the held (virtual) discs' motion so that after the next step they are at
+        position (n, 2) [m] and rotation (n,) [rad] (all discs; only the held rows are read)."""
+
+    @abc.abstractmethod
+    def advance(self, n_steps):
+        """n DEM steps, no measurement."""
+
+    @abc.abstractmethod
+    def disc_forces(self):
+        """(n, 3): net contact (and plate) force [N/m] and moment [N m/m] on every disc in the
+        last step, held ones included."""
+
+
+@dataclass
+class Timings:
+    """Wall seconds per phase on this rank. (No per-phase CPU time: process_time() costs
+    0.3 ms per call in a process with Numba's and MPI's threads, more than some phases.)"""
+    wall: dict = field(default_factory=lambda: {p: 0.0 for p in PHASES})
+
+    def add(self, phase, wall0, _unused=None):
+        self.wall[phase] += time.perf_counter() - wall0
+
+    def as_dict(self):
+        return {"wall_s": dict(self.wall)}
+
+
+def _clock():
+    return time.perf_counter(), None
+
+
+def in_original_order(order, array):
+    """Engine arrays (disc k is original disc order[k]) back in the original order."""
+    out = np.empty_like(array)
+    out[order] = array
+    return out
+
+
+def virtual_pair_forces(state, order, is_virtual):
+    """(n, 3) forces and moments, original order, that the contacts BETWEEN two virtual discs
+    put on them (demcell.specimen.state's pair convention: force fn n + fs t on j, its
+    opposite on i; moments -a_i fs - mr on i, -a_j fs + mr on j)."""
+    n = order.size
+    out = np.zeros((n, 3))
+    virtual_engine = is_virtual[order]
+    i, j = state.pair_i, state.pair_j
+    both = virtual_engine[i] & virtual_engine[j] & (state.touching != 0)
+    if not np.any(both):
+        return out
+    i, j = i[both], j[both]
+    fn, fs, mr = state.fn[both], state.fs[both], state.mr[both]
+    branch = state.position[j] - state.position[i]
+    dist = np.hypot(branch[:, 0], branch[:, 1])
+    nrm = branch / dist[:, None]
+    tng = np.column_stack([-nrm[:, 1], nrm[:, 0]])
+    force = fn[:, None] * nrm + fs[:, None] * tng
+    overlap = state.radius[i] + state.radius[j] - dist
+    a_i = state.radius[i] - 0.5 * overlap
+    a_j = state.radius[j] - 0.5 * overlap
+    engine = np.zeros((n, 3))
+    np.add.at(engine[:, 0], j, force[:, 0])
+    np.add.at(engine[:, 1], j, force[:, 1])
+    np.add.at(engine[:, 0], i, -force[:, 0])
+    np.add.at(engine[:, 1], i, -force[:, 1])
+    np.add.at(engine[:, 2], i, -a_i * fs - mr)
+    np.add.at(engine[:, 2], j, -a_j * fs + mr)
+    return in_original_order(order, engine)
+
+
+def _declare_specimen():
+    """demcell's bounded specimen implements FineScale (it cannot import this module)."""
+    from demcell.specimen import Specimen
+    FineScale.register(Specimen)
+
+
+class BridgingCoupler:
+    """Bridging-scale coupling of an ExplicitCosserat continuum with a DEM region.
+
+    continuum: cosserat_fenicsx.dynamics.ExplicitCosserat built with
+        inactive_cells=region_cells(mesh, region.box) (all ranks);
+    region: bridging.region.DemRegion (all ranks: the reference positions and masses);
+    fine: the FineScale engine of the region's discs in the region's order, real grains free
+        and virtual ones held (rank `root` only; None elsewhere);
+    dt: coarse step [s]; substeps: m (the engine's dt must be dt / m).
+    """
+
+    def __init__(self, continuum, region, fine, dt, substeps, fine_dt=None, root=0, diagnose_every=10,
+                 force_time="extrapolated"):
+        self.continuum, self.region, self.fine = continuum, region, fine
+        self.comm = continuum.comm
+        self.root = root
+        self.is_root = self.comm.rank == root
+        if not (isinstance(substeps, (int, np.integer)) and substeps >= 1):
+            raise InputError(f"substeps must be an integer >= 1, got {substeps!r}")
+        if not (isinstance(dt, (int, float)) and math.isfinite(dt) and dt > 0.0):
+            raise InputError(f"dt must be a finite number > 0 [s], got {dt!r}")
+        if self.is_root:
+            _declare_specimen()
+        if self.is_root and not isinstance(fine, FineScale):
+            raise InputError("the DEM region's engine must implement bridging.coupler.FineScale "
+                             "(drive_held, advance, disc_forces)")
+        if force_time not in ("extrapolated", "lagged"):
+            raise InputError(f"force_time must be 'extrapolated' or 'lagged', got {force_time!r}")
+        self.force_time = force_time
+        self._last_forces = self._previous_forces = None
+        self.dt, self.substeps = float(dt), int(substeps)
+        self.dt_fine = self.dt / self.substeps
+        if fine_dt is not None and abs(fine_dt - self.dt_fine) > 1e-12 * self.dt_fine:
+            raise InputError(f"the DEM step {fine_dt:.6g} s must be dt / substeps = {self.dt_fine:.6g} s")
+        self.timings = Timings()
+        w0, c0 = _clock()
+        spaces = {name: continuum.subspace(name) for name in ("u1", "u2", "phi")}
+        self.shape = CosseratShapeMap(continuum.space, region.position, spaces=spaces)
+        # the virtual grains alone: the interface data of every step
+        self.shape_virtual = CosseratShapeMap(continuum.space, region.position[region.virtual], spaces=spaces)
+        self.diagnose_every = int(diagnose_every)
+        n_real = region.n_real
+        n_u, n_phi = self.shape.matrices(root)
+        elements = self.shape.counted_elements(root)
+        self.projection = None
+        refusal = None
+        if self.is_root:
+            try:
+                self.projection = ScaleProjection(n_u[:n_real], region.mass[:n_real],
+                                                  region.inertia[:n_real], n_phi[:n_real],
+                                                  element_of_particle=elements[:n_real])
+            except InputError as error:
+                refusal = str(error)
+        # a refusal on the root reaches every rank (no rank waits in a collective)
+        refusal = self.comm.bcast(refusal, root=root)
+        if refusal:
+            raise InputError(refusal)
+        # coarse mass of the DEM-region nodes: N_R^T m (u1, u2), N_R^T J (phi), added once
+        weights = np.zeros((region.n_discs, 3))
+        weights[:n_real] = np.column_stack([region.mass[:n_real], region.mass[:n_real],
+                                            region.inertia[:n_real]])
+        added = continuum.mass.duplicate()
+        added.set(0.0)
+        self.shape.add_lumped_mass(weights, added)
+        continuum.add_mass(added)
+        added.destroy()
+        stable = continuum.stable_time_step()
+        self.stable_dt = stable
+        if self.dt > stable["power"]:
+            raise InputError(f"coarse dt = {self.dt:.6g} s is above the continuum's stable step "
+                             f"{stable['power']:.6g} s (power iteration with the grains' mass; "
+                             f"rotational 2/omega_r = {stable['rotational']:.3g} s)")
+        self.coupling_force = continuum.mass.duplicate()
+        self.coupling_force.set(0.0)
+        self.r_min = float(region.radius[:n_real].min())
+        self.is_virtual = region.is_virtual
+        self.steps = 0
+        self.max_mismatch = 0.0
+        self.last_mismatch = 0.0
+        # shape maps, projection, mass and stable step: once, apart from the loop's phases
+        self.setup_seconds = time.perf_counter() - w0
+
+    # ------------------------------------------------------------------ grain state
+    def grain_motion(self):
+        """(n, 3) displacements and rotations of all discs from the region's reference, on root."""
+        st = self.fine.state
+        order = self.fine.order
+        position = in_original_order(order, st.position)
+        rotation = in_original_order(order, st.rotation)
+        q = np.empty((self.region.n_discs, 3))
+        q[:, :2] = position - self.region.position
+        q[:, 2] = rotation
+        return q
+
+    def coupling_forces(self):
+        """(n, 3) grain forces entering eq 16 (root): all forces on real grains, and on the
+        virtual ones only those of real grains."""
+        forces = np.array(self.fine.disc_forces(), dtype=float, copy=True)
+        forces -= virtual_pair_forces(self.fine.state, self.fine.order, self.is_virtual)
+        return forces
+
+    def _stop(self, message):
+        """Collective stop: any rank's cause is raised on all."""
+        messages = self.comm.allgather(message)
+        causes = [m for m in messages if m]
+        if causes:
+            raise BridgingStopped(f"bridging-scale run stopped at t = {self.continuum.time:.6g} s "
+                                  f"(step {self.steps}): {causes[0]}")
+
+    # ------------------------------------------------------------------ time loop
+    def step(self, diagnose=None):
+        """One coarse step with m DEM sub-steps (module docstring). diagnose: compute the
+        mismatch max |N_R d - P q| / r_min after it (default: every diagnose_every steps)."""
+        if diagnose is None:
+            diagnose = (self.steps + 1) % self.diagnose_every == 0
+        c = self.continuum
+        region = self.region
+        virtual = region.virtual
+        w0, c0 = _clock()
+        interface = self.shape_virtual.interpolate([c.displacement, c.velocity, c.acceleration], self.root)
+        self.timings.add("interface", w0, c0)
+        w0, c0 = _clock()
+        c.predict(self.dt)
+        self.timings.add("fe", w0, c0)
+        forces = None
+        cause = None
+        if self.is_root:
+            w0, c0 = _clock()
+            reference = region.position[virtual]
+            u0, v0, a0 = interface
+            # full arrays in the region's order; the engine reads the held (virtual) rows only
+            position = region.position.copy()
+            rotation = np.zeros(region.n_discs)
+            try:
+                for j in range(1, self.substeps + 1):
+                    t = j * self.dt_fine
+                    target = u0 + t * v0 + 0.5 * t * t * a0
+                    position[virtual] = reference + target[:, :2]
+                    rotation[virtual] = target[:, 2]
+                    self.fine.drive_held(position, rotation)
+                    self.fine.advance(1)
+                    if self.force_time == "extrapolated" and j >= self.substeps - 1:
+                        self._previous_forces, self._last_forces = self._last_forces, self.coupling_forces()
+            except (RuntimeError, ValueError, FloatingPointError) as error:
+                # the engine's own stop (lost discs, non-finite state) reaches every rank
+                cause = f"the DEM region stopped: {error}"
+            self.timings.add("dem", w0, c0)
+            w0, c0 = _clock()
+            if self.force_time == "extrapolated":
+                # the engine's forces of a step are those at its START, q^[m-1]: one fine step
+                # behind q^{n+1}, a lag that pumps energy into the coupled system (an undamped
+                # patch grew by e^6.5 in kinetic energy per 10^4 steps). Linear extrapolation
+                # from the last two sub-steps puts them at q^{n+1} to O(dt_m^2).
+                last, previous = self._last_forces, self._previous_forces
+                forces = last if previous is None else 2.0 * last - previous
+            else:
+                forces = self.coupling_forces()
+            if cause is None and not np.all(np.isfinite(forces)):
+                cause = "a grain force is not finite"
+            self.timings.add("interface", w0, c0)
+            w0, c0 = _clock()
+            q = self.grain_motion()
+            escaped = region.escaped(region.position[region.real] + q[region.real, :2])
+            if escaped.size and cause is None:
+                cause = (f"{escaped.size} grain(s) left the DEM region by more than one diameter "
+                         f"(first: grain {int(escaped[0])} at "
+                         f"({region.position[escaped[0], 0] + q[escaped[0], 0]:.4g}, "
+                         f"{region.position[escaped[0], 1] + q[escaped[0], 1]:.4g}) m)")
+            if diagnose:
+                self._coarse_q = self.projection.coarse(q[region.real])
+            self.timings.add("projection", w0, c0)
+        self._stop(cause)
+        w0, c0 = _clock()
+        if self.comm.size > 1:
+            if not self.is_root:
+                forces = np.empty((self.region.n_discs, 3))
+            self.comm.Bcast(forces, root=self.root)
+        self.coupling_force.set(0.0)
+        self.shape.add_transpose(forces, self.coupling_force)
+        self.timings.add("interface", w0, c0)
+        w0, c0 = _clock()
+        c.correct(self.dt, self.coupling_force)
+        self.timings.add("fe", w0, c0)
+        if diagnose:
+            w0, c0 = _clock()
+            nd = self.shape.interpolate(c.displacement, self.root)
+            if self.is_root:
+                mismatch = np.abs(nd[region.real] - self._coarse_q)
+                self.last_mismatch = float(np.max(np.hypot(mismatch[:, 0], mismatch[:, 1]))) / self.r_min
+                self.max_mismatch = max(self.max_mismatch, self.last_mismatch)
+            self.timings.add("projection", w0, c0)
+        self.steps += 1
+
+    def run(self, n_steps, on_step=None):
+        """n coarse steps; on_step(coupler) after each (all ranks)."""
+        for _ in range(int(n_steps)):
+            self.step()
+            if on_step is not None:
+                on_step(self)
+
+    def fine_part(self):
+        """(q, coarse N d at the grains, fine part Q q) of all real grains, on root (outputs)."""
+        nd = self.shape.interpolate(self.continuum.displacement, self.root)
+        if not self.is_root:
+            return None
+        q = self.grain_motion()[self.region.real]
+        return q, nd[self.region.real], self.projection.fine(q)
+
+    def timing_summary(self):
+        """Per-phase wall seconds {"wall_s": {phase: s}}, the maximum over ranks."""
+        return {"wall_s": {p: self.comm.allreduce(v, op=MPI.MAX) for p, v in self.timings.wall.items()}}

@@ -1,0 +1,275 @@
+"""Strip footing by the bridging-scale method (paper 003, Li and Wan 2010, section 3).
+
+A Cosserat continuum (explicit dynamics, 003 eqs 19-20 and 31-34) covers the whole 18 m x 9 m
+foundation on 003's mesh (18 x 9 Q1 elements of 1 m; --element P2/P1 for the project's
+triangles). A 6 m x 3 m DEM region under the 2 m plate (x in [6, 12] m, y in [6, 9] m, six by
+three whole elements) holds the grains of packing A, B or C (003 Table 1 contact law). Inside
+it the grains' motion is split into a coarse part, interpolated from the nodes, and a fine
+part (the mass-weighted projection, eqs 3-8); the nodes of the region take their mass and
+forces from the grains (eq 16, including the reactions on the virtual interface grains);
+the virtual grains just outside the region follow the continuum (eq 17). The rigid plate acts
+on the grains only (003-bsm.md decision 8), pushed down at --speed to --depth. The DEM
+sub-cycles m times per coarse step (eqs 25-30). No gravity; bottom fixed, sides u1 = 0.
+
+The grains are cut out of the same packing the full-DEM reference would use (the whole
+domain filled with discs, demcell.specimen.footing.footing_packing): compare with
+`python3 -c "from demcell.specimen.footing import run_footing; ..."` (see README).
+
+MPI: the DEM region lives on rank 0 (it is small); the continuum is distributed.
+
+Outputs in --out, written as the run goes: history.csv (time, settlement, plate load per
+metre of depth, the coarse/projection mismatch), summary.json, load_settlement.png,
+continuum.xdmf (u, phi of the continuum) and grains_NNNN.vtk (every grain with its
+displacement, its coarse part N d and fine part Q q, rotation, virtual flag). In ParaView:
+open continuum.xdmf ("Xdmf3 Reader T") and the grains_*.vtk series together; show the grains
+with the "Point Gaussian" representation scaled by 'radius', coloured by 'fine'.
+
+    mpirun -n 2 python3 demos/footing_bsm.py --packing A
+"""
+# %% imports
+import sys, os  # noqa: E401
+sys.path.insert(0, os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
+# BLAS/OpenMP threads that spin after each small solve starve the DEM kernel's threads (a
+# 10x slow-down measured on 2 cores): one BLAS thread unless the user asks otherwise
+os.environ.setdefault("OMP_NUM_THREADS", "1")
+os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
+
+import math
+import time
+
+import dolfinx.fem
+import dolfinx.io
+import dolfinx.mesh
+import numpy as np
+from mpi4py import MPI
+
+from cosserat_fenicsx import cli
+from cosserat_fenicsx.bridging.coupler import BridgingCoupler, BridgingStopped
+from cosserat_fenicsx.bridging.region import build_region, region_cells
+from cosserat_fenicsx.dynamics.explicit import DynamicsError, ExplicitCosserat
+from cosserat_fenicsx.elasticity import MicropolarElasticity
+from cosserat_fenicsx.figures import pyplot
+from cosserat_fenicsx.output import CsvLog, print0
+from cosserat_fenicsx.run_guard import RunGuard
+from cosserat_fenicsx.validation import NON_NEGATIVE, POSITIVE, Range, number
+
+# %% options
+parser = cli.make_parser(__doc__)
+parser.add_argument("--packing", choices=("A", "B", "C"), default="A",
+                    help="003 packing: A (lattice, r = 0.05 m), B (lattice, r = 0.03 m), C (random, 0.02-0.05 m)")
+parser.add_argument("--element", choices=("Q1/Q1", "P2/P1"), default="Q1/Q1")
+parser.add_argument("--speed", type=number(POSITIVE), default=1.0, help="plate speed [m/s] (default %(default)g)")
+parser.add_argument("--depth", type=number(Range(0.0, 0.5, low_open=True)), default=0.06,
+                    help="final settlement [m] (default %(default)g)")
+parser.add_argument("--mass-damping", type=number(NON_NEGATIVE), default=10.0,
+                    help="c_m [1/s] on both scales (003 gives none; default %(default)g)")
+parser.add_argument("--substeps", type=number(Range(1, 1000, integer=True)), default=None,
+                    help="DEM sub-steps per coarse step m (default: the largest the coarse stable step allows)")
+parser.add_argument("--domain-width", type=number(Range(6.0, 200.0)), default=18.0,
+                    help="width of the foundation [m] (003: 18); the DEM region stays 6 m wide, centred")
+parser.add_argument("--continuum", choices=("003", "lattice"), default="003",
+                    help="continuum moduli: 003's (E = 500 MPa, nu = 0.2, G_c = 70 MPa) or, for packings A/B, the "
+                         "orientation average of the rotated square lattice's affine moduli (G = (kN + kS)/4, "
+                         "lambda = (kN - kS)/4, mu_c = kS/2)")
+parser.add_argument("--rough", action="store_true", help="rough plate (Coulomb friction mu_s; default smooth)")
+parser.add_argument("--record-every", type=number(Range(1, integer=True)), default=5,
+                    help="coarse steps between two history rows (default %(default)s)")
+parser.add_argument("--output-every", type=number(Range(1, integer=True)), default=10,
+                    help="history rows between two XDMF/VTK outputs (default %(default)s)")
+parser.add_argument("--seed", type=number(Range(0, integer=True)), default=0, help="packing C's seed")
+parser.add_argument("--threads", type=number(Range(1, 256, integer=True)), default=1,
+                    help="Numba threads of the DEM kernel (default 1: a region of a few thousand grains gains "
+                         "nothing from threads, and loses 10-40x on a loaded machine)")
+cli.add_output_options(parser, "results/footing_bsm")
+args = cli.parse(parser)
+comm = MPI.COMM_WORLD
+ROOT = 0
+
+# %% 003's foundation: geometry, continuum moduli (section 5; E = 500 MPa, nu = 0.2, G_c = 70
+# MPa, l_c = 0.05 m in the G-reading of eq 20: the project's l_c = l_c sqrt(G / (2 G_c)))
+WIDTH, HEIGHT, PLATE = args.domain_width, 9.0, 2.0
+BOX = (0.5 * WIDTH - 3.0, 0.5 * WIDTH + 3.0, 6.0, 9.0)
+E_MOD, NU, G_C, L_C = 500e6, 0.2, 70e6, 0.05
+G = E_MOD / (2 * (1 + NU))
+LAMBDA = 2 * G * NU / (1 - 2 * NU)
+if args.continuum == "lattice":
+    # the +-45 degree square lattice (l = 2 r, area 4 r^2 per disc, two contacts per disc):
+    # C1111 = C1212 = (kN + kS)/2, C1122 = C1221 = (kN - kS)/2, C2121 = C1111; cubic, so the
+    # isotropic moduli are orientation averages (bulk, mean shear, skew part)
+    if args.packing == "C":
+        parser.refuse("--continuum lattice is defined for the lattices A and B only")
+    from demcell.specimen.footing import KN, KS
+    G, LAMBDA, G_C = (KN + KS) / 4.0, (KN - KS) / 4.0, KS / 2.0
+elasticity = MicropolarElasticity(mu=G, lmbda=LAMBDA, mu_c=G_C, l_c=L_C * math.sqrt(G / (2 * G_C)))
+guard = RunGuard(comm, os.path.join(args.out, "summary.json"), label="footing_bsm",
+                 entries={"packing": args.packing, "element": args.element, "speed": args.speed,
+                          "depth": args.depth, "mass_damping": args.mass_damping, "ranks": comm.size})
+
+# %% the mesh, and the region checked against it before any work (whole elements)
+cell = dolfinx.mesh.CellType.quadrilateral if args.element == "Q1/Q1" else dolfinx.mesh.CellType.triangle
+mesh = dolfinx.mesh.create_rectangle(comm, [np.array([0.0, 0.0]), np.array([WIDTH, HEIGHT])],
+                                     [int(round(WIDTH)), int(round(HEIGHT))], cell)
+try:
+    inactive = region_cells(mesh, BOX)
+except ValueError as error:
+    guard.refuse(error)
+
+# %% the grains: the full-domain packing (the same grains a full-DEM run uses), cut to the
+# region and its virtual layer (rank 0 builds, every rank gets the arrays)
+t_setup = time.perf_counter()
+packing = None
+if comm.rank == ROOT:
+    from demcell.specimen.footing import DENSITY, footing_packing
+    discs = footing_packing(args.packing, (0.0, WIDTH, 0.0, HEIGHT), seed=args.seed)
+    packing = (discs.position, discs.radius, discs.mass, discs.inertia, discs.solid_fraction(), DENSITY)
+position, radius, mass, inertia, solid_fraction, density = comm.bcast(packing, root=ROOT)
+region = build_region(position, radius, mass, inertia, BOX, (0.0, WIDTH, 0.0, HEIGHT),
+                      layer="touching" if args.packing in ("A", "B") else "diameter")
+n_full = len(radius)
+print0(comm, f"packing {args.packing}: {region.n_real} grains in the DEM region + {region.n_virtual} virtual "
+             f"(full domain: {n_full} grains)")
+
+# %% the continuum: mass rho_s * solid fraction, micro-inertia <r^2>/2 (003-bsm.md section 5 [R])
+rho_c = density * solid_fraction
+j = 0.5 * float(np.mean(radius ** 2))
+dirichlet = [("u1", lambda x: np.isclose(x[1], 0.0), 0.0), ("u2", lambda x: np.isclose(x[1], 0.0), 0.0),
+             ("u1", lambda x: np.isclose(x[0], 0.0) | np.isclose(x[0], WIDTH), 0.0)]
+continuum = ExplicitCosserat(mesh, elasticity, rho_c, j, mass_damping=args.mass_damping, element=args.element,
+                             inactive_cells=inactive, dirichlet=dirichlet)
+
+# %% the DEM region on rank 0: Table 1 law, the plate on the grains under it, virtual grains held
+engine, engine_info = None, None
+if comm.rank == ROOT:
+    from demcell.specimen.footing import footing_specimen
+    from demcell.specimen.specimens import discs_from
+    region_discs = discs_from(region.position, region.radius, mass=region.mass)
+    engine, engine_info = footing_specimen(args.packing, WIDTH, HEIGHT, PLATE, rough=args.rough,
+                                           mass_damping=args.mass_damping, discs=region_discs, lateral="none",
+                                           threads=args.threads)
+    engine.hold(region.is_virtual)
+dt_fine = comm.bcast(engine.options.dt if engine is not None else None, root=ROOT)
+stable = continuum.stable_time_step()  # without the grains' mass: the coupler checks again with it
+substeps = args.substeps or max(1, int(0.9 * stable["power"] / dt_fine))
+try:
+    coupler = BridgingCoupler(continuum, region, engine, dt_fine * substeps, substeps, fine_dt=dt_fine)
+except ValueError as error:
+    guard.refuse(error)
+dt = coupler.dt
+n_steps = int(math.ceil(args.depth / (args.speed * dt) - 1e-9))
+print0(comm, f"coarse dt = {dt:.3g} s (stable {coupler.stable_dt['power']:.3g} s), m = {substeps} DEM sub-steps "
+             f"of {dt_fine:.3g} s, {n_steps} coarse steps")
+guard.progress(grains_real=region.n_real, grains_virtual=region.n_virtual, grains_full_domain=n_full,
+               dt=dt, substeps=substeps, dt_fine=dt_fine, stable_dt=coupler.stable_dt, region=region.summary())
+setup_seconds = time.perf_counter() - t_setup
+
+# %% outputs as the run goes
+history = CsvLog(comm, os.path.join(args.out, "history.csv"),
+                 ["step", "time", "settlement_mm", "load_kN_per_m", "mismatch_over_rmin", "fe_kinetic_J_per_m"])
+xdmf = dolfinx.io.XDMFFile(comm, os.path.join(args.out, "continuum.xdmf"), "w")
+xdmf.write_mesh(mesh)
+u_space, u_map = continuum.subspace("u")
+phi_space, phi_map = continuum.subspace("phi")
+u_out = dolfinx.fem.Function(u_space, name="u")
+phi_out = dolfinx.fem.Function(phi_space, name="phi")
+outputs = {"index": 0}
+
+
+def write_fields():
+    disp = continuum.fields["displacement"].x.array
+    u_out.x.array[:] = disp[u_map]
+    phi_out.x.array[:] = disp[phi_map]
+    xdmf.write_function(u_out, continuum.time)
+    xdmf.write_function(phi_out, continuum.time)
+    parts = coupler.fine_part()
+    if comm.rank == ROOT:
+        from demcell.specimen.files import write_particles_vtk
+        q, coarse, fine = parts
+        n = region.n_discs
+        full_q = coupler.grain_motion()
+        data = {"displacement": full_q[:, :2], "rotation": full_q[:, 2],
+                "coarse": np.zeros((n, 2)), "fine": np.zeros((n, 2)),
+                "virtual": region.is_virtual.astype(float)}
+        data["coarse"][region.real] = coarse[:, :2]
+        data["fine"][region.real] = fine[:, :2]
+        write_particles_vtk(os.path.join(args.out, f"grains_{outputs['index']:04d}.vtk"),
+                            region.position + full_q[:, :2], region.radius, data)
+    outputs["index"] += 1
+
+
+y0 = comm.bcast(engine.plate_position()[2] if engine is not None else None, root=ROOT)
+rows = []
+
+
+def record():
+    plate = None
+    if comm.rank == ROOT:
+        plate = (y0 - engine.plate_position()[2], -float(engine.plate_reaction()[1]))
+    settlement, load = comm.bcast(plate, root=ROOT)
+    mismatch = comm.bcast(coupler.last_mismatch, root=ROOT)
+    row = {"step": coupler.steps, "time": continuum.time, "settlement_mm": 1e3 * settlement,
+           "load_kN_per_m": 1e-3 * load, "mismatch_over_rmin": mismatch,
+           "fe_kinetic_J_per_m": continuum.kinetic_energy()}
+    history.write(row)
+    rows.append(row)
+    return row
+
+
+# %% loading: the plate goes down at --speed; each coarse step = predictor, m DEM sub-steps,
+# projected forces, corrector
+if comm.rank == ROOT:
+    engine.set_plate_velocity(0.0, -args.speed)
+record()
+write_fields()
+t0, c0 = time.perf_counter(), time.process_time()
+try:
+    for step in range(1, n_steps + 1):
+        with guard.deferred():
+            recording = step % args.record_every == 0 or step == n_steps
+            coupler.step(diagnose=recording)
+            if recording:
+                row = record()
+                guard.progress(settlement_mm=row["settlement_mm"], load_kN_per_m=row["load_kN_per_m"])
+                if (len(rows) - 1) % args.output_every == 0 or step == n_steps:
+                    write_fields()
+except (BridgingStopped, DynamicsError) as error:
+    xdmf.close()
+    history.close()
+    guard.stop(error)
+wall, cpu = time.perf_counter() - t0, time.process_time() - c0
+xdmf.close()
+history.close()
+
+# %% summary and figure
+timing = coupler.timing_summary()
+loads = np.array([r["load_kN_per_m"] for r in rows])
+settlements = np.array([r["settlement_mm"] for r in rows])
+peak = int(np.argmax(loads))
+summary = {"packing": args.packing, "element": args.element, "speed": args.speed, "depth": args.depth,
+           "mass_damping": args.mass_damping, "rough": args.rough, "ranks": comm.size, "continuum": args.continuum,
+           "moduli": {"G": G, "lambda": LAMBDA, "G_c": G_C},
+           "grains_real": region.n_real, "grains_virtual": region.n_virtual, "grains_full_domain": n_full,
+           "grain_ratio_full_over_bsm": n_full / (region.n_real + region.n_virtual),
+           "dt": dt, "substeps": substeps, "dt_fine": dt_fine, "coarse_steps": n_steps,
+           "stable_dt": coupler.stable_dt, "final_settlement_mm": float(settlements[-1]),
+           "final_load_kN_per_m": float(loads[-1]), "peak_load_kN_per_m": float(loads[peak]),
+           "peak_settlement_mm": float(settlements[peak]),
+           "max_mismatch_over_rmin": comm.bcast(coupler.max_mismatch, root=ROOT),
+           "wall_s": wall, "cpu_s": cpu, "setup_wall_s": setup_seconds,
+           "coupler_setup_wall_s": coupler.setup_seconds, "time_split": timing,
+           "load_average": os.getloadavg(), "region": region.summary(),
+           "l_c_project": elasticity.l_c, "rho_c": rho_c, "micro_inertia": j}
+if comm.rank == ROOT:
+    plt = pyplot()
+    fig, ax = plt.subplots(figsize=(5.5, 4))
+    ax.plot(settlements, loads, "-", label=f"BSM, packing {args.packing}")
+    ax.set_xlabel("settlement [mm]")
+    ax.set_ylabel("plate load [kN/m]")
+    ax.legend()
+    ax.set_title(f"strip footing, {args.speed:g} m/s, c_m = {args.mass_damping:g} 1/s")
+    fig.tight_layout()
+    fig.savefig(os.path.join(args.out, "load_settlement.png"), dpi=120)
+guard.finish(summary)
+print0(comm, f"load at {settlements[-1]:.1f} mm: {loads[-1]:.1f} kN/m (peak {loads[peak]:.1f} kN/m at "
+             f"{settlements[peak]:.1f} mm); {wall:.1f} s wall, DEM {timing['wall_s']['dem']:.1f} s, "
+             f"projection {timing['wall_s']['projection']:.1f} s, FE {timing['wall_s']['fe']:.1f} s, "
+             f"interface {timing['wall_s']['interface']:.1f} s")

@@ -1,0 +1,88 @@
+"""The coupled bridging-scale loop (003 eqs 25-34) on a hexagonal patch whose continuum has
+the lattice's exact moduli (benchmarks/bsm/patch_test.py): ghost forces of the affine state
+shrink with r / h, a uniformly compressed patch relaxes to the affine state with a vanishing
+fine part, and bad input or escaping grains stop with their cause named."""
+import math
+
+import numpy as np
+import pytest
+
+from benchmarks.bsm.patch_test import CASES, build, ghost_forces
+from cosserat_fenicsx.bridging.coupler import BridgingCoupler, BridgingStopped
+from cosserat_fenicsx.validation import InputError
+
+from mpi4py import MPI
+
+ROOT = MPI.COMM_WORLD.rank == 0
+
+
+def test_ghost_forces_shrink_with_grain_size():
+    coarse = ghost_forces(0.1, CASES["confined"])
+    fine = ghost_forces(0.05, CASES["confined"])
+    # measured: 18.8 % and 5.9 % of the largest interface nodal force (r / h = 0.1, 0.05)
+    assert fine["residual_over_interface"] < 0.08
+    assert fine["residual_over_interface"] < 0.75 * coarse["residual_over_interface"]
+    # no spurious couple: the affine state has no rotation gradient
+    assert fine["max_moment_residual"] < 1e-6 * fine["max_interface_force_N_per_m"]
+
+
+def test_confined_patch_relaxes_to_the_affine_state():
+    size, strain = 4.0, 1e-4
+    delta = strain * size
+    bcs = [("u1", lambda x: np.isclose(x[0], 0.0), 0.0), ("u1", lambda x: np.isclose(x[0], size), -delta),
+           ("u2", lambda x: np.isclose(x[1], 0.0), 0.0), ("u2", lambda x: np.isclose(x[1], size), -delta)]
+    continuum, region, engine, coupler, _ = build(0.1, mass_damping=600.0, dirichlet=bcs)
+    coupler.run(250)
+    parts = coupler.fine_part()
+    if ROOT:
+        q, nd, fine = parts
+        affine = -strain * region.position[region.real]
+        # grains near the affine field (the ghost forces bend it near the interface)
+        assert np.abs(q[:, :2] - affine).max() < 0.03 * delta
+        assert np.abs(fine[:, :2]).max() < 0.01 * delta
+        assert coupler.last_mismatch < 1e-3
+    for name, comp in (("u1", 0), ("u2", 1)):
+        space, dofs = continuum.subspace(name)
+        x = space.tabulate_dof_coordinates()[:, :2]
+        d = continuum.displacement.array[dofs[dofs < continuum.displacement.getLocalSize()]]
+        # measured 4.0 % (r / h = 0.1): the ghost forces of the interface nodes
+        assert np.abs(d + strain * x[dofs < continuum.displacement.getLocalSize(), comp]).max() < 0.06 * delta
+    timing = coupler.timing_summary()
+    assert set(timing["wall_s"]) == {"dem", "projection", "fe", "interface"}
+
+
+def test_coarse_step_above_the_stable_one_is_refused():
+    continuum, region, engine, coupler, _ = build(0.1)
+    stable = coupler.stable_dt["power"]
+    m = math.ceil(1.5 * stable / coupler.dt_fine)
+    with pytest.raises(InputError, match="above the continuum's stable step"):
+        BridgingCoupler(continuum, region, engine, coupler.dt_fine * m, m, fine_dt=coupler.dt_fine)
+
+
+def test_mismatched_dem_step_is_refused():
+    continuum, region, engine, coupler, _ = build(0.1)
+    with pytest.raises(InputError, match="dt / substeps"):
+        BridgingCoupler(continuum, region, engine, coupler.dt, coupler.substeps, fine_dt=0.5 * coupler.dt_fine)
+
+
+def test_grains_leaving_the_region_stop_the_run():
+    continuum, region, engine, coupler, _ = build(0.1)
+    if ROOT:
+        # throw one real grain out of the region at 2000 m/s (the region lives on rank 0)
+        k = int(np.argmin(engine.order != 0))
+        engine.state.velocity[k] = (0.0, -2000.0)
+    with pytest.raises(BridgingStopped, match="left the DEM region|DEM region stopped"):
+        coupler.run(20)
+
+
+def test_compressive_pulse_crosses_the_interface():
+    """T4/T5 (benchmarks/bsm/wave.py): a plane P pulse of wavelength ~ 16 h, 80 r through a
+    region with the continuum's exact moduli: small reflection, energy kept."""
+    from benchmarks.bsm.wave import run
+    t, bsm, c_p = run(1.0)
+    energies = run.energies
+    _, fe, _ = run(1.0, coupled=False)
+    window = t > 4.0 / c_p
+    # measured 0.68 % of the step and 0.46 % largest energy deviation
+    assert np.max(np.abs(bsm[window] - fe[window])) < 0.015 * 1e-4
+    assert np.max(np.abs(energies - energies[0])) < 0.01 * energies[0]

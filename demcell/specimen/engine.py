@@ -29,7 +29,7 @@ from ..contact_law import ContactLaw
 from ..errors import InputError, SolveError
 from .boundary import boundary_loop, escaped_discs, membrane_forces, pressure_forces, side_chains
 from .contacts import (P_PARALLEL_MIN, P_WALL_DN, P_WALL_RATIO, branch, build_pairs, contact_geometry, elastic_energy,
-                       law_scalars, law_vector, merge_history, one_pair, pairs_of_j, spatial_order)
+                       gather_disc, law_scalars, law_vector, merge_history, one_pair, pairs_of_j, spatial_order)
 from .integrate import block, n_blocks
 from .plate import PL_ACTIVE, PL_VX, PL_VY, PL_X0, PL_Y, Plate, move_plate, no_plate, plate_candidates, plate_forces
 from .state import SpecimenOptions, SpecimenState
@@ -39,7 +39,8 @@ DONE, REBUILD, NONFINITE = range(3)
 #: inertial number above which a run is no longer quasi-static (warned once)
 INERTIAL_LIMIT = 1.0e-3
 # slots of the control vector of the chunk kernel
-(C_GX, C_GY, C_DAMP, C_SKIN, C_PRESSURE, C_EM, C_WIDTH, C_LATERAL, C_WALL_MU, C_MASS_DAMP, N_CTRL) = range(11)
+(C_GX, C_GY, C_DAMP, C_SKIN, C_PRESSURE, C_EM, C_WIDTH, C_LATERAL, C_WALL_MU, C_MASS_DAMP, C_PATH_STEP, C_SKIP_HELD,
+ N_CTRL) = range(13)
 
 
 def check_time_step(dt, mass, kn):
@@ -67,15 +68,73 @@ def lateral_forces(position, radius, chain, chain_start, pressure, stiffness, ou
             membrane_forces(position, radius, chain, chain_start, stiffness, out)
 
 
+@njit(cache=True)
+def external_loads(cand_disc, cand_wall, cand_fs, chain, chain_start, plate_cand, position, velocity, spin, radius,
+                   mass, wall_position, wall_velocity, wall_force, on_wall, plate, plate_fs, plate_force,
+                   external_force, external_moment, kn, ks, wall_dn, wall_ratio, clip, wall_mu, dt, membrane,
+                   pressure, stiffness):
+    """Step 2 of the module docstring: the walls, the plate and the free sides' pressure and
+    membrane into external_force, external_moment (only the discs that may carry a load are
+    reset), wall_force, plate_force."""
+    for c in range(cand_disc.shape[0]):
+        p = cand_disc[c]
+        external_force[p, 0] = 0.0
+        external_force[p, 1] = 0.0
+        external_moment[p] = 0.0
+        on_wall[p] = 0
+    for c in range(chain.shape[0]):
+        external_force[chain[c], 0] = 0.0
+        external_force[chain[c], 1] = 0.0
+    for c in range(plate_cand.shape[0]):
+        p = plate_cand[c]
+        external_force[p, 0] = 0.0
+        external_force[p, 1] = 0.0
+        external_moment[p] = 0.0
+    wall_forces(cand_disc, cand_wall, cand_fs, position, velocity, spin, radius, mass, wall_position,
+                wall_velocity, kn, ks, wall_dn, wall_ratio, clip, wall_mu, dt, external_force, external_moment,
+                wall_force, on_wall)
+    if plate_cand.shape[0] > 0:
+        plate_forces(plate_cand, position, velocity, spin, radius, mass, plate, plate_fs, kn, ks, wall_dn,
+                     wall_ratio, clip, dt, external_force, external_moment, plate_force)
+    else:
+        plate_force[0] = 0.0
+        plate_force[1] = 0.0
+    if membrane:
+        lateral_forces(position, radius, chain, chain_start, pressure, stiffness, external_force)
+
+
+@njit(cache=True)
+def pair_law(k, skip_held, held, geo, velocity, spin, radius, mass, pair_i, pair_j, touching, sliding, fn, fs, mr,
+             work, kn, ks, mu, kr, eta_r, xi_n, xi_t, meff, pair_mass, clip, total, rot, dt):
+    """The contact law of pair k (contacts.one_pair), or, with skip_held and both discs held,
+    no contact at all (history and force cleared: two held discs move nothing, and a caller
+    that does not want their mutual force need not subtract it)."""
+    if skip_held and held[pair_i[k]] != 0 and held[pair_j[k]] != 0:
+        touching[k] = 0
+        sliding[k] = 0
+        fn[k] = 0.0
+        fs[k] = 0.0
+        mr[k] = 0.0
+        work[k, 0] = 0.0
+        work[k, 1] = 0.0
+        work[k, 2] = 0.0
+        work[k, 3] = 0.0
+    else:
+        one_pair(k, geo, velocity, spin, radius, mass, pair_i, pair_j, touching, sliding, fn, fs, mr, work, kn, ks,
+                 mu, kr, eta_r, xi_n, xi_t, meff, pair_mass, clip, total, rot, dt)
+
+
 @njit(cache=True, parallel=True)
 def advance_steps(n_steps, position, velocity, rotation, spin, radius, mass, inertia, external_force,
                   external_moment, on_wall, held, pair_i, pair_j, touching, sliding, fn, fs, mr, work, geo, row, jstart,
                   jcol, cand_disc, cand_wall, cand_fs, chain, chain_start, build_position, build_wall, wall_position,
                   wall_velocity, wall_active, wall_force, mode, velocity_prog, target, gain, vmax, par, ctrl, block_max,
-                  plate, plate_cand, plate_fs, plate_force, build_plate, net):
+                  plate, plate_cand, plate_fs, plate_force, build_plate, net, path):
     """Up to n_steps steps (module docstring); returns (steps done, status): DONE, REBUILD
     (the neighbour list is stale) or NONFINITE. net (n, 3): each disc's contact plus
-    external force and moment of the last step.
+    external force and moment of the last step. path (n, 9): the held discs' path when
+    ctrl[C_PATH_STEP] >= 0 (the steps of it done before this call; integrate.follow_path);
+    ctrl[C_SKIP_HELD]: no contact between two held discs (``pair_law``).
 
     The two parallel loops (pairs, then blocks of discs) are written here rather than called
     (contacts.pair_forces, integrate.block are their bodies): a cached Numba kernel calling
@@ -98,57 +157,39 @@ def advance_steps(n_steps, position, velocity, rotation, spin, radius, mass, ine
     membrane = ctrl[C_LATERAL] > 0.5
     wall_mu = ctrl[C_WALL_MU]
     cm = ctrl[C_MASS_DAMP]
+    path_step0 = ctrl[C_PATH_STEP]
+    skip_held = ctrl[C_SKIP_HELD] > 0.5
     for s in range(n_steps):
+        path_t = (path_step0 + s + 1) * dt if path_step0 >= 0.0 else -1.0
         # 1. contact law per pair
         if parallel:
             for k in prange(n_pairs):
                 branch(k, position, pair_i, pair_j, period, geo)
             for k in prange(n_pairs):
-                one_pair(k, geo, velocity, spin, radius, mass, pair_i, pair_j, touching, sliding, fn, fs, mr,
-                          work, kn, ks, mu, kr, eta_r, xi_n, xi_t, meff, pair_mass, clip, total, rot, dt)
+                pair_law(k, skip_held, held, geo, velocity, spin, radius, mass, pair_i, pair_j, touching, sliding, fn,
+                         fs, mr, work, kn, ks, mu, kr, eta_r, xi_n, xi_t, meff, pair_mass, clip, total, rot, dt)
         else:
             for k in range(n_pairs):
                 branch(k, position, pair_i, pair_j, period, geo)
             for k in range(n_pairs):
-                one_pair(k, geo, velocity, spin, radius, mass, pair_i, pair_j, touching, sliding, fn, fs, mr,
-                          work, kn, ks, mu, kr, eta_r, xi_n, xi_t, meff, pair_mass, clip, total, rot, dt)
+                pair_law(k, skip_held, held, geo, velocity, spin, radius, mass, pair_i, pair_j, touching, sliding, fn,
+                         fs, mr, work, kn, ks, mu, kr, eta_r, xi_n, xi_t, meff, pair_mass, clip, total, rot, dt)
         # 2. external loads: only the discs that may carry one are reset
-        for c in range(cand_disc.shape[0]):
-            p = cand_disc[c]
-            external_force[p, 0] = 0.0
-            external_force[p, 1] = 0.0
-            external_moment[p] = 0.0
-            on_wall[p] = 0
-        for c in range(chain.shape[0]):
-            external_force[chain[c], 0] = 0.0
-            external_force[chain[c], 1] = 0.0
-        for c in range(plate_cand.shape[0]):
-            p = plate_cand[c]
-            external_force[p, 0] = 0.0
-            external_force[p, 1] = 0.0
-            external_moment[p] = 0.0
-        wall_forces(cand_disc, cand_wall, cand_fs, position, velocity, spin, radius, mass, wall_position,
-                    wall_velocity, kn, ks, wall_dn, wall_ratio, clip, wall_mu, dt, external_force, external_moment,
-                    wall_force, on_wall)
-        if plate_cand.shape[0] > 0:
-            plate_forces(plate_cand, position, velocity, spin, radius, mass, plate, plate_fs, kn, ks, wall_dn,
-                         wall_ratio, clip, dt, external_force, external_moment, plate_force)
-        else:
-            plate_force[0] = 0.0
-            plate_force[1] = 0.0
-        if membrane:
-            lateral_forces(position, radius, chain, chain_start, pressure, stiffness, external_force)
+        external_loads(cand_disc, cand_wall, cand_fs, chain, chain_start, plate_cand, position, velocity, spin, radius,
+                       mass, wall_position, wall_velocity, wall_force, on_wall, plate, plate_fs, plate_force,
+                       external_force, external_moment, kn, ks, wall_dn, wall_ratio, clip, wall_mu, dt, membrane,
+                       pressure, stiffness)
         # 3. gather and leapfrog, the staleness bound reduced over the blocks in order
         if parallel:
             for b in prange(nb):
                 block_max[b] = block(b, row, jstart, jcol, work, position, velocity, rotation, spin, mass, inertia,
                                      external_force, external_moment, gx, gy, damp, cm, dt, rot, build_position,
-                                     held, net)
+                                     held, net, path, path_t)
         else:
             for b in range(nb):
                 block_max[b] = block(b, row, jstart, jcol, work, position, velocity, rotation, spin, mass, inertia,
                                      external_force, external_moment, gx, gy, damp, cm, dt, rot, build_position,
-                                     held, net)
+                                     held, net, path, path_t)
         u2 = 0.0
         for b in range(nb):
             if block_max[b] > u2:
@@ -167,6 +208,34 @@ def advance_steps(n_steps, position, velocity, rotation, spin, radius, mass, ine
         if 2.0 * umax > skin or umax + wmax > skin:
             return s + 1, REBUILD
     return n_steps, DONE
+
+
+@njit(cache=True)
+def current_forces(position, velocity, spin, radius, mass, external_force, external_moment, on_wall, held, pair_i,
+                   pair_j, touching, sliding, fn, fs, mr, work, geo, row, jstart, jcol, cand_disc, cand_wall, cand_fs,
+                   chain, chain_start, wall_position, wall_velocity, wall_force, par, ctrl, plate, plate_cand, plate_fs,
+                   plate_force, net):
+    """Steps 1-2 of ``advance_steps`` and the gather on the configuration as it is: net (n, 3)
+    the contact plus external force and moment of every disc, what the next step will use
+    (the same law, the same sums in the same order). The history arguments (touching,
+    sliding, fn, fs, mr, cand_fs, plate_fs) and external_force, external_moment, on_wall,
+    wall_force, plate_force are modified: pass copies. Serial."""
+    kn, ks, mu, kr, eta_r, xi_n, xi_t, meff, pair_mass, clip, total, rot, dt, period = law_scalars(par)
+    skip_held = ctrl[C_SKIP_HELD] > 0.5
+    for k in range(pair_i.shape[0]):
+        branch(k, position, pair_i, pair_j, period, geo)
+    for k in range(pair_i.shape[0]):
+        pair_law(k, skip_held, held, geo, velocity, spin, radius, mass, pair_i, pair_j, touching, sliding, fn, fs, mr,
+                 work, kn, ks, mu, kr, eta_r, xi_n, xi_t, meff, pair_mass, clip, total, rot, dt)
+    external_loads(cand_disc, cand_wall, cand_fs, chain, chain_start, plate_cand, position, velocity, spin, radius,
+                   mass, wall_position, wall_velocity, wall_force, on_wall, plate, plate_fs, plate_force,
+                   external_force, external_moment, kn, ks, par[P_WALL_DN], par[P_WALL_RATIO], clip,
+                   ctrl[C_WALL_MU], dt, ctrl[C_LATERAL] > 0.5, ctrl[C_PRESSURE], ctrl[C_EM])
+    for p in range(position.shape[0]):
+        fx, fy, mo = gather_disc(p, row, jstart, jcol, work)
+        net[p, 0] = fx + external_force[p, 0]
+        net[p, 1] = fy + external_force[p, 1]
+        net[p, 2] = mo + external_moment[p]
 
 
 @dataclass
@@ -255,6 +324,8 @@ class Specimen:
         self.plate_cand = np.zeros(0, np.int64)
         self.build_plate = np.zeros(2)
         self.net = np.zeros((state.n_discs, 3))
+        self.path = np.zeros((state.n_discs, 9))
+        self.skip_held_pairs = False
         self._held_target = None
         self._warned_inertial = False
         self._warned_sides = False
@@ -532,7 +603,7 @@ class Specimen:
         if opt.threads is not None:
             import numba
             numba.set_num_threads(min(opt.threads, numba.config.NUMBA_NUM_THREADS))
-        key = (tuple(self.controls), opt, self.pressure)
+        key = (tuple(self.controls), opt, self.pressure, bool(self.skip_held_pairs))
         cached = getattr(self, "_prepared", None)
         if reuse and cached is not None and cached[0] == key:
             return cached[1], cached[2]
@@ -546,6 +617,8 @@ class Specimen:
         ctrl[C_LATERAL] = 1.0 if opt.lateral == "membrane" else 0.0
         ctrl[C_WALL_MU] = opt.wall_friction
         ctrl[C_MASS_DAMP] = opt.mass_damping
+        ctrl[C_PATH_STEP] = -1.0
+        ctrl[C_SKIP_HELD] = 1.0 if self.skip_held_pairs else 0.0
         self._prepared = (key, programme, ctrl)
         return programme, ctrl
 
@@ -566,7 +639,10 @@ class Specimen:
                                      self.cand_fs, self.chain, self.chain_start, self.build_position, self.build_wall,
                                      st.wall_position, st.wall_velocity, st.wall_active, st.wall_force, mode, vel,
                                      target, gain, vmax, self.par, ctrl, self.block_max, self.plate_vector,
-                                     self.plate_cand, self.plate_fs, self.plate_force, self.build_plate, self.net)
+                                     self.plate_cand, self.plate_fs, self.plate_force, self.build_plate, self.net,
+                                     self.path)
+        if ctrl[C_PATH_STEP] >= 0.0:
+            ctrl[C_PATH_STEP] += done
         self.cpu_seconds += _time.process_time() - c0
         self.wall_seconds += _time.perf_counter() - w0
         self.pair_updates += done * st.n_pairs
@@ -604,6 +680,57 @@ class Specimen:
         st.velocity[idx] = (x - st.position[idx]) / dt
         st.spin[idx] = (theta - st.rotation[idx]) / dt if self.law.rotations else 0.0
         self._held_target = (idx, x, theta)
+
+    def follow_held_path(self, n_steps, start, velocity, acceleration):
+        """n_steps steps (as ``advance``) with the held discs on the constant-acceleration path
+        x(t) = start + velocity t + acceleration t^2 / 2, t from the call's start (003 eqs.
+        25-26, the sub-steps of one coarse step): after step s they sit on x((s + 1) dt), and
+        their half-step velocity is x((s + 1) dt) - x(s dt) over dt (the first step's absorbs
+        any jump from where they are to `start`). start, velocity, acceleration: (n, 3)
+        [m, m/s, m/s^2 for x, y; rad, rad/s, rad/s^2 for the rotation] in the original disc
+        order, only the held rows read. One call = n_steps calls of drive_held + advance(1),
+        except that the contact law of a step sees the held discs' velocity of the step
+        before (as a free disc's), not that of the step ahead."""
+        n = self.state.n_discs
+        idx = np.flatnonzero(self.held)
+        if idx.size == 0:
+            raise InputError("follow_held_path: no disc is held (Specimen.hold first)")
+        path = self.path
+        for c, (name, value) in enumerate((("start", start), ("velocity", velocity),
+                                           ("acceleration", acceleration))):
+            path[:, 3 * c:3 * c + 3] = checks.array(name, value, (n, 3))[self.order]
+        self._held_target = None
+        programme, ctrl = self._prepare(reuse=True)
+        ctrl[C_PATH_STEP] = 0.0
+        try:
+            self.advance(n_steps)
+        finally:
+            ctrl[C_PATH_STEP] = -1.0
+
+    def set_skip_held_pairs(self, skip):
+        """skip True: no contact between two held discs from the next step on (their history
+        cleared, no force in ``disc_forces``: a coupler that drops those contacts need not
+        subtract them). Default False (demcell.frame's held frame copies keep theirs)."""
+        self.skip_held_pairs = bool(skip)
+
+    def forces_now(self):
+        """(n, 3), original order: the net force and moment on every disc at the current
+        configuration (what ``disc_forces`` will report after the next step, the forces at the
+        start of that step), the contact history not committed. For a caller that needs the
+        forces at the end of its steps (the bridging coupler's corrector, 003 eq. 33)."""
+        st = self.state
+        programme, ctrl = self._prepare(reuse=True)
+        net = np.empty_like(self.net)
+        current_forces(st.position, st.velocity, st.spin, st.radius, st.mass, st.external_force.copy(),
+                       self.external_moment.copy(), st.on_wall.copy(), self.held, st.pair_i, st.pair_j,
+                       st.touching.copy(), st.sliding.copy(), st.fn.copy(), st.fs.copy(), st.mr.copy(),
+                       np.empty_like(self.work), np.empty_like(self.geo), self.row, self.jstart, self.jcol,
+                       self.cand_disc, self.cand_wall, self.cand_fs.copy(), self.chain, self.chain_start,
+                       st.wall_position, st.wall_velocity, st.wall_force.copy(), self.par, ctrl, self.plate_vector,
+                       self.plate_cand, self.plate_fs.copy(), self.plate_force.copy(), net)
+        out = np.empty_like(net)
+        out[self.order] = net
+        return out
 
     def disc_forces(self):
         """(n, 3) array, original disc order: the net force (f_x, f_y) [N/m] and moment [N m/m]

@@ -38,11 +38,14 @@ BLOCK = 512
 
 @njit(cache=True)
 def leapfrog_disc(p, fx, fy, mo, position, velocity, rotation, spin, mass, inertia, external_force,
-                  external_moment, gx, gy, damp, cm, dt, rot, build_position, held):
+                  external_moment, gx, gy, damp, cm, dt, rot, build_position, held, path, path_t):
     """Advance disc p by one step from its contact resultant (fx, fy [N], mo [N m]), or, if
-    held[p], by its prescribed velocity and spin; cm: mass damping c_m [1/s]; returns |x_p - x_p^build|^2 [m^2] (inf if
-    not finite)."""
+    held[p], by its prescribed velocity and spin (path_t < 0) or onto its path at the time
+    path_t (``follow_path``); cm: mass damping c_m [1/s]; returns |x_p - x_p^build|^2 [m^2]
+    (inf if not finite)."""
     if held[p] != 0:
+        if path_t >= 0.0:
+            return follow_path(p, position, velocity, rotation, spin, dt, rot, build_position, path, path_t)
         return drift_held(p, position, velocity, rotation, spin, dt, rot, build_position)
     fx += external_force[p, 0] + mass[p] * gx
     fy += external_force[p, 1] + mass[p] * gy
@@ -84,6 +87,29 @@ def drift_held(p, position, velocity, rotation, spin, dt, rot, build_position):
 
 
 @njit(cache=True)
+def follow_path(p, position, velocity, rotation, spin, dt, rot, build_position, path, t):
+    """A held disc put on its constant-acceleration path at the end of the step, time t [s]
+    since the path's start (003 eqs. 25-26: x = x0 + v0 t + a t^2 / 2, the same for the
+    rotation); path[p] = (x0, y0, theta0, vx, vy, omega, ax, ay, alpha). Its half-step
+    velocity and spin become (target - current) / dt: on the path, v0 + a (t - dt/2) exactly,
+    and after a jump of the path's start the step that absorbs it. Set AFTER the step's
+    forces, so the contact law saw the velocity of the step before, as for a free disc.
+    Returns |x_p - x_p^build|^2 [m^2] (inf if not finite)."""
+    half = 0.5 * t * t
+    for c in range(2):
+        target = path[p, c] + t * path[p, 3 + c] + half * path[p, 6 + c]
+        velocity[p, c] = (target - position[p, c]) / dt
+        position[p, c] = target
+    if rot:
+        target = path[p, 2] + t * path[p, 5] + half * path[p, 8]
+        spin[p] = (target - rotation[p]) / dt
+        rotation[p] = target
+    else:
+        spin[p] = 0.0
+    return displacement2(p, position, build_position)
+
+
+@njit(cache=True)
 def displacement2(p, position, build_position):
     """|x_p - x_p^build|^2 [m^2], inf if not finite."""
     ux = position[p, 0] - build_position[p, 0]
@@ -96,11 +122,11 @@ def displacement2(p, position, build_position):
 
 @njit(cache=True)
 def block(b, row, jstart, jcol, work, position, velocity, rotation, spin, mass, inertia, external_force,
-          external_moment, gx, gy, damp, cm, dt, rot, build_position, held, net):
+          external_moment, gx, gy, damp, cm, dt, rot, build_position, held, net, path, path_t):
     """Gather + leapfrog of the discs of block b (BLOCK discs); returns their largest
     |x - x_build|^2. net (n, 3): the contact resultant plus the external force and moment
     (walls, plate, pressure) of every disc, held ones included, written before the step
-    [N, N m]. The engine's time loop runs the blocks in a parallel loop and takes the
+    [N, N m]. path, path_t: the held discs' path (``follow_path``; path_t < 0: none). The engine's time loop runs the blocks in a parallel loop and takes the
     maximum over the blocks in block order."""
     n = position.shape[0]
     umax = 0.0
@@ -110,7 +136,7 @@ def block(b, row, jstart, jcol, work, position, velocity, rotation, spin, mass, 
         net[p, 1] = fy + external_force[p, 1]
         net[p, 2] = mo + external_moment[p]
         u2 = leapfrog_disc(p, fx, fy, mo, position, velocity, rotation, spin, mass, inertia, external_force,
-                           external_moment, gx, gy, damp, cm, dt, rot, build_position, held)
+                           external_moment, gx, gy, damp, cm, dt, rot, build_position, held, path, path_t)
         if u2 > umax:
             umax = u2
     return umax

@@ -1,0 +1,146 @@
+"""The held discs' path inside the kernel (003 eqs. 25-26: one engine call per coarse step),
+the forces at the current configuration without committing the history (003 eq. 33 needs
+F_int at q^{n+1}) and the option to drop the contacts between two held discs."""
+import numpy as np
+import pytest
+
+from demcell import ContactLaw
+from demcell.specimen import Specimen, SpecimenOptions, SpecimenState
+
+from tests.test_specimen_coupling import LAW, R, lattice_block
+
+pytestmark = pytest.mark.serial
+
+#: a law whose forces depend on the positions only (no tangential spring, no dashpot, no
+#: rolling): the held discs' velocity cannot enter a force
+POSITIONAL = ContactLaw(kn=2.5e8, ks=0.0, friction=0.5)
+DT = 2e-5
+
+
+def squeezed(law, reorder=True, mass_damping=0.0):
+    pos, r, m, inertia = lattice_block(squeeze=3e-4)
+    state = SpecimenState.from_discs(pos, r, m, inertia, box=(-1, 1, -1, 1), lateral="none")
+    spec = Specimen(state, law, SpecimenOptions(dt=DT, lateral="none", reorder=reorder, mass_damping=mass_damping))
+    held = np.zeros(state.n_discs, bool)
+    held[:12] = True                      # the two bottom rows: held-held contacts too
+    spec.hold(held)
+    return spec, held
+
+
+def original(spec, array):
+    out = np.empty_like(array)
+    out[spec.order] = array
+    return out
+
+
+def path_data(spec, rng):
+    n = spec.state.n_discs
+    start = np.zeros((n, 3))
+    start[:, :2] = original(spec, spec.state.position) + 1e-5 * R * rng.standard_normal((n, 2))
+    start[:, 2] = original(spec, spec.state.rotation)
+    velocity = np.column_stack([0.01 * rng.standard_normal((n, 2)), 0.1 * rng.standard_normal(n)])
+    acceleration = np.column_stack([50.0 * rng.standard_normal((n, 2)), 500.0 * rng.standard_normal(n)])
+    return start, velocity, acceleration
+
+
+def on_path(start, velocity, acceleration, t):
+    return start + t * velocity + 0.5 * t * t * acceleration
+
+
+def test_held_discs_follow_the_path_to_round_off():
+    spec, held = squeezed(LAW)
+    rng = np.random.default_rng(1)
+    for m in (1, 5, 7):
+        start, velocity, acceleration = path_data(spec, rng)
+        spec.follow_held_path(m, start, velocity, acceleration)
+        end = on_path(start, velocity, acceleration, m * DT)
+        np.testing.assert_allclose(original(spec, spec.state.position)[held], end[held, :2], rtol=0, atol=1e-15)
+        np.testing.assert_allclose(original(spec, spec.state.rotation)[held], end[held, 2], rtol=0, atol=1e-15)
+        if m == 1:
+            continue          # the first step absorbs the jump to the (perturbed) start
+        # the last half-step velocity is the path's at the step's middle, v0 + a (m - 1/2) dt
+        mid = velocity + (m - 0.5) * DT * acceleration
+        np.testing.assert_allclose(original(spec, spec.state.velocity)[held], mid[held, :2], rtol=1e-9, atol=1e-12)
+        np.testing.assert_allclose(original(spec, spec.state.spin)[held], mid[held, 2], rtol=1e-9, atol=1e-10)
+    assert spec.state.step == 13
+
+
+def test_one_call_equals_drive_held_and_advance_per_step():
+    """With a law that reads positions only, one call of m steps is m calls of drive_held +
+    advance(1) to round-off (with a tangential spring they differ by design: the old loop
+    showed the contact law the held discs' velocity of the step ahead)."""
+    rng = np.random.default_rng(2)
+    a, held = squeezed(POSITIONAL)
+    b, _ = squeezed(POSITIONAL)
+    m = 6
+    for _ in range(3):
+        start, velocity, acceleration = path_data(a, rng)
+        a.follow_held_path(m, start, velocity, acceleration)
+        for j in range(1, m + 1):
+            x = on_path(start, velocity, acceleration, j * DT)
+            b.drive_held(x[:, :2], x[:, 2])
+            b.advance(1)
+    scale = np.abs(b.state.position).max()
+    np.testing.assert_allclose(a.state.position, b.state.position, rtol=0, atol=1e-14 * scale)
+    np.testing.assert_allclose(a.state.velocity, b.state.velocity, rtol=0, atol=1e-9 * np.abs(b.state.velocity).max())
+    f = np.abs(b.disc_forces()).max()
+    assert f > 1e3
+    np.testing.assert_allclose(a.disc_forces(), b.disc_forces(), rtol=0, atol=1e-8 * f)
+
+
+def test_path_survives_neighbour_rebuilds():
+    """A path long enough to stale the neighbour list several times (the kernel returns to
+    Python mid-call): the held discs still end on it."""
+    spec, held = squeezed(LAW)
+    n = spec.state.n_discs
+    start = np.zeros((n, 3))
+    start[:, :2] = original(spec, spec.state.position)
+    velocity = np.zeros((n, 3))
+    velocity[:, 0] = 3.0
+    acceleration = np.zeros((n, 3))
+    acceleration[:, 1] = 100.0
+    rebuilds = spec.rebuilds
+    steps = 500
+    spec.follow_held_path(steps, start, velocity, acceleration)
+    assert spec.rebuilds > rebuilds + 2
+    end = on_path(start, velocity, acceleration, steps * DT)
+    np.testing.assert_allclose(original(spec, spec.state.position)[held], end[held, :2], rtol=0, atol=1e-14)
+
+
+def test_forces_now_are_the_next_steps_forces_and_commit_nothing():
+    spec, held = squeezed(LAW, mass_damping=50.0)
+    rng = np.random.default_rng(3)
+    start, velocity, acceleration = path_data(spec, rng)
+    spec.follow_held_path(4, start, velocity, acceleration)
+    st = spec.state
+    before = {k: getattr(st, k).copy() for k in ("position", "velocity", "touching", "sliding", "fn", "fs", "mr",
+                                                   "external_force", "wall_force")}
+    net_before = spec.disc_forces()
+    now = spec.forces_now()
+    for k, v in before.items():
+        assert np.array_equal(getattr(st, k), v), k
+    assert np.array_equal(spec.disc_forces(), net_before)
+    assert not np.array_equal(now, net_before)          # the configuration moved
+    spec.follow_held_path(1, start, velocity, acceleration)
+    assert np.array_equal(spec.disc_forces(), now)      # bit for bit: the same sums
+
+
+def test_skip_held_pairs_drops_exactly_their_forces():
+    """Skipping the held-held contacts changes nothing for the free discs (held discs ignore
+    forces) and removes from disc_forces exactly the held-held pair forces."""
+    from cosserat_fenicsx.bridging.coupler import virtual_pair_forces
+    rng = np.random.default_rng(4)
+    a, held = squeezed(LAW)
+    b, _ = squeezed(LAW)
+    b.set_skip_held_pairs(True)
+    for _ in range(3):
+        start, velocity, acceleration = path_data(a, rng)
+        a.follow_held_path(5, start, velocity, acceleration)
+        b.follow_held_path(5, start, velocity, acceleration)
+    assert np.array_equal(a.state.position, b.state.position)
+    pairs = virtual_pair_forces(a.state, a.order, held)
+    assert np.abs(pairs).max() > 1e3
+    f = np.abs(a.disc_forces()).max()
+    # (virtual_pair_forces takes the branch at the end of the step, the forces its start: 1e-5)
+    np.testing.assert_allclose(b.disc_forces(), a.disc_forces() - pairs, rtol=0, atol=1e-5 * f)
+    assert np.abs(virtual_pair_forces(b.state, b.order, held)).max() == 0.0

@@ -101,7 +101,9 @@ def ghost_forces(radius, gradient, increments=20):
     phi = 0.5 * (gradient[1, 0] - gradient[0, 1])
     contact_mean = None
     if comm.rank == 0:
+        # every grain driven onto the affine state, every contact's history built on the way
         engine.hold(np.ones(region.n_discs, dtype=bool))
+        engine.set_skip_held_pairs(False)
         rotation = np.full(region.n_discs, phi)
         for k in range(1, increments + 2):
             s = min(k, increments) / increments
@@ -109,6 +111,9 @@ def ghost_forces(radius, gradient, increments=20):
             engine.advance(1)
         touching = engine.state.touching != 0
         contact_mean = float(np.mean(np.hypot(engine.state.fn[touching], engine.state.fs[touching])))
+        # then the coupler's setting: the virtual grains held, their mutual contacts dropped
+        engine.hold(region.is_virtual)
+        engine.set_skip_held_pairs(True)
     contact_mean = comm.bcast(contact_mean, root=0)
     forces = coupler.coupling_forces() if comm.rank == 0 else None
     forces = comm.bcast(forces, root=0)

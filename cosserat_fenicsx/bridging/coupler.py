@@ -5,14 +5,16 @@ One coarse step t_n -> t_n+1 = t_n + dt with m DEM sub-steps dt_m = dt / m:
     1. interface data at t_n: u_V = N_V d^n, v_V = N_V v^n, a_V = N_V a^n at the virtual
        grains' reference centres (the coarse motion they follow);
     2. continuum predictor (eqs 31-32): d^{n+1}, v~^{n+1};
-    3. m DEM sub-steps (eqs 27-30, the specimen's leapfrog with mass damping c_m): before
-       sub-step j+1 the virtual grains are driven to
-           u_V^[j+1] = u_V + t v_V + t^2/2 a_V,   t = (j+1) dt_m          (eqs 25-26)
-       (constant coarse acceleration; translations and the Cosserat rotation, eq 17);
+    3. m DEM sub-steps (eqs 27-30, the specimen's leapfrog with mass damping c_m) in ONE
+       engine call: after sub-step j the virtual grains sit on
+           u_V^[j] = u_V + t v_V + t^2/2 a_V,   t = j dt_m                (eqs 25-26)
+       (constant coarse acceleration; translations and the Cosserat rotation, eq 17), their
+       half-step velocity the chord of that parabola, set after the step's forces;
     4. coarse forces f_c = N_R^T F_R + N_V^T F_V (eq 16): F_R the net contact and plate forces
        on the real grains, F_V the reactions of the real grains on the virtual ones (their
-       mutual contacts are dropped: the continuum carries that stiffness), both from the last
-       sub-step (spec decision 2: forces at q, not at N d + Q q);
+       mutual contacts are not computed: the continuum carries that stiffness), both at
+       q^{n+1}, the configuration after the last sub-step (spec decision 2: forces at q, not
+       at N d + Q q; the engine evaluates them without committing the contact history);
     5. continuum corrector (eqs 33-34) with f_c.
 
 The coarse mass of the DEM-region nodes is the grains' row-sum lumped N_R^T m, N_R^T J (eq 5
@@ -25,7 +27,7 @@ MPI: the DEM lives on rank `root` (0); the continuum is distributed. Grain force
 broadcast, interpolated values reduced to the root (shape_map.py).
 
 The DEM engine is used through the `FineScale` interface (demcell.specimen.Specimen with the
-bridging extensions: drive_held, advance, disc_forces); its state is read through
+bridging extensions: follow_held_path, forces_now, disc_forces, set_skip_held_pairs); its state is read through
 `state.position`, `state.rotation` and `order` (original index of each engine disc).
 """
 import abc
@@ -52,18 +54,23 @@ class FineScale(abc.ABC):
     Disc arrays are in the original order of the region (real grains, then virtual)."""
 
     @abc.abstractmethod
-    def drive_held(self, position, rotation):
-        """Prescribe the held (virtual) discs' motion so that after the next step they are at
-        position (n, 2) [m] and rotation (n,) [rad] (all discs; only the held rows are read)."""
+    def follow_held_path(self, n_steps, start, velocity, acceleration):
+        """n DEM steps with the held (virtual) discs on x(t) = start + velocity t +
+        acceleration t^2 / 2 (arrays (n, 3): x, y, rotation; only the held rows read), sitting
+        on x((s + 1) dt) after step s (003 eqs 25-26)."""
 
     @abc.abstractmethod
-    def advance(self, n_steps):
-        """n DEM steps, no measurement."""
+    def forces_now(self):
+        """(n, 3): net contact (and plate) force [N/m] and moment [N m/m] on every disc at the
+        current configuration, held ones included, the contact history not committed."""
 
     @abc.abstractmethod
     def disc_forces(self):
-        """(n, 3): net contact (and plate) force [N/m] and moment [N m/m] on every disc in the
-        last step, held ones included."""
+        """(n, 3): the same as forces_now, at the start of the last step."""
+
+    @abc.abstractmethod
+    def set_skip_held_pairs(self, skip):
+        """skip True: no contact between two held discs."""
 
 
 @dataclass
@@ -139,7 +146,7 @@ class BridgingCoupler:
     """
 
     def __init__(self, continuum, region, fine, dt, substeps, fine_dt=None, root=0, diagnose_every=10,
-                 force_time="extrapolated"):
+                 force_time="end"):
         self.continuum, self.region, self.fine = continuum, region, fine
         self.comm = continuum.comm
         self.root = root
@@ -152,11 +159,13 @@ class BridgingCoupler:
             _declare_specimen()
         if self.is_root and not isinstance(fine, FineScale):
             raise InputError("the DEM region's engine must implement bridging.coupler.FineScale "
-                             "(drive_held, advance, disc_forces)")
-        if force_time not in ("extrapolated", "lagged"):
-            raise InputError(f"force_time must be 'extrapolated' or 'lagged', got {force_time!r}")
+                             "(follow_held_path, forces_now, disc_forces, set_skip_held_pairs)")
+        if force_time not in ("end", "lagged"):
+            raise InputError(f"force_time must be 'end' or 'lagged', got {force_time!r}")
         self.force_time = force_time
-        self._last_forces = self._previous_forces = None
+        if self.is_root:
+            # the contacts between two virtual grains are the continuum's (decision 1)
+            fine.set_skip_held_pairs(True)
         self.dt, self.substeps = float(dt), int(substeps)
         self.dt_fine = self.dt / self.substeps
         if fine_dt is not None and abs(fine_dt - self.dt_fine) > 1e-12 * self.dt_fine:
@@ -223,10 +232,12 @@ class BridgingCoupler:
 
     def coupling_forces(self):
         """(n, 3) grain forces entering eq 16 (root): all forces on real grains, and on the
-        virtual ones only those of real grains."""
-        forces = np.array(self.fine.disc_forces(), dtype=float, copy=True)
-        forces -= virtual_pair_forces(self.fine.state, self.fine.order, self.is_virtual)
-        return forces
+        virtual ones only those of real grains (the engine skips virtual-virtual contacts), at
+        the current configuration q^{n+1} ("end") or at the start of the last sub-step
+        ("lagged": one fine step behind, kept to show the instability it causes)."""
+        if self.force_time == "end":
+            return np.array(self.fine.forces_now(), dtype=float, copy=True)
+        return np.array(self.fine.disc_forces(), dtype=float, copy=True)
 
     def _stop(self, message):
         """Collective stop: any rank's cause is raised on all."""
@@ -255,35 +266,23 @@ class BridgingCoupler:
         cause = None
         if self.is_root:
             w0, c0 = _clock()
-            reference = region.position[virtual]
-            u0, v0, a0 = interface
-            # full arrays in the region's order; the engine reads the held (virtual) rows only
-            position = region.position.copy()
-            rotation = np.zeros(region.n_discs)
+            # the virtual grains' path from t_n (full arrays in the region's order; the engine
+            # reads the held rows only); the forces at q^{n+1} after the m sub-steps
+            start = np.zeros((region.n_discs, 3))
+            velocity = np.zeros((region.n_discs, 3))
+            acceleration = np.zeros((region.n_discs, 3))
+            start[virtual] = interface[0]
+            start[virtual, :2] += region.position[virtual]
+            velocity[virtual] = interface[1]
+            acceleration[virtual] = interface[2]
             try:
-                for j in range(1, self.substeps + 1):
-                    t = j * self.dt_fine
-                    target = u0 + t * v0 + 0.5 * t * t * a0
-                    position[virtual] = reference + target[:, :2]
-                    rotation[virtual] = target[:, 2]
-                    self.fine.drive_held(position, rotation)
-                    self.fine.advance(1)
-                    if self.force_time == "extrapolated" and j >= self.substeps - 1:
-                        self._previous_forces, self._last_forces = self._last_forces, self.coupling_forces()
+                self.fine.follow_held_path(self.substeps, start, velocity, acceleration)
             except (RuntimeError, ValueError, FloatingPointError) as error:
                 # the engine's own stop (lost discs, non-finite state) reaches every rank
                 cause = f"the DEM region stopped: {error}"
+            forces = self.coupling_forces()
             self.timings.add("dem", w0, c0)
             w0, c0 = _clock()
-            if self.force_time == "extrapolated":
-                # the engine's forces of a step are those at its START, q^[m-1]: one fine step
-                # behind q^{n+1}, a lag that pumps energy into the coupled system (an undamped
-                # patch grew by e^6.5 in kinetic energy per 10^4 steps). Linear extrapolation
-                # from the last two sub-steps puts them at q^{n+1} to O(dt_m^2).
-                last, previous = self._last_forces, self._previous_forces
-                forces = last if previous is None else 2.0 * last - previous
-            else:
-                forces = self.coupling_forces()
             if cause is None and not np.all(np.isfinite(forces)):
                 cause = "a grain force is not finite"
             self.timings.add("interface", w0, c0)

@@ -31,6 +31,8 @@ def main():
     parser.add_argument("--every", type=int, default=10000)
     parser.add_argument("--substeps", type=int, default=2, help="DEM sub-steps per coarse step m")
     parser.add_argument("--force-time", choices=("end", "lagged"), default="end")
+    parser.add_argument("--coarse-force", choices=("grains", "interface"), default="grains",
+                        help="BridgingCoupler(coarse_force=...): 003 eq 16, or the virtual grains' reactions only")
     parser.add_argument("--out", default="results/bsm_patch_drift")
     args = parser.parse_args()
     size, strain = 4.0, 1e-4
@@ -40,6 +42,7 @@ def main():
     continuum, region, engine, coupler, _ = build(args.radius, mass_damping=600.0, dirichlet=bcs,
                                                   substeps=args.substeps)
     coupler.force_time = args.force_time
+    coupler.coarse_force = args.coarse_force
     coupler.run(args.relax)
     # undamped from here on, both scales
     continuum.mass_damping = 0.0
@@ -59,7 +62,7 @@ def main():
         done += 1
         change_fe = MPI.COMM_WORLD.allreduce(float(np.abs(continuum.displacement.array - d0).max()), op=MPI.MAX)
         change_grains = float(np.abs(coupler.grain_motion()[:, :2] - q0[:, :2]).max()) if engine is not None else 0.0
-        row = {"steps": done, "substeps": coupler.substeps, "force_time": args.force_time, "time_s": continuum.time, "fe_change_over_delta": change_fe / delta,
+        row = {"steps": done, "substeps": coupler.substeps, "force_time": args.force_time, "coarse_force": args.coarse_force, "time_s": continuum.time, "fe_change_over_delta": change_fe / delta,
                "grain_change_over_delta": MPI.COMM_WORLD.bcast(change_grains) / delta,
                "fe_kinetic_J_per_m": continuum.kinetic_energy(),
                "energy_J_per_m": energy(continuum, coupler), "energy_at_start_J_per_m": e0,

@@ -142,11 +142,16 @@ class BridgingCoupler:
     region: bridging.region.DemRegion (all ranks: the reference positions and masses);
     fine: the FineScale engine of the region's discs in the region's order, real grains free
         and virtual ones held (rank `root` only; None elsewhere);
-    dt: coarse step [s]; substeps: m (the engine's dt must be dt / m).
+    dt: coarse step [s]; substeps: m (the engine's dt must be dt / m);
+    force_time: "end" (grain forces at q^{n+1}) or "lagged" (at the start of the last sub-step);
+    coarse_force: "grains" (003 eq 16: N_R^T F_R + N_V^T F_V) or "interface" (N_V^T F_V
+        only: the region's nodes are not driven by the real grains, a coupling derived from
+        a potential, which conserves energy where "grains" slowly does not; the region's
+        nodes then do not follow the grains, so the mismatch diagnostic is meaningless).
     """
 
     def __init__(self, continuum, region, fine, dt, substeps, fine_dt=None, root=0, diagnose_every=10,
-                 force_time="end"):
+                 force_time="end", coarse_force="grains"):
         self.continuum, self.region, self.fine = continuum, region, fine
         self.comm = continuum.comm
         self.root = root
@@ -163,6 +168,9 @@ class BridgingCoupler:
         if force_time not in ("end", "lagged"):
             raise InputError(f"force_time must be 'end' or 'lagged', got {force_time!r}")
         self.force_time = force_time
+        if coarse_force not in ("grains", "interface"):
+            raise InputError(f"coarse_force must be 'grains' or 'interface', got {coarse_force!r}")
+        self.coarse_force = coarse_force
         if self.is_root:
             # the contacts between two virtual grains are the continuum's (decision 1)
             fine.set_skip_held_pairs(True)
@@ -236,8 +244,12 @@ class BridgingCoupler:
         the current configuration q^{n+1} ("end") or at the start of the last sub-step
         ("lagged": one fine step behind, kept to show the instability it causes)."""
         if self.force_time == "end":
-            return np.array(self.fine.forces_now(), dtype=float, copy=True)
-        return np.array(self.fine.disc_forces(), dtype=float, copy=True)
+            forces = np.array(self.fine.forces_now(), dtype=float, copy=True)
+        else:
+            forces = np.array(self.fine.disc_forces(), dtype=float, copy=True)
+        if self.coarse_force == "interface":
+            forces[:self.region.n_real] = 0.0
+        return forces
 
     def _stop(self, message):
         """Collective stop: any rank's cause is raised on all."""

@@ -86,3 +86,33 @@ def test_compressive_pulse_crosses_the_interface():
     # measured 0.68 % of the step and 0.46 % largest energy deviation
     assert np.max(np.abs(bsm[window] - fe[window])) < 0.015 * 1e-4
     assert np.max(np.abs(energies - energies[0])) < 0.01 * energies[0]
+
+
+def test_one_engine_call_per_coarse_step_with_the_end_of_step_forces():
+    """The m sub-steps are one engine call (the virtual grains' path inside the engine); the
+    coarse forces are those at q^{n+1} (forces_now, which the engine's next step reproduces);
+    no contact between two virtual grains is computed; a bad option is refused."""
+    continuum, region, engine, coupler, _ = build(0.1)
+    assert coupler.substeps > 1 and coupler.force_time == "end"
+    if ROOT:
+        calls = []
+        follow = engine.follow_held_path
+        engine.follow_held_path = lambda *a: (calls.append(a[0]), follow(*a))
+        seen = []
+        forces_now = engine.forces_now
+        engine.forces_now = lambda: seen.append(forces_now()) or seen[-1]
+    for _ in range(3):
+        coupler.step()
+    if ROOT:
+        assert calls == [coupler.substeps] * 3
+        assert len(seen) == 3
+        st = engine.state
+        virtual = region.is_virtual[engine.order]
+        both = virtual[st.pair_i] & virtual[st.pair_j]
+        assert both.any() and not np.any(st.touching[both])
+        follow(1, np.zeros((region.n_discs, 3)), np.zeros((region.n_discs, 3)), np.zeros((region.n_discs, 3)))
+        # (the held discs jump during that step, but the forces are those of its start)
+        assert np.array_equal(engine.disc_forces(), seen[-1])
+    with pytest.raises(InputError, match="coarse_force"):
+        BridgingCoupler(continuum, region, engine, coupler.dt, coupler.substeps, fine_dt=coupler.dt_fine,
+                        coarse_force="virtual")

@@ -62,7 +62,8 @@ def main():
         done += 1
         change_fe = MPI.COMM_WORLD.allreduce(float(np.abs(continuum.displacement.array - d0).max()), op=MPI.MAX)
         change_grains = float(np.abs(coupler.grain_motion()[:, :2] - q0[:, :2]).max()) if engine is not None else 0.0
-        row = {"steps": done, "substeps": coupler.substeps, "force_time": args.force_time, "coarse_force": args.coarse_force, "time_s": continuum.time, "fe_change_over_delta": change_fe / delta,
+        row = {"steps": done, "substeps": coupler.substeps, "force_time": args.force_time,
+               "coarse_force": args.coarse_force, "time_s": continuum.time, "fe_change_over_delta": change_fe / delta,
                "grain_change_over_delta": MPI.COMM_WORLD.bcast(change_grains) / delta,
                "fe_kinetic_J_per_m": continuum.kinetic_energy(),
                "energy_J_per_m": energy(continuum, coupler), "energy_at_start_J_per_m": e0,

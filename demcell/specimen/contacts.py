@@ -329,6 +329,20 @@ def branch(k, position, pair_i, pair_j, period, geo):
 
 
 @njit(cache=True)
+def clear_pair(k, touching, sliding, fn, fs, mr, work):
+    """Pair k out of contact: its history and its force scratch zeroed."""
+    touching[k] = 0
+    sliding[k] = 0
+    fn[k] = 0.0
+    fs[k] = 0.0
+    mr[k] = 0.0
+    work[k, 0] = 0.0
+    work[k, 1] = 0.0
+    work[k, 2] = 0.0
+    work[k, 3] = 0.0
+
+
+@njit(cache=True)
 def one_pair(k, geo, velocity, spin, radius, mass, pair_i, pair_j, touching, sliding, fn, fs, mr, work,
               kn, ks, mu, kr, eta_r, xi_n, xi_t, meff_const, pair_mass, clip, total, rot, dt):
     """Contact law of listed pair k (004 eqs. 7.3-7.14 through contact_update_params) from its
@@ -344,15 +358,7 @@ def one_pair(k, geo, velocity, spin, radius, mass, pair_i, pair_j, touching, sli
     lim = ri + rj
     d2 = geo[k, 2]
     if d2 >= lim * lim:
-        touching[k] = 0
-        sliding[k] = 0
-        fn[k] = 0.0
-        fs[k] = 0.0
-        mr[k] = 0.0
-        work[k, 0] = 0.0
-        work[k, 1] = 0.0
-        work[k, 2] = 0.0
-        work[k, 3] = 0.0
+        clear_pair(k, touching, sliding, fn, fs, mr, work)
         return
     dist = math.sqrt(d2)
     overlap = lim - dist

@@ -28,8 +28,9 @@ from ..checks import NON_NEGATIVE, POSITIVE, Range
 from ..contact_law import ContactLaw
 from ..errors import InputError, SolveError
 from .boundary import boundary_loop, escaped_discs, membrane_forces, pressure_forces, side_chains
-from .contacts import (P_PARALLEL_MIN, P_WALL_DN, P_WALL_RATIO, branch, build_pairs, contact_geometry, elastic_energy,
-                       gather_disc, law_scalars, law_vector, merge_history, one_pair, pairs_of_j, spatial_order)
+from .contacts import (P_PARALLEL_MIN, P_WALL_DN, P_WALL_RATIO, branch, build_pairs, clear_pair, contact_geometry,
+                       elastic_energy, gather_disc, law_scalars, law_vector, merge_history, one_pair, pairs_of_j,
+                       spatial_order)
 from .integrate import block, n_blocks
 from .plate import PL_ACTIVE, PL_VX, PL_VY, PL_X0, PL_Y, Plate, move_plate, no_plate, plate_candidates, plate_forces
 from .state import SpecimenOptions, SpecimenState
@@ -110,15 +111,7 @@ def pair_law(k, skip_held, held, geo, velocity, spin, radius, mass, pair_i, pair
     no contact at all (history and force cleared: two held discs move nothing, and a caller
     that does not want their mutual force need not subtract it)."""
     if skip_held and held[pair_i[k]] != 0 and held[pair_j[k]] != 0:
-        touching[k] = 0
-        sliding[k] = 0
-        fn[k] = 0.0
-        fs[k] = 0.0
-        mr[k] = 0.0
-        work[k, 0] = 0.0
-        work[k, 1] = 0.0
-        work[k, 2] = 0.0
-        work[k, 3] = 0.0
+        clear_pair(k, touching, sliding, fn, fs, mr, work)
     else:
         one_pair(k, geo, velocity, spin, radius, mass, pair_i, pair_j, touching, sliding, fn, fs, mr, work, kn, ks,
                  mu, kr, eta_r, xi_n, xi_t, meff, pair_mass, clip, total, rot, dt)

@@ -126,8 +126,9 @@ def block(b, row, jstart, jcol, work, position, velocity, rotation, spin, mass, 
     """Gather + leapfrog of the discs of block b (BLOCK discs); returns their largest
     |x - x_build|^2. net (n, 3): the contact resultant plus the external force and moment
     (walls, plate, pressure) of every disc, held ones included, written before the step
-    [N, N m]. path, path_t: the held discs' path (``follow_path``; path_t < 0: none). The engine's time loop runs the blocks in a parallel loop and takes the
-    maximum over the blocks in block order."""
+    [N, N m]. path, path_t: the held discs' path (``follow_path``; path_t < 0: none). The
+    engine's time loop runs the blocks in a parallel loop and takes the maximum over the
+    blocks in block order."""
     n = position.shape[0]
     umax = 0.0
     for p in range(b * BLOCK, min(n, (b + 1) * BLOCK)):

@@ -65,6 +65,14 @@ class FineScale(abc.ABC):
         """(n, 3): net contact (and plate) force [N/m] and moment [N m/m] on every disc in the
         last step, held ones included."""
 
+    @abc.abstractmethod
+    def checkpoint_arrays(self):
+        """{name: array}: everything a continued run needs (restore reads it back)."""
+
+    @abc.abstractmethod
+    def restore(self, arrays):
+        """Bring the engine, in place, to the state of a checkpoint_arrays() dict."""
+
 
 @dataclass
 class Timings:
@@ -235,6 +243,74 @@ class BridgingCoupler:
         if causes:
             raise BridgingStopped(f"bridging-scale run stopped at t = {self.continuum.time:.6g} s "
                                   f"(step {self.steps}): {causes[0]}")
+
+    # ------------------------------------------------------------------ checkpoint
+    def state(self):
+        """{name: array} of this rank, everything a continued run needs: 'continuum_<k>' the
+        continuum's owned values (ExplicitCosserat.state: per rank, so a restart needs the same
+        ranks and mesh), and on the root 'fine_<k>' the DEM region's engine
+        (FineScale.checkpoint_arrays: grains, contact history, plate, held grains) and
+        'coupler_<k>' this coupler's run state (steps, the forces of the last two sub-steps
+        that the extrapolated force time uses, the mismatch, the per-phase wall seconds)."""
+        out = {f"continuum_{k}": np.asarray(v) for k, v in self.continuum.state().items()}
+        out["coupler_wall"] = np.array([self.timings.wall[p] for p in PHASES])
+        if self.is_root:
+            out.update({f"fine_{k}": np.asarray(v) for k, v in self.fine.checkpoint_arrays().items()})
+            run = {"steps": np.array(self.steps), "max_mismatch": np.array(self.max_mismatch),
+                   "last_mismatch": np.array(self.last_mismatch)}
+            for name, forces in (("last_forces", self._last_forces), ("previous_forces", self._previous_forces)):
+                if forces is not None:
+                    run[name] = np.array(forces, copy=True)
+            out.update({f"coupler_{k}": v for k, v in run.items()})
+        return out
+
+    def set_state(self, state):
+        """Restore a state() dict of this rank (the same ranks, mesh, region and options).
+        Collective: a key missing or a shape that does not fit on any rank raises InputError
+        on every rank, before anything is changed."""
+        error = ""
+        try:
+            continuum = {k[len("continuum_"):]: v for k, v in state.items() if k.startswith("continuum_")}
+            wall = np.asarray(state.get("coupler_wall", ()), dtype=float)
+            if wall.shape != (len(PHASES),):
+                raise InputError(f"coupler_wall has shape {wall.shape}, expected ({len(PHASES)},)")
+            if self.is_root:
+                for key in ("steps", "max_mismatch", "last_mismatch"):
+                    if f"coupler_{key}" not in state:
+                        raise InputError(f"the coupler state lacks coupler_{key}")
+                n = self.region.n_discs
+                for name in ("last_forces", "previous_forces"):
+                    value = state.get(f"coupler_{name}")
+                    if value is not None and (np.shape(value) != (n, 3) or not np.all(np.isfinite(value))):
+                        raise InputError(f"coupler_{name} has shape {np.shape(value)}, expected ({n}, 3), or is "
+                                         "not finite")
+                if not any(k.startswith("fine_") for k in state):
+                    raise InputError("the coupler state has no DEM region (fine_*) on the root rank")
+        except InputError as e:
+            error = str(e)
+        errors = [e for e in self.comm.allgather(error) if e]
+        if errors:
+            raise InputError(errors[0])
+        try:
+            self.continuum.set_state(continuum)
+            if self.is_root:
+                self.fine.restore({k[len("fine_"):]: v for k, v in state.items() if k.startswith("fine_")})
+        except (InputError, ValueError) as e:
+            error = str(e)
+        errors = [e for e in self.comm.allgather(error) if e]
+        if errors:
+            raise InputError(errors[0])
+        run = None
+        if self.is_root:
+            run = {"steps": int(state["coupler_steps"]), "max_mismatch": float(state["coupler_max_mismatch"]),
+                   "last_mismatch": float(state["coupler_last_mismatch"])}
+            last, previous = state.get("coupler_last_forces"), state.get("coupler_previous_forces")
+            self._last_forces = None if last is None else np.array(last, dtype=float)
+            self._previous_forces = None if previous is None else np.array(previous, dtype=float)
+        run = self.comm.bcast(run, root=self.root)
+        self.timings.wall = dict(zip(PHASES, (float(v) for v in state["coupler_wall"])))
+        self.steps = run["steps"]
+        self.max_mismatch, self.last_mismatch = run["max_mismatch"], run["last_mismatch"]
 
     # ------------------------------------------------------------------ time loop
     def step(self, diagnose=None):

@@ -747,3 +747,9 @@ class Specimen:
         specimen.plate_fs[:] = plate_fs
         specimen.plate_force[:] = plate_force
         return specimen
+
+    def restore(self, checkpoint):
+        """Bring this specimen to a checkpoint of ``checkpoint_arrays`` in place (the same
+        law and options; ``restored``'s checks): a caller holding this object (a coupler, a
+        demo) continues with it."""
+        self.__dict__.update(type(self).restored(checkpoint, self.law, self.options).__dict__)

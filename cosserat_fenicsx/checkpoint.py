@@ -611,8 +611,9 @@ class StateCheckpointer:
     dict (an explicit time loop: the bridging-scale footing, BridgingCoupler.state), in the
     directory layout and with the refusals of Checkpointer: DIR/checkpoint/ holds meta.json
     (its "layout" STATE_LAYOUT), state_R.npz of every rank R and run.json / run_arrays.npz,
-    written as checkpoint.tmp and renamed when complete. The arrays are per rank, not keyed
-    by coordinates: a restart needs the number of ranks that wrote it (another is refused).
+    written as checkpoint.tmp and renamed when complete. The arrays are per rank as the
+    caller gives them; a restart reads every rank's file and matches what it owns (the
+    caller keys its arrays: BridgingCoupler.state by dof coordinates).
 
     comm, directory, label, options, every, stop_after, restart: as Checkpointer's (steps)."""
 
@@ -684,20 +685,18 @@ class StateCheckpointer:
         self.write_seconds.append(time.perf_counter() - start)
 
     def read(self):
-        """(meta, this rank's arrays, run state) of the checkpoint in the directory. Collective:
-        a checkpoint of another demo or layout, written on another number of ranks, or a
-        damaged file is a CheckpointError on every rank."""
+        """(meta, [the arrays of every saved rank, in rank order], run state) of the checkpoint
+        in the directory: every rank reads every rank's file, so the caller can match what it
+        owns now (BridgingCoupler.set_state matches the continuum by dof coordinates: any
+        number of ranks). Collective: a checkpoint of another demo or layout, or a damaged
+        file, is a CheckpointError on every rank."""
         error, out = "", None
         try:
             meta = read_meta(self.directory, self.label)
             if meta.get("layout") != STATE_LAYOUT:
                 raise CheckpointError(f"the checkpoint in {self.directory} is not a per-rank state checkpoint")
-            if meta["ranks"] != self.comm.size:
-                raise CheckpointError(f"the checkpoint in {self.directory} was written on {meta['ranks']} rank(s), "
-                                      f"this run has {self.comm.size}: its continuum state is kept per rank; "
-                                      f"restart on {meta['ranks']} rank(s)")
             path = checkpoint_path(self.directory)
-            out = (meta, _load_arrays(_state_file(path, self.comm.rank)), read_run_state(path))
+            out = (meta, [_load_arrays(_state_file(path, r)) for r in range(meta["ranks"])], read_run_state(path))
         except CheckpointError as e:
             error = str(e)
         errors = [e for e in self.comm.allgather(error) if e]

@@ -120,6 +120,20 @@ class RunGuard:
         mine = self._pending is not None
         return bool(comm.allreduce(mine, op=_lor())) if comm is not None else mine
 
+    def interrupt_now(self, comm=None):
+        """End the run as the signal asks, on every rank of `comm` together (a run that
+        handled the signal itself at the end of a step: `signalled`): rank 0 writes
+        summary.json with the interruption's reason, then every rank exits with status 128 +
+        signal number."""
+        signum = self._pending or signal.SIGTERM
+        if self.rank == 0:
+            self._record_interrupt(signum)
+        if comm is not None:
+            comm.barrier()
+        sys.stdout.flush()
+        sys.stderr.flush()
+        os._exit(128 + signum)
+
     def protect(self, on_step, progress=None):
         """`on_step` wrapped: runs deferred, then counts the step; `progress(arg)` (optional)
         returns summary entries for it."""
@@ -215,15 +229,18 @@ class RunGuard:
 
         threading.Thread(target=watch, name="run-guard-watchdog", daemon=True).start()
 
-    def _interrupt(self, signum):
+    def _record_interrupt(self, signum):
         name = signal.Signals(signum).name
         reason = f"interrupted by {name} after step {self.steps}{self.interrupt_note}"
+        self._write(completed=False, reason=reason, interrupted_by=name, steps_completed=self.steps)
+        if self.rank == 0:
+            print(f"{self.label + ': ' if self.label else ''}{reason}; "
+                  f"the outputs of the completed steps are kept in {os.path.dirname(self.path) or '.'}",
+                  flush=True)
+
+    def _interrupt(self, signum):
         try:
-            self._write(completed=False, reason=reason, interrupted_by=name, steps_completed=self.steps)
-            if self.rank == 0:
-                print(f"{self.label + ': ' if self.label else ''}{reason}; "
-                      f"the outputs of the completed steps are kept in {os.path.dirname(self.path) or '.'}",
-                      flush=True)
+            self._record_interrupt(signum)
         finally:
             sys.stdout.flush()
             sys.stderr.flush()

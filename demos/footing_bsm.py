@@ -30,8 +30,9 @@ Gaussian" scaled by 'radius', coloured by 'fine'.
 Checkpoint and restart as the other long demos (docs/reference/restart.md): --checkpoint-every
 N coarse steps, --stop-after K, --restart DIR (history.csv, continuum.xdmf and the grain series
 continued); SIGINT/SIGTERM end the run after the current coarse step with a checkpoint and
-"interrupted by SIGTERM after step k" in summary.json. The continuum's state is kept per rank:
-a restart runs on the number of ranks that wrote the checkpoint (another is refused).
+"interrupted by SIGTERM after step k" in summary.json. The continuum's state is keyed by dof
+coordinates: a restart on the ranks that wrote the checkpoint repeats the straight run bit for
+bit, on another number of ranks it continues with the sums in another order.
 
     mpirun -n 2 python3 demos/footing_bsm.py --packing A
 """
@@ -189,15 +190,24 @@ setup_seconds = time.perf_counter() - t_setup
 # state) and the demo's own (history rows, output index, plate origin) of the checkpoint
 y0 = comm.bcast(engine.plate_position()[2] if engine is not None else None, root=ROOT)
 rows = []
-outputs = {"index": 0, "series": [], "wall_s": 0.0, "cpu_s": 0.0}
+outputs = {"index": 0, "series": [], "wall_s": 0.0, "cpu_s": 0.0, "xdmf": "continuum.xdmf"}
+same_partition = False
 if resumed is not None:
-    meta, arrays, run_state = resumed
+    meta, states, run_state = resumed
     try:
-        coupler.set_state(arrays)
+        coupler.set_state(states)
         if coupler.steps != meta["step"]:
             raise ValueError(f"the coupler state is at step {coupler.steps}, meta.json says {meta['step']}")
         rows, y0 = list(run_state["rows"]), float(run_state["y0"])
-        outputs.update({k: run_state[k] for k in ("index", "series", "wall_s", "cpu_s")})
+        outputs.update({k: run_state[k] for k in ("index", "series", "wall_s", "cpu_s", "xdmf")})
+        # the XDMF file keeps the nodes in the order of the partition that wrote it: it goes on
+        # only where this run's partition is that one (dolfinx's partition of the same mesh on
+        # the same ranks is not always the same), otherwise a new series from this step
+        same_partition = comm.allreduce(
+            len(states) == comm.size and np.array_equal(states[comm.rank]["continuum_dof_coordinates"],
+                                                        continuum.dof_keys()[0]), op=MPI.LAND)
+        if not same_partition:
+            outputs["xdmf"] = f"continuum_from_step{coupler.steps}.xdmf"
     except (ValueError, KeyError, TypeError) as error:        # InputError is a ValueError
         guard.refuse(f"--restart {args.restart}: {checkpoint_path(args.out)} does not fit this run: {error}")
     print0(comm, f"footing_bsm: continuing from the checkpoint of step {coupler.steps} (t = {continuum.time:.6g} s)")
@@ -206,9 +216,9 @@ guard.steps = coupler.steps        # the coarse steps done (the setup's progress
 history = CsvLog(comm, os.path.join(args.out, "history.csv"),
                  ["step", "time", "settlement_mm", "load_kN_per_m", "mismatch_over_rmin", "fe_kinetic_J_per_m"],
                  resume_step=coupler.steps if resumed is not None else None)
-xdmf_path = os.path.join(args.out, "continuum.xdmf")
+xdmf_path = os.path.join(args.out, outputs["xdmf"])
 # the file is open only while a step is written: an interrupted run leaves it readable
-if resumed is None or not os.path.isfile(xdmf_path):
+if not same_partition or not os.path.isfile(xdmf_path):
     with dolfinx.io.XDMFFile(comm, xdmf_path, "w") as xdmf:
         xdmf.write_mesh(mesh)
 else:       # the series goes on after the checkpoint's time (later steps of a killed run dropped)
@@ -271,7 +281,7 @@ def record():
 
 def save_checkpoint(step):
     """The coupled state and this demo's run state after coarse step `step` (collective)."""
-    state = {"rows": rows, "y0": y0, "index": outputs["index"], "series": outputs["series"],
+    state = {"rows": rows, "y0": y0, "index": outputs["index"], "series": outputs["series"], "xdmf": outputs["xdmf"],
              "wall_s": outputs["wall_s"] + time.perf_counter() - t0,
              "cpu_s": outputs["cpu_s"] + time.process_time() - c0}
     try:
@@ -291,8 +301,10 @@ if resumed is None:
 t0, c0 = time.perf_counter(), time.process_time()
 stop_note = ""
 try:
-    for step in range(coupler.steps + 1, n_steps + 1):
-        with guard.deferred():
+    # one deferred block around the loop: a signal waits for the end of the coarse step,
+    # where every rank learns of it together and the run ends with a checkpoint
+    with guard.deferred():
+        for step in range(coupler.steps + 1, n_steps + 1):
             recording = step % args.record_every == 0 or step == n_steps
             coupler.step(diagnose=recording)
             entries = {}
@@ -301,15 +313,14 @@ try:
                 entries = {"settlement_mm": row["settlement_mm"], "load_kN_per_m": row["load_kN_per_m"]}
                 if (len(rows) - 1) % args.output_every == 0 or step == n_steps:
                     write_fields()
-            # the last thing of the step: a signal that came in the step ends the run here,
-            # with a checkpoint (the guard exits when the block ends)
+            guard.progress(**entries)
             signalled = guard.signalled(comm)
             if checkpoint.due(step) or signalled:
                 save_checkpoint(step)
-                if signalled:
-                    guard.interrupt_note = (f" (checkpoint written: continue with --restart {args.out} on "
-                                            f"{comm.size} rank(s))")
-            guard.progress(**entries)
+            if signalled:
+                history.close()
+                guard.interrupt_note = f" (checkpoint written: continue with --restart {args.out})"
+                guard.interrupt_now(comm)
             if checkpoint.stops(step) and step < n_steps:
                 stop_note = checkpoint.stop_note()
                 print0(comm, f"footing_bsm: {stop_note}")

@@ -99,7 +99,7 @@ def test_state_restored_on_a_fresh_coupler_repeats_the_run():
     coupler.run(20)
     straight = coupler.state()
     continuum2, _, engine2, fresh, _ = build(0.1, mass_damping=100.0, dirichlet=bcs)
-    fresh.set_state(saved)
+    fresh.set_state([saved])
     assert fresh.steps == 20
     fresh.run(20)
     again = fresh.state()
@@ -110,6 +110,6 @@ def test_state_restored_on_a_fresh_coupler_repeats_the_run():
     if ROOT:
         assert np.abs(straight["continuum_displacement"]).max() > 0.0 and straight["coupler_max_mismatch"] > 0.0
     broken = dict(saved)
-    broken.pop("coupler_wall")
-    with pytest.raises(InputError, match="coupler_wall"):
-        fresh.set_state(broken)
+    broken.pop("continuum_velocity")
+    with pytest.raises(InputError, match="lacks continuum_velocity"):
+        fresh.set_state([broken])

@@ -1,0 +1,152 @@
+"""demos/footing_bsm.py stopped and continued as a batch queue runs it (docs/reference/restart.md):
+--stop-after K then --restart DIR gives the straight run's history.csv, summary numbers, XDMF
+datasets and grain files bit for bit, on 1 and on 2 ranks; SIGTERM ends the run after its
+coarse step with a checkpoint that continues it; a damaged, foreign or other-rank-count
+checkpoint is refused in one line before any work."""
+import json
+import os
+import signal
+import subprocess
+import sys
+import time
+
+import h5py
+import numpy as np
+import pytest
+
+from conftest import ROOT, read_summary
+
+pytestmark = pytest.mark.serial
+
+TINY = ("--packing", "A", "--depth", 0.004, "--record-every", 4, "--output-every", 2)
+NUMBERS = ("final_settlement_mm", "final_load_kN_per_m", "peak_load_kN_per_m", "peak_settlement_mm",
+           "max_mismatch_over_rmin", "coarse_steps", "steps_completed", "completed")
+
+
+def h5_datasets(path):
+    out = {}
+    with h5py.File(path, "r") as f:
+        f.visititems(lambda name, obj: out.__setitem__(name, obj[()]) if isinstance(obj, h5py.Dataset) else None)
+    return out
+
+
+def history(path):
+    lines = (path / "history.csv").read_text().splitlines()
+    return lines[0], np.array([[float(v) for v in line.split(",")] for line in lines[1:]])
+
+
+def assert_same_run(a, b):
+    """Every written digit: history.csv, the summary's numbers, the XDMF datasets, the grain
+    files and their series."""
+    assert (a / "history.csv").read_bytes() == (b / "history.csv").read_bytes()
+    sa, sb = read_summary(a), read_summary(b)
+    assert {k: sa[k] for k in NUMBERS} == {k: sb[k] for k in NUMBERS}
+    da, db = h5_datasets(a / "continuum.h5"), h5_datasets(b / "continuum.h5")
+    assert sorted(da) == sorted(db) and len(da) > 3
+    for name in da:
+        assert np.array_equal(da[name], db[name]), name
+    assert (a / "grains.vtk.series").read_bytes() == (b / "grains.vtk.series").read_bytes()
+    series = json.loads((a / "grains.vtk.series").read_text())["files"]
+    assert len(series) >= 3
+    for entry in series:
+        assert (a / entry["name"]).read_bytes() == (b / entry["name"]).read_bytes(), entry["name"]
+
+
+def assert_close_run(a, b, rtol=1e-9):
+    """The same run with the continuum's sums in another order (another partition)."""
+    (ha, va), (hb, vb) = history(a), history(b)
+    assert ha == hb and va.shape == vb.shape
+    assert np.allclose(va, vb, rtol=rtol, atol=1e-12)
+    sa, sb = read_summary(a), read_summary(b)
+    for k in NUMBERS:
+        assert np.isclose(sa[k], sb[k], rtol=rtol), k
+
+
+@pytest.mark.parametrize("ranks", [1, 2])
+def test_stop_and_restart_is_the_straight_run(demo, tmp_path, ranks):
+    straight, part = tmp_path / "straight", tmp_path / "part"
+    demo("footing_bsm", *TINY, "--out", straight, ranks=ranks)
+    demo("footing_bsm", *TINY, "--out", part, "--stop-after", 10, "--checkpoint-every", 4, ranks=ranks)
+    first = read_summary(part)
+    assert not first["completed"] and "--restart" in first["reason"] and first["steps_completed"] == 10
+    assert first["checkpoint_steps_written"] == [4, 8, 10]
+    proc = demo("footing_bsm", "--restart", part, ranks=ranks)
+    assert "continuing from the checkpoint of step 10" in proc.stdout
+    summary = read_summary(part)
+    assert summary["completed"] and summary["restarted_from_step"] == 10
+    assert summary["checkpoint_steps_written"] == [12, 16, 20, 24, 28]   # --checkpoint-every carried over
+    if ranks == 1:
+        assert_same_run(straight, part)
+    else:       # dolfinx's 2-rank partition of the mesh is not the same in every run: the sums' order
+        assert_close_run(straight, part)
+
+
+def test_checkpoint_of_two_ranks_continues_on_one(demo, tmp_path):
+    """The continuum is matched by dof coordinates: 2 ranks -> 1 continues the run (the rows up
+    to the checkpoint as written, the later ones within round-off of the straight run), its
+    fields in a new series from the checkpoint's step."""
+    straight, part = tmp_path / "straight", tmp_path / "part"
+    demo("footing_bsm", *TINY, "--out", straight)
+    demo("footing_bsm", *TINY, "--out", part, "--stop-after", 12, ranks=2)
+    demo("footing_bsm", "--restart", part)
+    assert read_summary(part)["restarted_from_ranks"] == 2
+    assert (part / "continuum_from_step12.xdmf").exists()
+    assert_close_run(straight, part)
+
+
+def test_sigterm_ends_after_the_step_with_a_checkpoint(demo, tmp_path):
+    """A SIGTERM in the middle of the run: the step ends, a checkpoint is written, summary.json
+    names the signal, and --restart finishes the straight run's history."""
+    args = ("--packing", "A", "--depth", 0.02, "--record-every", 20, "--output-every", 100)
+    out, straight = tmp_path / "killed", tmp_path / "straight"
+    env = dict(os.environ, OMP_NUM_THREADS="1")
+    proc = subprocess.Popen([sys.executable, os.path.join(ROOT, "demos", "footing_bsm.py"), *map(str, args),
+                             "--out", str(out)], cwd=ROOT, env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE,
+                            text=True)
+    deadline = time.monotonic() + 120
+    while time.monotonic() < deadline and proc.poll() is None:
+        try:
+            if read_summary(out).get("steps_completed", 0) >= 5:
+                break
+        except (OSError, ValueError):
+            pass
+        time.sleep(0.02)
+    proc.send_signal(signal.SIGTERM)
+    stdout, stderr = proc.communicate(timeout=120)
+    assert proc.returncode == 128 + signal.SIGTERM, stdout + stderr
+    summary = read_summary(out)
+    step = summary["steps_completed"]
+    assert summary["reason"] == f"interrupted by SIGTERM after step {step} (checkpoint written: continue with --restart {out})"
+    with open(out / "checkpoint" / "meta.json") as f:
+        assert json.load(f)["step"] == step
+    demo("footing_bsm", "--restart", out)
+    demo("footing_bsm", *args, "--out", straight)
+    assert (out / "history.csv").read_bytes() == (straight / "history.csv").read_bytes()
+    assert read_summary(out)["final_load_kN_per_m"] == read_summary(straight)["final_load_kN_per_m"]
+
+
+def test_bad_restarts_are_refused_in_one_line(demo, tmp_path):
+    out = tmp_path / "run"
+    demo("footing_bsm", *TINY, "--out", out, "--stop-after", 6)
+    meta_path = out / "checkpoint" / "meta.json"
+    meta = json.loads(meta_path.read_text())
+
+    def refused(*extra, match):
+        proc = demo("footing_bsm", "--restart", out, *extra, check=False)
+        assert proc.returncode == 2, proc.stdout + proc.stderr
+        lines = proc.stderr.strip().splitlines()
+        assert len(lines) == 1 and match in lines[0], proc.stderr
+        assert "continuing" not in proc.stdout
+
+    refused("--packing", "B", match="--packing cannot be given with --restart")
+    refused("--stop-after", 4, match="is at step 6 already")
+    meta_path.write_text(json.dumps(dict(meta, label="dem_specimen")))
+    refused(match="is of 'dem_specimen', not 'footing_bsm'")
+    meta_path.write_text(json.dumps(meta))
+    state = out / "checkpoint" / "state_0.npz"
+    data = state.read_bytes()
+    state.write_bytes(data[: len(data) // 2])
+    refused(match="cannot read")
+    state.write_bytes(data)
+    demo("footing_bsm", "--restart", out)
+    assert read_summary(out)["completed"]

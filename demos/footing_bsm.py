@@ -22,10 +22,13 @@ metre of depth, the coarse/projection mismatch), summary.json, load_settlement.p
 continuum.xdmf (u, phi of the continuum), grains_NNNN.vtk (every grain with its
 displacement, its coarse part N d and fine part Q q, rotation, virtual flag) and
 grains.vtk.series (the grain files with the continuum's times, so that ParaView plays both on
-one clock), footing.pvsm (a ParaView state that opens them together). In ParaView: File >
-Load State > footing.pvsm ("Search files under specified directory": the output directory),
-or open continuum.xdmf ("Xdmf3 Reader T") and grains.vtk.series; the grains show as "Point
-Gaussian" scaled by 'radius', coloured by 'fine'.
+one clock) and paraview_footing.py, a ParaView Python state that opens them together:
+
+    paraview --state=OUT/paraview_footing.py      (or File > Load State in ParaView)
+
+shows the continuum coloured by |u| (the DEM region's elements are empty of stiffness, not of
+mesh) and the grains on it as "Point Gaussian" discs of their radius coloured by the fine
+part |Q q| (by hand: open continuum.xdmf with "Xdmf3 Reader T" and grains.vtk.series).
 
 Checkpoint and restart as the other long demos (docs/reference/restart.md): --checkpoint-every
 N coarse steps, --stop-after K, --restart DIR (history.csv, continuum.xdmf and the grain series
@@ -240,6 +243,49 @@ def write_series():
     os.replace(tmp, os.path.join(args.out, "grains.vtk.series"))
 
 
+PARAVIEW_STATE = """# ParaView Python state of demos/footing_bsm.py: paraview --state=paraview_footing.py
+# (or File > Load State). The continuum and the grains on one clock (the run's time [s]).
+import os
+from paraview import simple
+here = {directory!r}
+try:
+    here = os.path.dirname(os.path.abspath(__file__)) or here
+except NameError:
+    pass
+continuum = simple.Xdmf3ReaderT(registrationName="continuum", FileName=[os.path.join(here, {xdmf!r})])
+grains = simple.OpenDataFile(os.path.join(here, "grains.vtk.series"), registrationName="grains")
+view = simple.GetActiveViewOrCreate("RenderView")
+shown = simple.Show(continuum, view)
+simple.ColorBy(shown, ("POINTS", "u", "Magnitude"))
+shown.SetScalarBarVisibility(view, True)
+discs = simple.Show(grains, view)
+discs.SetRepresentationType("Point Gaussian")
+discs.Position = [0.0, 0.0, 0.01]        # in front of the continuum's plane
+discs.ScaleByArray = 1
+discs.SetScaleArray = ["POINTS", "radius"]
+discs.ScaleTransferFunction.Points = [0.0, 0.0, 0.5, 0.0, 1.0, 1.0, 0.5, 0.0]
+discs.GaussianRadius = 1.0
+discs.ShaderPreset = "Plain circle"
+simple.ColorBy(discs, ("POINTS", "fine", "Magnitude"))
+discs.SetScalarBarVisibility(view, True)
+scene = simple.GetAnimationScene()
+scene.UpdateAnimationUsingDataTimeSteps()
+scene.AnimationTime = scene.EndTime
+shown.RescaleTransferFunctionToDataRange(False, True)
+discs.RescaleTransferFunctionToDataRange(False, True)
+view.InteractionMode = "2D"
+simple.ResetCamera(view)
+simple.Render(view)
+"""
+
+
+def write_paraview_state():
+    """paraview_footing.py in the output directory (rank 0): the XDMF file this run writes."""
+    if comm.rank == ROOT:
+        with open(os.path.join(args.out, "paraview_footing.py"), "w") as f:
+            f.write(PARAVIEW_STATE.format(directory=os.path.abspath(args.out), xdmf=outputs["xdmf"]))
+
+
 def write_fields():
     disp = continuum.fields["displacement"].x.array
     u_out.x.array[:] = disp[u_map]
@@ -290,6 +336,8 @@ def save_checkpoint(step):
         history.close()
         guard.stop(error)
 
+
+write_paraview_state()
 
 # %% loading: the plate goes down at --speed; each coarse step = predictor, m DEM sub-steps,
 # projected forces, corrector; a checkpoint when due, at --stop-after and on SIGINT/SIGTERM

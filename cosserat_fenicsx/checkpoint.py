@@ -244,17 +244,7 @@ class Checkpointer:
         resident = problem.material.export_points(np.arange(cb.n_points))
         fields = _gather_fields(comm, problem)
         gathered = comm.gather((points, arrays), root=0)
-        error, encoded = "", None
-        if comm.rank == 0:
-            try:     # encoded first: a run state that cannot be stored leaves no directory
-                encoded = encode_run_state(run_state)
-                shutil.rmtree(tmp, ignore_errors=True)
-                os.makedirs(tmp)
-            except CheckpointError as e:
-                error = str(e)
-            except OSError as e:
-                error = f"cannot write the checkpoint in {tmp}: {e}"
-        error = comm.bcast(error, root=0)
+        error, encoded = _open_directory(comm, tmp, run_state)
         if not error:
             try:     # the resident state stays per rank (the big part: a DEM cell per point)
                 np.savez(os.path.join(tmp, f"resident_{comm.rank}.npz"), coordinates=points, **resident)
@@ -371,6 +361,23 @@ class Checkpointer:
         arrays = {k: v[rows] for k, v in saved.items()}
         run_state = read_run_state(path)
         return fields, resident, arrays, run_state
+
+
+def _open_directory(comm, tmp, run_state):
+    """(error, encoded run state on rank 0) after rank 0 encoded the run state and made the
+    empty directory `tmp` (collective: the error, '' when none, is every rank's). Encoded
+    first: a run state that cannot be stored leaves no directory."""
+    error, encoded = "", None
+    if comm.rank == 0:
+        try:
+            encoded = encode_run_state(run_state)
+            shutil.rmtree(tmp, ignore_errors=True)
+            os.makedirs(tmp)
+        except CheckpointError as e:
+            error = str(e)
+        except OSError as e:
+            error = f"cannot write the checkpoint in {tmp}: {e}"
+    return comm.bcast(error, root=0), encoded
 
 
 # --- the run state: strict JSON and arrays, data only (state_codec) --------------------------
@@ -647,17 +654,7 @@ class StateCheckpointer:
         comm = self.comm
         final = checkpoint_path(self.directory)
         tmp = final + ".tmp"
-        error, encoded = "", None
-        if comm.rank == 0:
-            try:
-                encoded = encode_run_state(run_state)
-                shutil.rmtree(tmp, ignore_errors=True)
-                os.makedirs(tmp)
-            except CheckpointError as e:
-                error = str(e)
-            except OSError as e:
-                error = f"cannot write the checkpoint in {tmp}: {e}"
-        error = comm.bcast(error, root=0)
+        error, encoded = _open_directory(comm, tmp, run_state)
         if not error:
             try:
                 np.savez(_state_file(tmp, comm.rank), **arrays)

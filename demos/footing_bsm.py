@@ -35,7 +35,8 @@ N coarse steps, --stop-after K, --restart DIR (history.csv, continuum.xdmf and t
 continued); SIGINT/SIGTERM end the run after the current coarse step with a checkpoint and
 "interrupted by SIGTERM after step k" in summary.json. The continuum's state is keyed by dof
 coordinates: a restart on the ranks that wrote the checkpoint repeats the straight run bit for
-bit, on another number of ranks it continues with the sums in another order.
+bit, on another number of ranks it continues with the sums in another order (and its fields
+go to continuum_from_stepK.xdmf: an XDMF file keeps the partition that wrote it).
 
     mpirun -n 2 python3 demos/footing_bsm.py --packing A
 """
@@ -399,7 +400,7 @@ summary = {"packing": args.packing, "element": args.element, "speed": args.speed
            "coupler_setup_wall_s": coupler.setup_seconds, "time_split": timing,
            "load_average": os.getloadavg(), "region": region.summary(),
            "l_c_project": elasticity.l_c, "rho_c": rho_c, "micro_inertia": j, "steps_completed": coupler.steps,
-           **checkpoint.summary_entries()}
+           "fields_file": outputs["xdmf"], **checkpoint.summary_entries()}
 if stop_note:
     summary.update(completed=False, reason=stop_note)
 if comm.rank == ROOT:

@@ -148,7 +148,8 @@ def test_sigterm_ends_after_the_step_with_a_checkpoint(demo, tmp_path, straight)
     summary = read_summary(out)
     step = summary["steps_completed"]
     assert 3 <= step < 28
-    assert summary["reason"] == f"interrupted by SIGTERM after step {step} (checkpoint written: continue with --restart {out})"
+    assert summary["reason"] == (f"interrupted by SIGTERM after step {step} (checkpoint written: continue with "
+                                 f"--restart {out})")
     with open(out / "checkpoint" / "meta.json") as f:
         assert json.load(f)["step"] == step
     demo("footing_bsm", "--restart", out)

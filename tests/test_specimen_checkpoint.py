@@ -6,9 +6,8 @@ import pytest
 
 from demcell.errors import InputError
 from demcell.specimen import Specimen
-from demcell.specimen.footing import footing_specimen
+from demcell.specimen.footing import footing_packing, footing_specimen
 from demcell.specimen.specimens import discs_from
-from demcell.specimen.footing import footing_packing
 
 
 def _scene():

@@ -340,7 +340,8 @@ class BridgingCoupler:
         if errors:
             raise InputError(errors[0])
         self.steps = int(root["coupler_steps"])
-        self.max_mismatch, self.last_mismatch = float(root["coupler_max_mismatch"]), float(root["coupler_last_mismatch"])
+        self.max_mismatch = float(root["coupler_max_mismatch"])
+        self.last_mismatch = float(root["coupler_last_mismatch"])
         if self.is_root:
             last, previous = root.get("coupler_last_forces"), root.get("coupler_previous_forces")
             self._last_forces = None if last is None else np.array(last, dtype=float)

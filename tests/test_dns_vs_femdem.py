@@ -9,10 +9,10 @@ import pytest
 from benchmarks.dns import dns_vs_femdem as b
 
 
-def fake_record(kind, size, seed, peak, strain_peak=0.02, end=0.05, cpu=100.0, wall=60.0, n=51):
+def fake_record(kind, size, seed, peak, strain_peak=0.02, end=0.05, cpu=100.0, wall=60.0, n=51, case=None):
     eps = -np.linspace(0.0, end, n)
     ratio = peak * np.minimum(1.0, -eps / strain_peak) - 0.5 * np.maximum(0.0, -eps - strain_peak)
-    run = b.plan([f"{kind}-{size[0]}x{size[1]}"], [seed])[0]
+    run = b.plan([case or f"{kind}-{size[0]}x{size[1]}"], [seed])[0]
     curves = {"axial_strain": eps.tolist(), "stress_ratio": ratio.tolist(), "volumetric_strain": (0.1 * eps).tolist(),
               "coordination": np.linspace(3.3, 3.0, n).tolist()}
     if kind != "dns":
@@ -25,7 +25,9 @@ def test_plan_labels_and_refusals():
     runs = b.plan(["dns-2x4", "classical-1x2"], [0, 3])
     assert [r["label"] for r in runs] == ["dns-2x4-s0", "dns-2x4-s3", "classical-1x2-s0", "classical-1x2-s3"]
     assert runs[2]["study"] == "classical-1x2" and runs[2]["size"] == [1, 2]
-    for bad in ("dns-2x", "micro-1x1", "dns-0x2", "dns 2x4"):
+    locked = b.plan(["dns-1x2-locked"], [1])[0]
+    assert locked["label"] == "dns-1x2-locked-s1" and locked["locked"] and locked["study"] == "dns-1x2-locked"
+    for bad in ("dns-2x", "micro-1x1", "dns-0x2", "dns 2x4", "dns-1x2-free"):
         with pytest.raises(ValueError, match="KIND-NXxNY"):
             b.plan([bad], [0])
 
@@ -40,6 +42,9 @@ def test_commands_use_the_demos_with_the_same_seed_and_strain(tmp_path):
     assert cmd[cmd.index("--mode") + 1] == "hybrid" and cmd[cmd.index("--mesh") + 1] == "2x4"
     assert cmd[cmd.index("--steps") + 1] == "20" and cmd[cmd.index("--seed") + 1] == "5"
     assert env["OMPI_ALLOW_RUN_AS_ROOT"] == "1"
+    assert "--no-rotation" not in cmd
+    for run in b.plan(["dns-1x2-locked", "classical-1x1-locked"], [0]):
+        assert "--no-rotation" in b.command(run, str(tmp_path), 0.04)[0]
     cmd, _ = b.command(fem, str(tmp_path), 0.04, restart=True)
     assert "--restart" in cmd and "--mode" not in cmd
 
@@ -114,7 +119,7 @@ def test_report_writes_tables_and_figure(tmp_path):
     out = str(tmp_path)
     runs = b.plan(["dns-1x2", "classical-1x1"], [0, 1])
     for r, p in zip(runs, (0.3, 0.34, 0.33, 0.32)):
-        kind, size = b.parse_case(r["study"])
+        kind, size, _ = b.parse_case(r["study"])
         b.write_json(b.record_path(out, r), fake_record(kind, size, r["seed"], p))
     text = "\n".join(b.report(out, runs, 0.05, "test"))
     assert "| classical-1x1 | dns-1x2 |" in text and "FEM / DNS 2x4 (1824 discs)" in text
@@ -122,3 +127,20 @@ def test_report_writes_tables_and_figure(tmp_path):
     with open(os.path.join(out, "dns_vs_femdem.json")) as f:
         assert json.load(f)["agreement"][0]["femdem"] == "classical-1x1"
     assert open(os.path.join(out, "dns_vs_femdem.csv")).read().count("\n") == 5
+
+
+def test_locked_runs_pair_with_locked_dns_and_give_the_rotation_ratio(tmp_path):
+    out = str(tmp_path)
+    runs = b.plan(["dns-1x2", "dns-1x2-locked", "classical-1x1", "classical-1x1-locked"], [0, 1])
+    peaks = {"dns-1x2": 0.3, "dns-1x2-locked": 0.6, "classical-1x1": 0.4, "classical-1x1-locked": 0.5}
+    for r in runs:
+        kind, size, _ = b.parse_case(r["study"])
+        b.write_json(b.record_path(out, r), fake_record(kind, size, r["seed"], peaks[r["study"]] + 0.01 * r["seed"],
+                                                        case=r["study"]))
+    text = "\n".join(b.report(out, runs, 0.05, "test"))
+    assert "| classical-1x1-locked | dns-1x2-locked |" in text and "| classical-1x1 | dns-1x2-locked |" not in text
+    with open(os.path.join(out, "dns_vs_femdem.json")) as f:
+        found = {r["case"]: r["ratio"] for r in json.load(f)["rotation"]}
+    assert found["dns-1x2"] == pytest.approx(0.305 / 0.605) and found["classical-1x1"] == pytest.approx(0.405 / 0.505)
+    # the cost table counts the free runs only
+    assert "dns-1x2-locked |" not in text.split("## Cost")[1]

@@ -75,26 +75,28 @@ MPI_ENV = {"OMPI_ALLOW_RUN_AS_ROOT": "1", "OMPI_ALLOW_RUN_AS_ROOT_CONFIRM": "1",
 
 # %% Cases
 def parse_case(text):
-    """'dns-2x4' -> ('dns', (2, 4)); a one-line ValueError for anything else."""
-    m = re.fullmatch(r"(dns|classical|hybrid)-(\d+)x(\d+)", text.strip())
+    """'dns-2x4' -> ('dns', (2, 4), False); 'classical-1x1-locked' -> ('classical', (1, 1), True)
+    (the grains' rotations locked, 000 section 4.3.2); a one-line ValueError for anything else."""
+    m = re.fullmatch(r"(dns|classical|hybrid)-(\d+)x(\d+)(-locked)?", text.strip())
     if not m or int(m.group(2)) < 1 or int(m.group(3)) < 1:
-        raise ValueError(f"a case is KIND-NXxNY with KIND one of {', '.join(KINDS)} (e.g. dns-2x4, classical-1x2), "
-                         f"got {text!r}")
-    return m.group(1), (int(m.group(2)), int(m.group(3)))
+        raise ValueError(f"a case is KIND-NXxNY[-locked] with KIND one of {', '.join(KINDS)} (e.g. dns-2x4, "
+                         f"classical-1x2, dns-1x2-locked), got {text!r}")
+    return m.group(1), (int(m.group(2)), int(m.group(3))), bool(m.group(4))
 
 
-def label(kind, size, seed):
-    return f"{kind}-{size[0]}x{size[1]}-s{seed}"
+def study_name(kind, size, locked=False):
+    return f"{kind}-{size[0]}x{size[1]}" + ("-locked" if locked else "")
 
 
 def plan(cases, seeds):
     """The runs of a study: one per case and seed, in the order given (list of dicts)."""
     runs = []
     for text in cases:
-        kind, size = parse_case(text)
+        kind, size, locked = parse_case(text)
+        study = study_name(kind, size, locked)
         for seed in seeds:
-            runs.append({"label": label(kind, size, seed), "kind": kind, "size": list(size), "seed": int(seed),
-                         "study": f"{kind}-{size[0]}x{size[1]}"})
+            runs.append({"label": f"{study}-s{seed}", "kind": kind, "size": list(size), "seed": int(seed),
+                         "locked": locked, "study": study})
     return runs
 
 
@@ -107,6 +109,8 @@ def command(run, out, strain, step=0.002, ranks=2, threads=None, python=sys.exec
                "--axial-strain", repr(strain), "--out", directory]
         if threads:
             cmd += ["--threads", str(threads)]
+        if run.get("locked"):
+            cmd.append("--no-rotation")
         return cmd, {}
     if restart:
         args = ["--restart", directory, "--checkpoint-every", "5"]
@@ -114,6 +118,8 @@ def command(run, out, strain, step=0.002, ranks=2, threads=None, python=sys.exec
         steps = max(1, int(round(strain / step)))
         args = ["--mode", run["kind"], "--mesh", f"{nx}x{ny}", "--seed", str(run["seed"]), "--axial-strain",
                 repr(strain), "--steps", str(steps), "--checkpoint-every", "5", "--out", directory]
+        if run.get("locked"):
+            args.append("--no-rotation")
     cmd = [python, FEMDEM_DEMO] + args
     if ranks > 1:
         cmd = ["mpirun", "-n", str(ranks)] + cmd
@@ -212,8 +218,9 @@ def execute(run, out, strain, step, ranks, threads, log=print):
         with open(path) as f:
             summary = json.load(f)
     if not os.path.isfile(os.path.join(directory, "history.csv")):
-        log(f"[dns_vs_femdem] {run['label']}: no history.csv (exit {proc.returncode}); see {directory}/run.log; "
-            "no record written")
+        with open(os.path.join(directory, "run.log")) as f:
+            last = (f.read().strip().splitlines() or [""])[-1]
+        log(f"[dns_vs_femdem] {run['label']}: no history.csv (exit {proc.returncode}), no record: {last}")
         return None
     if restart:       # the time of the run before the restart
         earlier = os.path.join(directory, "earlier_cost.json")
@@ -326,6 +333,8 @@ def cost_rows(records, strain):
     (DNS: CPU per percent per disc x discs; FEM x DEM: per Gauss point x points)."""
     per = {}
     for rec in records:
+        if rec.get("locked"):
+            continue
         pct = -100.0 * rec["final_axial_strain"]
         if pct <= 0:
             continue
@@ -434,13 +443,35 @@ def agreement_lines(st, grid):
              "largest |FEM - DNS| / std |", "|---|---|---|---|---|"]
     found = []
     for f in sorted(n for n in st if st[n]["kind"] != "dns"):
-        for d in sorted(n for n in st if st[n]["kind"] == "dns"):
+        for d in sorted(n for n in st if st[n]["kind"] == "dns" and n.endswith("-locked") == f.endswith("-locked")):
             rng, worst, compared = agreement(st[f], st[d], grid)
             text = ", ".join(f"{100 * a:.1f}-{100 * b:.1f} %" for a, b in rng) or "nowhere"
             lines.append(f"| {f} | {d} | {'-' if compared is None else f'{100 * compared[0]:.1f}-{100 * compared[1]:.1f} %'}"
                          f" | {text if compared else '- (one seed: no scatter)'} | {fmt(worst, '.2f')} |")
             found.append({"femdem": f, "dns": d, "within": rng, "largest_difference_over_std": worst,
                           "compared": compared})
+    return lines, found
+
+
+def rotation_lines(st):
+    """000 section 4.3.2: the peak with free rotations over the peak with locked ones, per
+    case with both (means over the seeds; 000: 0.39 / 0.48 = 0.81 at 7.3 %)."""
+    lines = ["| case | seeds free / locked | peak free (strain) | peak locked (strain) | free / locked |",
+             "|---|---|---|---|---|"]
+    found = []
+    for name in sorted(n for n in st if n.endswith("-locked")):
+        free = name[:-len("-locked")]
+        if free not in st:
+            continue
+        def mean_peak(s):
+            p = [r["peak_stress_ratio"] for r in s["records"] if r["peak_stress_ratio"] is not None]
+            e = [-100 * r["axial_strain_at_peak"] for r in s["records"] if r["axial_strain_at_peak"] is not None]
+            return (float(np.mean(p)), float(np.mean(e))) if p else (None, None)
+        (pf, ef), (pl, el) = mean_peak(st[free]), mean_peak(st[name])
+        ratio = pf / pl if pf and pl else None
+        lines.append(f"| {free} | {','.join(map(str, st[free]['seeds']))} / {','.join(map(str, st[name]['seeds']))} | "
+                     f"{fmt(pf)} ({fmt(ef, '.2f')} %) | {fmt(pl)} ({fmt(el, '.2f')} %) | {fmt(ratio)} |")
+        found.append({"case": free, "peak_free": pf, "peak_locked": pl, "ratio": ratio})
     return lines, found
 
 
@@ -516,11 +547,13 @@ def report(out, runs, strain, args_line):
     cases, rows_csv = case_table(records)
     summary = study_table(st, grid)
     agree, found = agreement_lines(st, grid)
+    rotation, rotation_found = rotation_lines(st)
     measured, dns_unit, fem_unit, table = cost_rows(records, strain)
     cost = cost_lines(measured, dns_unit, fem_unit, table, strain)
     figure(st, grid, os.path.join(out, "dns_vs_femdem.png"))
     text = [f"# DNS against FEM x DEM ({args_line})", "", "## Cases", ""] + cases + \
         ["", "## Mean and scatter over seeds", ""] + summary + ["", "## Agreement", ""] + agree + \
+        (["", "## Rotations free against locked (000 section 4.3.2)", ""] + rotation if rotation_found else []) + \
         ["", "## Cost (item 6)", ""] + cost + ["", "Figure: dns_vs_femdem.png"]
     with open(os.path.join(out, "dns_vs_femdem.md"), "w") as f:
         f.write("\n".join(text) + "\n")
@@ -529,7 +562,7 @@ def report(out, runs, strain, args_line):
         w.writeheader()
         w.writerows(rows_csv)
     write_json(os.path.join(out, "dns_vs_femdem.json"),
-               {"agreement": found, "cost": table, "cost_measured": measured, "dns_cpu_per_pct_per_disc": dns_unit,
+               {"agreement": found, "rotation": rotation_found, "cost": table, "cost_measured": measured, "dns_cpu_per_pct_per_disc": dns_unit,
                 "femdem_cpu_per_pct_per_point": fem_unit})
     print("\n".join(text))
     return text

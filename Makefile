@@ -110,6 +110,7 @@ benchmark-dns: benchmark-deps
 	$(PYTHON) benchmarks/dns/lammps_compare.py --out $(BENCH)/lammps_compare
 	$(PYTHON) benchmarks/dns/dns_004.py --cases base --out $(BENCH)/dns_004
 	$(PYTHON) benchmarks/dns/dns_004.py --nx 40 --ny 92 --out $(BENCH)/dns_004_study
+	$(PYTHON) benchmarks/dns/dns_vs_femdem.py --out $(BENCH)/dns_vs_femdem
 
 benchmark-identification: benchmark-deps
 	$(PYTHON) benchmarks/identification/identification_sensitivity.py --out $(BENCH)/identification_sensitivity

@@ -70,8 +70,8 @@ def test_curves_from_the_demos_histories(tmp_path):
         "step,phase,axial_strain,stress_ratio,volumetric_strain,coordination_number,anisotropy,vertical_stress\n"
         "0,1,0,0,0,3.3,0,-10\n1,2,-0.002,0.48,-0.001,3.2,0.1,-30\n")
     c = b.curves_from_outputs("classical", str(tmp_path / "f"), pressure=10.0)
-    assert c["axial_strain"] == [-0.002] and c["stress_ratio"] == [pytest.approx(0.5)]
-    assert c["stress_ratio_points"] == [0.48] and c["anisotropy"] == [0.1]
+    assert c["axial_strain"] == [0.0, -0.002] and c["stress_ratio"] == [pytest.approx(0.0), pytest.approx(0.5)]
+    assert c["stress_ratio_points"] == [0.0, 0.48] and c["anisotropy"] == [0.0, 0.1]
 
 
 def test_scatter_agreement_and_ranges():
@@ -144,3 +144,17 @@ def test_locked_runs_pair_with_locked_dns_and_give_the_rotation_ratio(tmp_path):
     assert found["dns-1x2"] == pytest.approx(0.305 / 0.605) and found["classical-1x1"] == pytest.approx(0.405 / 0.505)
     # the cost table counts the free runs only
     assert "dns-1x2-locked |" not in text.split("## Cost")[1]
+
+
+def test_reread_refreshes_curves_and_keeps_costs(tmp_path):
+    out = str(tmp_path)
+    run = b.plan(["classical-1x1"], [0])[0]
+    b.write_json(b.record_path(out, run), fake_record("classical", (1, 1), 0, 0.4, cpu=123.0))
+    os.makedirs(os.path.join(out, run["label"]))
+    with open(os.path.join(out, run["label"], "history.csv"), "w") as f:
+        f.write("step,phase,axial_strain,stress_ratio,volumetric_strain,coordination_number,anisotropy,vertical_stress\n"
+                "0,1,0,0,0,3.9,0,-10\n1,2,-0.002,0.48,-0.001,3.2,0.1,-30\n")
+    b.reread(out, [run])
+    rec = b.load_records(out, [run])[0]
+    assert rec["cpu_s"] == 123.0 and rec["curves"]["axial_strain"] == [0.0, -0.002]
+    assert rec["peak_stress_ratio"] == pytest.approx(0.5)

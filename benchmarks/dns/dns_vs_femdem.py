@@ -150,14 +150,17 @@ def curves_from_outputs(kind, directory, pressure=10.0):
     """The curves of a finished (or stopped) run, tension positive, from the demo's history.csv:
     axial_strain, stress_ratio (000 eq. 40 from the platen stress and the lateral stress),
     volumetric_strain, coordination, and for FEM x DEM also the demo's mean over the Gauss
-    points (stress_ratio_points) and the anisotropy A (000 eq. 38)."""
+    points (stress_ratio_points) and the anisotropy A (000 eq. 38). Both start at the end of
+    the isotropic stage."""
     rows = read_history(os.path.join(directory, "history.csv"))
     if kind == "dns":
         rows = [r for r in rows if int(float(r["phase"])) == 1]
         return {"axial_strain": _column(rows, "axial_strain"), "stress_ratio": _column(rows, "stress_ratio"),
                 "volumetric_strain": _column(rows, "volumetric_strain"),
                 "coordination": _column(rows, "coordination")}
-    rows = [r for r in rows if int(float(r["phase"])) == 2]
+    # the end of the isotropic stage (phase 1, axial strain 0) and the compression (phase 2)
+    iso = [r for r in rows if int(float(r["phase"])) == 1]
+    rows = iso[-1:] + [r for r in rows if int(float(r["phase"])) == 2]
     sv = np.array(_column(rows, "vertical_stress"))
     sl = -pressure
     ratio = np.abs(sv - sl) / np.abs(sv + sl)
@@ -249,6 +252,27 @@ def write_json(path, data):
     with open(path + ".tmp", "w") as f:
         json.dump(data, f, indent=1)
     os.replace(path + ".tmp", path)
+
+
+def reread(out, runs):
+    """Read the curves of every recorded run again from its demo outputs (after a change of
+    how they are read); the costs of the record are kept."""
+    for r in runs:
+        path = record_path(out, r)
+        directory = os.path.join(out, r["label"])
+        if not (os.path.isfile(path) and os.path.isfile(os.path.join(directory, "history.csv"))):
+            continue
+        with open(path) as f:
+            rec = json.load(f)
+        summary = {}
+        if os.path.isfile(os.path.join(directory, "summary.json")):
+            with open(os.path.join(directory, "summary.json")) as f:
+                summary = json.load(f)
+        new = make_record(r, rec["command"].split(), rec["returncode"], rec["wall_s"], rec["cpu_s"],
+                          rec["load_average_before"], rec["load_average_after"],
+                          curves_from_outputs(r["kind"], directory), summary)
+        new["command"] = rec["command"]
+        write_json(path, new)
 
 
 def load_records(out, runs):
@@ -578,6 +602,8 @@ def main(argv=None):
     p.add_argument("--ranks", type=int, default=2, help="MPI ranks of the FEM x DEM runs (default 2)")
     p.add_argument("--threads", type=int, default=None, help="Numba threads of the DNS (default: all cores)")
     p.add_argument("--report-only", action="store_true", help="only the tables and figure of the records in --out")
+    p.add_argument("--reread", action="store_true", help="read the curves of the recorded runs again from their "
+                   "outputs before the report (the costs are kept)")
     p.add_argument("--out", default="results/dns_vs_femdem", help="output directory")
     args = p.parse_args(argv)
     try:
@@ -593,6 +619,8 @@ def main(argv=None):
         for run in todo:
             execute(run, args.out, args.strain, args.step, args.ranks, args.threads,
                     log=lambda m: print(m, flush=True))
+    if args.reread:
+        reread(args.out, runs)
     report(args.out, runs, args.strain, f"--cases {args.cases} --seeds {args.seeds} --strain {args.strain}")
 
 

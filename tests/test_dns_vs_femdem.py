@@ -89,6 +89,9 @@ def test_scatter_agreement_and_ranges():
     assert rng[0][1] == pytest.approx(0.05)
     rng, worst, _ = b.agreement(st["hybrid-1x1"], d, grid)
     assert worst > 1 and all(b_ < 0.01 for a, b_ in rng)     # within only at the very start
+    span = b.inside_seeds(st["hybrid-1x1"], d, grid)
+    assert all(b_ < 0.01 for a, b_ in span)
+    assert b.inside_seeds(st["classical-1x1"], d, grid)[0][1] == pytest.approx(0.05)
     assert b.ranges([False, True, True, False, True], [0, 1, 2, 3, 4]) == [(1, 2), (4, 4)]
 
 

@@ -193,7 +193,7 @@ def make_record(run, cmd, returncode, wall, cpu, load_before, load_after, curves
         rec["gauss_points"] = summary.get("n_gauss_points", GAUSS_POINTS_PER_RECTANGLE * nx * ny) if summary \
             else GAUSS_POINTS_PER_RECTANGLE * nx * ny
         rec["newton_iterations"] = summary.get("newton_iterations_total") if summary else None
-        rec["stop_reason"] = summary.get("reason") if summary else None
+        rec["stop_reason"] = (summary.get("stopped") or summary.get("reason")) if summary else None
     return rec
 
 
@@ -234,9 +234,12 @@ def execute(run, out, strain, step, ranks, threads, log=print):
             cpu += e["cpu_s"]
     rec = make_record(run, cmd, proc.returncode, wall, cpu, load_before, load_after,
                       curves_from_outputs(run["kind"], directory), summary)
+    named_stop = summary.get("stopped") or summary.get("reason")
+    if named_stop:
+        rec["stop_reason"] = named_stop
     if proc.returncode != 0 and run["kind"] != "dns" and os.path.isdir(os.path.join(directory, "checkpoint")) \
-            and not rec["completed"]:
-        # killed part-way: keep its cost and leave no record, so the next call restarts it
+            and not rec["completed"] and not named_stop:
+        # killed part-way (no stop the demo named): keep its cost and leave no record, so the next call restarts it
         with open(os.path.join(directory, "earlier_cost.json"), "w") as f:
             json.dump({"wall_s": wall, "cpu_s": cpu}, f)
         log(f"[dns_vs_femdem] {run['label']}: stopped at {rec['final_axial_strain']:+.4f} (exit {proc.returncode}); "
@@ -437,7 +440,8 @@ def case_table(records):
         lines.append(f"| {rec['study']} | {rec['seed']} | {fmt(rec['peak_stress_ratio'])} | {fmt(strain_peak, '.2f')} % | "
                      f"{fmt(-100 * rec['final_axial_strain'], '.2f')} % | {fmt(None if vol is None else 100 * vol, '+.2f')} % | "
                      f"{fmt(coord[0], '.2f')} / {fmt(coord[1], '.2f')} | {fmt(aniso)} | {rec['wall_s']:.0f} | "
-                     f"{rec['cpu_s']:.0f} | {lb:.2f} / {la:.2f} | {rec['returncode']} |")
+                     f"{rec['cpu_s']:.0f} | {lb:.2f} / {la:.2f} | {rec['returncode']}"
+                     f"{' (stopped: ' + rec['stop_reason'][:90] + ')' if rec.get('stop_reason') else ''} |")
         rows_csv.append({"case": rec["study"], "seed": rec["seed"], "peak_stress_ratio": rec["peak_stress_ratio"],
                          "axial_strain_at_peak": rec["axial_strain_at_peak"],
                          "final_axial_strain": rec["final_axial_strain"], "final_volumetric_strain": vol,

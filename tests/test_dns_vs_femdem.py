@@ -161,3 +161,38 @@ def test_reread_refreshes_curves_and_keeps_costs(tmp_path):
     rec = b.load_records(out, [run])[0]
     assert rec["cpu_s"] == 123.0 and rec["curves"]["axial_strain"] == [0.0, -0.002]
     assert rec["peak_stress_ratio"] == pytest.approx(0.5)
+
+
+def _fake_demo(tmp_path, monkeypatch, summary, code):
+    """b.command replaced by a process that writes a FEM x DEM run's history (and summary)
+    and its checkpoint folder, then exits with `code`; returns the restart flags seen."""
+    import sys
+    seen = []
+
+    def command(run, out, strain, step=0.002, ranks=2, threads=None, python=sys.executable, restart=False):
+        seen.append(restart)
+        d = os.path.join(out, run["label"])
+        script = (f"import os, json; d = {d!r}; os.makedirs(os.path.join(d, 'checkpoint'), exist_ok=True); "
+                  "open(os.path.join(d, 'history.csv'), 'w').write('step,phase,axial_strain,stress_ratio,"
+                  "volumetric_strain,coordination_number,anisotropy,vertical_stress\\n0,1,0,0,0,3.9,0,-10\\n"
+                  "1,2,-0.002,0.4,0,3.8,0.1,-20\\n'); "
+                  f"s = {summary!r}; s is not None and json.dump(s, open(os.path.join(d, 'summary.json'), 'w')); "
+                  f"raise SystemExit({code})")
+        return [python, "-c", script], {}
+    monkeypatch.setattr(b, "command", command)
+    return seen
+
+
+def test_a_named_stop_is_recorded_and_a_killed_run_restarts(tmp_path, monkeypatch):
+    out = str(tmp_path)
+    stop, killed = b.plan(["classical-2x4"], [0, 1])
+    seen = _fake_demo(tmp_path, monkeypatch, {"completed": False, "stopped": "the cell did not relax"}, 1)
+    rec = b.execute(stop, out, 0.05, 0.002, 1, None, log=lambda m: None)
+    assert rec["stop_reason"] == "the cell did not relax" and os.path.isfile(b.record_path(out, stop))
+    seen = _fake_demo(tmp_path, monkeypatch, None, 1)          # killed: no summary, a checkpoint
+    assert b.execute(killed, out, 0.05, 0.002, 1, None, log=lambda m: None) is None
+    assert not os.path.isfile(b.record_path(out, killed))
+    assert os.path.isfile(os.path.join(out, killed["label"], "earlier_cost.json"))
+    seen = _fake_demo(tmp_path, monkeypatch, {"completed": True}, 0)
+    rec = b.execute(killed, out, 0.05, 0.002, 1, None, log=lambda m: None)
+    assert seen == [True] and rec["completed"] and os.path.isfile(b.record_path(out, killed))

@@ -1,4 +1,4 @@
-"""Paper 000's DNS against FEM x DEM on the same grains (000 section 4.2, Fig. 4; issue items 1, 6).
+"""Paper 000's DNS against FEM x DEM on the same grains (000 section 4.2, Figs 4-5) and their cost.
 
 Every case is one run of an existing demo in its own process:
 
@@ -29,7 +29,7 @@ record to run its case again.
     /usr/bin/python3 benchmarks/dns/dns_vs_femdem.py --report-only --out DIR
 
 Outputs in --out: the records, ``dns_vs_femdem.md`` and ``.csv`` (one row per case and per
-study: case, mean over seeds, the DNS scatter; the agreement ranges; the cost table of item 6)
+study: case, mean over seeds, the DNS scatter; the agreement ranges; the cost table)
 and ``dns_vs_femdem.png`` (stress ratio, volumetric strain and coordination against axial
 strain; each DNS tiling as its mean +- one standard deviation over the seeds).
 
@@ -37,7 +37,7 @@ The agreement: on a grid of axial strain, a FEM x DEM study (the mean over its s
 with a DNS tiling where |FEM - DNS mean| <= the DNS's standard deviation over its seeds (its
 own scatter); the strain ranges where that holds are listed.
 
-The cost (item 6): CPU seconds per percent of axial strain, for the DNS per disc (its steps to a
+The cost: CPU seconds per percent of axial strain, for the DNS per disc (its steps to a
 strain do not depend on the size at a fixed inertial number, so its cost grows with the
 discs: docs/results/dns.md measures the rate flat from 1e3 to 1e5 discs) and for FEM x DEM per
 Gauss point (the cells take 99.6 % of the time: docs/results/femdem.md). Unmeasured meshes and
@@ -362,7 +362,7 @@ def inside_seeds(fem, dns, grid):
 
 
 def cost_rows(records, strain):
-    """Item 6: per measured case CPU and wall seconds per percent of axial strain, per disc
+    """The cost: per measured case CPU and wall seconds per percent of axial strain, per disc
     (DNS) or per Gauss point (FEM x DEM); then per mesh the FEM x DEM cost to `strain`
     against each DNS tiling's, measured where there are records, otherwise extrapolated
     (DNS: CPU per percent per disc x discs; FEM x DEM: per Gauss point x points)."""
@@ -594,7 +594,7 @@ def report(out, runs, strain, args_line):
     text = [f"# DNS against FEM x DEM ({args_line})", "", "## Cases", ""] + cases + \
         ["", "## Mean and scatter over seeds", ""] + summary + ["", "## Agreement", ""] + agree + \
         (["", "## Rotations free against locked (000 section 4.3.2)", ""] + rotation if rotation_found else []) + \
-        ["", "## Cost (item 6)", ""] + cost + ["", "Figure: dns_vs_femdem.png"]
+        ["", "## Cost", ""] + cost + ["", "Figure: dns_vs_femdem.png"]
     with open(os.path.join(out, "dns_vs_femdem.md"), "w") as f:
         f.write("\n".join(text) + "\n")
     with open(os.path.join(out, "dns_vs_femdem.csv"), "w", newline="") as f:

@@ -545,11 +545,12 @@ def figure(st, grid, path):
     plt = pyplot()
     keys = [("stress_ratio", "stress ratio |s_a - s_l| / |s_a + s_l| (000 eq. 40)"),
             ("volumetric_strain", "volumetric strain (tension +)"), ("coordination", "coordination number")]
-    fig, axes = plt.subplots(1, 3, figsize=(16, 5))
+    fig, axes = plt.subplots(1, 3, figsize=(16, 6.5))
     colours = plt.rcParams["axes.prop_cycle"].by_key()["color"]
     for k, name in enumerate(sorted(st, key=lambda n: (st[n]["kind"] != "dns", n))):
         s = st[name]
         c = colours[k % len(colours)]
+        locked = ", rotations locked" if name.endswith("-locked") else ""
         for ax, (key, ylabel) in zip(axes, keys):
             if key == "stress_ratio":
                 mean, std = s["mean"], s["std"]
@@ -558,20 +559,21 @@ def figure(st, grid, path):
                 mean, std = sk["mean"], sk["std"]
             x = 100 * grid
             if s["kind"] == "dns":
-                ax.plot(x, mean, "-", color=c, lw=2, label=f"DNS {s['size'][0]}x{s['size'][1]} tiles (seeds "
+                ax.plot(x, mean, "-", color=c, lw=2, label=f"DNS {s['size'][0]}x{s['size'][1]} tiles{locked} (seeds "
                         f"{','.join(map(str, s['seeds']))}: mean +- std)")
                 ax.fill_between(x, mean - std, mean + std, color=c, alpha=0.25)
             else:
                 for r in s["records"]:
                     ax.plot(100 * grid, on_grid(r, grid, key), "--", color=c, lw=0.7)
                 ax.plot(x, mean, "-", color=c, lw=1.5, marker="o", ms=2.5,
-                        label=f"FEM x DEM {s['kind']} {s['size'][0]}x{s['size'][1]} (mean of seeds "
+                        label=f"FEM x DEM {s['kind']} {s['size'][0]}x{s['size'][1]}{locked} (mean of seeds "
                         f"{','.join(map(str, s['seeds']))}; dashed: each)")
             ax.set_xlabel("axial strain [%] (compression)")
             ax.set_ylabel(ylabel)
-    axes[0].legend(fontsize=7)
+    handles, labels = axes[0].get_legend_handles_labels()
+    fig.legend(handles, labels, loc="lower center", ncol=3, fontsize=7)
     fig.suptitle("000 Fig. 4-5 with this project's cell: the tiled-cell DNS against FEM x DEM (same grains, law, p0)")
-    fig.tight_layout()
+    fig.tight_layout(rect=(0, 0.05 + 0.018 * math.ceil(len(st) / 3), 1, 1))
     fig.savefig(path, dpi=120)
     plt.close(fig)
 

@@ -105,7 +105,8 @@ benchmark-femdem: benchmark-deps
 	$(MPIRUN) -n $(NP) $(PYTHON) benchmarks/femdem/femdem_cell_relaxation.py --out $(BENCH)/femdem_cell_relaxation
 	$(PYTHON) benchmarks/femdem/femdem_yade.py --np $(NP) --out $(BENCH)/femdem_yade
 
-# particle specimens: throughput, the 004 test and its study, LAMMPS on the same specimen
+# particle specimens: throughput, the 004 test and its study, LAMMPS on the same specimen, the
+# full-DEM footing of 003, the tiled-cell DNS against FEM x DEM (000)
 benchmark-dns: benchmark-deps
 	$(PYTHON) benchmarks/dns/specimen_throughput.py --out $(BENCH)/specimen_throughput
 	$(PYTHON) benchmarks/dns/lammps_compare.py --out $(BENCH)/lammps_compare
@@ -113,6 +114,7 @@ benchmark-dns: benchmark-deps
 	$(PYTHON) benchmarks/dns/dns_004.py --nx 40 --ny 92 --out $(BENCH)/dns_004_study
 	$(PYTHON) benchmarks/dns/footing_dem.py --packing A --out $(BENCH)/footing_dem_A
 	$(PYTHON) benchmarks/dns/footing_dem.py --packing C --out $(BENCH)/footing_dem_C
+	$(PYTHON) benchmarks/dns/dns_vs_femdem.py --out $(BENCH)/dns_vs_femdem
 
 # the bridging-scale method (paper 003): ghost forces, a pulse across the interface, the
 # elastic FE footing, and the footing against the full DEM of the same grains

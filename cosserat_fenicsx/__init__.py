@@ -5,6 +5,13 @@ dolfinx-free parts (`cosserat_fenicsx.materials`, the material-point driver) do 
 pull in dolfinx or PETSc, and no scene imports Numba or demcell unless it uses them.
 """
 import importlib
+import os
+
+# SCOTCH (dolfinx's mesh partitioner in Debian) runs its strategies on several threads by
+# default, and then the same mesh on the same ranks is split differently from run to run
+# (measured: two partitions of an 18 x 9 mesh on 2 ranks, about one run in two); on one
+# thread the partition is the same every time. A user's own setting is kept.
+os.environ.setdefault("SCOTCH_PTHREAD_NUMBER", "1")
 
 _EXPORTS = {
     "MicropolarElasticity": "elasticity",

@@ -244,17 +244,7 @@ class Checkpointer:
         resident = problem.material.export_points(np.arange(cb.n_points))
         fields = _gather_fields(comm, problem)
         gathered = comm.gather((points, arrays), root=0)
-        error, encoded = "", None
-        if comm.rank == 0:
-            try:     # encoded first: a run state that cannot be stored leaves no directory
-                encoded = encode_run_state(run_state)
-                shutil.rmtree(tmp, ignore_errors=True)
-                os.makedirs(tmp)
-            except CheckpointError as e:
-                error = str(e)
-            except OSError as e:
-                error = f"cannot write the checkpoint in {tmp}: {e}"
-        error = comm.bcast(error, root=0)
+        error, encoded = _open_directory(comm, tmp, run_state)
         if not error:
             try:     # the resident state stays per rank (the big part: a DEM cell per point)
                 np.savez(os.path.join(tmp, f"resident_{comm.rank}.npz"), coordinates=points, **resident)
@@ -371,6 +361,23 @@ class Checkpointer:
         arrays = {k: v[rows] for k, v in saved.items()}
         run_state = read_run_state(path)
         return fields, resident, arrays, run_state
+
+
+def _open_directory(comm, tmp, run_state):
+    """(error, encoded run state on rank 0) after rank 0 encoded the run state and made the
+    empty directory `tmp` (collective: the error, '' when none, is every rank's). Encoded
+    first: a run state that cannot be stored leaves no directory."""
+    error, encoded = "", None
+    if comm.rank == 0:
+        try:
+            encoded = encode_run_state(run_state)
+            shutil.rmtree(tmp, ignore_errors=True)
+            os.makedirs(tmp)
+        except CheckpointError as e:
+            error = str(e)
+        except OSError as e:
+            error = f"cannot write the checkpoint in {tmp}: {e}"
+    return comm.bcast(error, root=0), encoded
 
 
 # --- the run state: strict JSON and arrays, data only (state_codec) --------------------------
@@ -499,6 +506,9 @@ def verify(directory, meta):
     without pickle, the shapes meta.json announces, no NaN, the run state decodable) before
     a restart touches anything; CheckpointError naming the file and the field."""
     path = checkpoint_path(directory)
+    if meta.get("layout") == STATE_LAYOUT:
+        _verify_state(path, meta)
+        return
     fields = _load_arrays(os.path.join(path, "fields.npz"))
     components = sorted({k.rsplit("_", 1)[0] for k in fields})
     if not components:
@@ -581,3 +591,125 @@ def _saved_among(saved, wanted, scale):
     dist, points = cKDTree(wanted).query(saved)
     rows = np.flatnonzero(dist <= MATCH_TOLERANCE * scale)
     return rows, points[rows]
+
+
+# --- explicit runs: the state as per-rank arrays (StateCheckpointer) ------------------------
+#: meta.json's "layout" of a StateCheckpointer's checkpoint (a Checkpointer's has none)
+STATE_LAYOUT = "per-rank state"
+
+
+def _state_file(path, rank):
+    return os.path.join(path, f"state_{rank}.npz")
+
+
+def _verify_state(path, meta):
+    """A StateCheckpointer's files: state_R.npz of every rank readable without pickle, no NaN
+    in a float array, the run state decodable."""
+    for rank in range(meta["ranks"]):
+        name = _state_file(path, rank)
+        for key, value in _load_arrays(name).items():
+            if np.issubdtype(value.dtype, np.floating) and np.isnan(value).any():
+                raise CheckpointError(f"{name}: {key!r} holds NaN: a damaged checkpoint")
+    read_run_state(path)
+
+
+class StateCheckpointer:
+    """Checkpoints of a run whose whole state is a dict of arrays per rank and a run-state
+    dict (an explicit time loop: the bridging-scale footing, BridgingCoupler.state), in the
+    directory layout and with the refusals of Checkpointer: DIR/checkpoint/ holds meta.json
+    (its "layout" STATE_LAYOUT), state_R.npz of every rank R and run.json / run_arrays.npz,
+    written as checkpoint.tmp and renamed when complete. The arrays are per rank as the
+    caller gives them; a restart reads every rank's file and matches what it owns (the
+    caller keys its arrays: BridgingCoupler.state by dof coordinates).
+
+    comm, directory, label, options, every, stop_after, restart: as Checkpointer's (steps)."""
+
+    def __init__(self, comm, directory, label, options, every=None, stop_after=None, restart=False):
+        self.comm, self.directory, self.label = comm, directory, label
+        self.options = dict(options)
+        self.every, self.stop_after, self.restart = every, stop_after, restart
+        self.resumed_step = None     # the step a restart continued from
+        self.saved_ranks = None
+        self.written, self.write_seconds = [], []
+        self.size_bytes = None
+
+    @property
+    def enabled(self):
+        return self.every is not None or self.stop_after is not None
+
+    def due(self, step):
+        """Whether a checkpoint is written after `step` (every `every`, and at stop_after)."""
+        return (self.every is not None and step % self.every == 0) or \
+               (self.stop_after is not None and step >= self.stop_after)
+
+    def stops(self, step):
+        """Whether the run stops after `step` (--stop-after)."""
+        return self.stop_after is not None and step >= self.stop_after
+
+    def write(self, step, time_, dt, arrays, run_state):
+        """Write the checkpoint of step `step` at time `time_` [s] (coarse step dt [s]):
+        `arrays` this rank's {name: array}, `run_state` (rank 0's is written) data that
+        state_codec stores. Collective; a failure raises CheckpointError on every rank."""
+        start = time.perf_counter()
+        comm = self.comm
+        final = checkpoint_path(self.directory)
+        tmp = final + ".tmp"
+        error, encoded = _open_directory(comm, tmp, run_state)
+        if not error:
+            try:
+                np.savez(_state_file(tmp, comm.rank), **arrays)
+            except (OSError, ValueError) as e:
+                error = f"cannot write the checkpoint in {tmp}: {e}"
+        errors = [e for e in comm.allgather(error) if e]
+        if not errors and comm.rank == 0:
+            try:
+                import dolfinx
+                write_encoded_run_state(tmp, encoded)
+                meta = {"format": FORMAT, "layout": STATE_LAYOUT, "label": self.label, "step": int(step),
+                        "time": float(time_), "dt": float(dt), "cuts": 0, "ranks": comm.size, "n_points": 0,
+                        "dolfinx": dolfinx.__version__, "options": state_codec.encode(self.options)[0]}
+                with open(os.path.join(tmp, "meta.json"), "w") as f:     # last: a complete directory has it
+                    json.dump(meta, f, indent=1, allow_nan=False)
+                shutil.rmtree(final, ignore_errors=True)
+                os.replace(tmp, final)
+                self.size_bytes = sum(os.path.getsize(os.path.join(final, f)) for f in os.listdir(final))
+            except (OSError, ValueError) as e:
+                errors = [f"cannot write the checkpoint in {tmp}: {e}"]
+        errors = [e for e in comm.allgather(errors[0] if errors else "") if e]
+        if errors:
+            raise CheckpointError(errors[0])
+        self.written.append(int(step))
+        self.write_seconds.append(time.perf_counter() - start)
+
+    def read(self):
+        """(meta, [the arrays of every saved rank, in rank order], run state) of the checkpoint
+        in the directory: every rank reads every rank's file, so the caller can match what it
+        owns now (BridgingCoupler.set_state matches the continuum by dof coordinates: any
+        number of ranks). Collective: a checkpoint of another demo or layout, or a damaged
+        file, is a CheckpointError on every rank."""
+        error, out = "", None
+        try:
+            meta = read_meta(self.directory, self.label)
+            if meta.get("layout") != STATE_LAYOUT:
+                raise CheckpointError(f"the checkpoint in {self.directory} is not a per-rank state checkpoint")
+            path = checkpoint_path(self.directory)
+            out = (meta, [_load_arrays(_state_file(path, r)) for r in range(meta["ranks"])], read_run_state(path))
+        except CheckpointError as e:
+            error = str(e)
+        errors = [e for e in self.comm.allgather(error) if e]
+        if errors:
+            raise CheckpointError(errors[0])
+        self.resumed_step, self.saved_ranks = out[0]["step"], out[0]["ranks"]
+        return out
+
+    def stop_note(self):
+        """The reason of a stop at --stop-after, with how to continue."""
+        return (f"stopped after step {self.stop_after} as asked (--stop-after); the checkpoint is in "
+                f"{checkpoint_path(self.directory)}; continue with --restart {self.directory}")
+
+    def summary_entries(self):
+        return {"checkpoint_steps_written": list(self.written),
+                "checkpoint_write_seconds": list(self.write_seconds),
+                "checkpoint_bytes": self.comm.bcast(self.size_bytes, root=0),
+                "restarted_from_step": self.resumed_step, "restarted_from_ranks": self.saved_ranks,
+                "stopped_after_step": self.stop_after}

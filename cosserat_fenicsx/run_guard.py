@@ -41,6 +41,11 @@ RANK_GRACE = 0.5   # [s] a rank other than 0 keeps computing this long after the
 MAIN_GRACE = 0.3   # [s] rank 0's watchdog waits this long for the main thread's handler
 
 
+def _lor():
+    from mpi4py import MPI
+    return MPI.LOR
+
+
 def strict_json(value):
     """`value` made of strict-JSON values, as every summary.json is written: tuples and
     arrays become lists, numpy numbers Python numbers, and a number that JSON cannot hold
@@ -78,6 +83,9 @@ class RunGuard:
         self.path, self.label = path, label
         self.entries = dict(entries or {})
         self.steps = 0
+        #: appended to the interruption's reason (e.g. where the checkpoint a run wrote on
+        #: the signal is and how to continue)
+        self.interrupt_note = ""
         self._depth, self._pending = 0, None
         self._wakeup = None
         self._previous = {sig: signal.signal(sig, self._handler) for sig in SIGNALS}
@@ -104,6 +112,27 @@ class RunGuard:
             self._depth -= 1
             if self._depth == 0 and self._pending is not None and self.rank == 0:
                 self._interrupt(self._pending)
+
+    def signalled(self, comm=None):
+        """Whether SIGINT or SIGTERM has arrived (on any rank of `comm`: collective when given),
+        so that a run inside `deferred` can end its step its own way (e.g. write a checkpoint)
+        before the block ends and the guard exits."""
+        mine = self._pending is not None
+        return bool(comm.allreduce(mine, op=_lor())) if comm is not None else mine
+
+    def interrupt_now(self, comm=None):
+        """End the run as the signal asks, on every rank of `comm` together (a run that
+        handled the signal itself at the end of a step: `signalled`): rank 0 writes
+        summary.json with the interruption's reason, then every rank exits with status 128 +
+        signal number."""
+        signum = self._pending or signal.SIGTERM
+        if self.rank == 0:
+            self._record_interrupt(signum)
+        if comm is not None:
+            comm.barrier()
+        sys.stdout.flush()
+        sys.stderr.flush()
+        os._exit(128 + signum)
 
     def protect(self, on_step, progress=None):
         """`on_step` wrapped: runs deferred, then counts the step; `progress(arg)` (optional)
@@ -200,15 +229,18 @@ class RunGuard:
 
         threading.Thread(target=watch, name="run-guard-watchdog", daemon=True).start()
 
-    def _interrupt(self, signum):
+    def _record_interrupt(self, signum):
         name = signal.Signals(signum).name
-        reason = f"interrupted by {name} after step {self.steps}"
+        reason = f"interrupted by {name} after step {self.steps}{self.interrupt_note}"
+        self._write(completed=False, reason=reason, interrupted_by=name, steps_completed=self.steps)
+        if self.rank == 0:
+            print(f"{self.label + ': ' if self.label else ''}{reason}; "
+                  f"the outputs of the completed steps are kept in {os.path.dirname(self.path) or '.'}",
+                  flush=True)
+
+    def _interrupt(self, signum):
         try:
-            self._write(completed=False, reason=reason, interrupted_by=name, steps_completed=self.steps)
-            if self.rank == 0:
-                print(f"{self.label + ': ' if self.label else ''}{reason}; "
-                      f"the outputs of the completed steps are kept in {os.path.dirname(self.path) or '.'}",
-                      flush=True)
+            self._record_interrupt(signum)
         finally:
             sys.stdout.flush()
             sys.stderr.flush()

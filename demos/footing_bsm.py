@@ -19,10 +19,24 @@ MPI: the DEM region lives on rank 0 (it is small); the continuum is distributed.
 
 Outputs in --out, written as the run goes: history.csv (time, settlement, plate load per
 metre of depth, the coarse/projection mismatch), summary.json, load_settlement.png,
-continuum.xdmf (u, phi of the continuum) and grains_NNNN.vtk (every grain with its
-displacement, its coarse part N d and fine part Q q, rotation, virtual flag). In ParaView:
-open continuum.xdmf ("Xdmf3 Reader T") and the grains_*.vtk series together; show the grains
-with the "Point Gaussian" representation scaled by 'radius', coloured by 'fine'.
+continuum.xdmf (u, phi of the continuum), grains_NNNN.vtk (every grain with its
+displacement, its coarse part N d and fine part Q q, rotation, virtual flag) and
+grains.vtk.series (the grain files with the continuum's times, so that ParaView plays both on
+one clock) and paraview_footing.py, a ParaView Python state that opens them together:
+
+    paraview --state=OUT/paraview_footing.py      (or File > Load State in ParaView)
+
+shows the continuum coloured by |u| (the DEM region's elements are empty of stiffness, not of
+mesh) and the grains on it as "Point Gaussian" discs of their radius coloured by the fine
+part |Q q| (by hand: open continuum.xdmf with "Xdmf3 Reader T" and grains.vtk.series).
+
+Checkpoint and restart as the other long demos (docs/reference/restart.md): --checkpoint-every
+N coarse steps, --stop-after K, --restart DIR (history.csv, continuum.xdmf and the grain series
+continued); SIGINT/SIGTERM end the run after the current coarse step with a checkpoint and
+"interrupted by SIGTERM after step k" in summary.json. The continuum's state is keyed by dof
+coordinates: a restart on the ranks that wrote the checkpoint repeats the straight run bit for
+bit, on another number of ranks it continues with the sums in another order (and its fields
+go to continuum_from_stepK.xdmf: an XDMF file keeps the partition that wrote it).
 
     mpirun -n 2 python3 demos/footing_bsm.py --packing A
 """
@@ -34,6 +48,7 @@ sys.path.insert(0, os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
 os.environ.setdefault("OMP_NUM_THREADS", "1")
 os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 
+import json
 import math
 import time
 
@@ -44,12 +59,13 @@ import numpy as np
 from mpi4py import MPI
 
 from cosserat_fenicsx import cli
+from cosserat_fenicsx.checkpoint import CheckpointError, StateCheckpointer, checkpoint_path
 from cosserat_fenicsx.bridging.coupler import BridgingCoupler, BridgingStopped
 from cosserat_fenicsx.bridging.region import build_region, region_cells
 from cosserat_fenicsx.dynamics.explicit import DynamicsError, ExplicitCosserat
 from cosserat_fenicsx.elasticity import MicropolarElasticity
 from cosserat_fenicsx.figures import pyplot
-from cosserat_fenicsx.output import CsvLog, print0
+from cosserat_fenicsx.output import CsvLog, print0, truncate_xdmf
 from cosserat_fenicsx.run_guard import RunGuard
 from cosserat_fenicsx.validation import NON_NEGATIVE, POSITIVE, Range, number
 
@@ -81,9 +97,19 @@ parser.add_argument("--threads", type=number(Range(1, 256, integer=True)), defau
                     help="Numba threads of the DEM kernel (default 1: a region of a few thousand grains gains "
                          "nothing from threads, and loses 10-40x on a loaded machine)")
 cli.add_output_options(parser, "results/footing_bsm")
+cli.add_checkpoint_options(parser, "footing_bsm")
 args = cli.parse(parser)
 comm = MPI.COMM_WORLD
 ROOT = 0
+checkpoint = StateCheckpointer(comm, args.out, args.checkpoint_label, cli.run_options(args),
+                               every=args.checkpoint_every, stop_after=args.stop_after,
+                               restart=args.restart is not None)
+resumed = None
+if args.restart is not None:
+    try:        # another rank count, a damaged file: one line before any work
+        resumed = checkpoint.read()
+    except CheckpointError as error:
+        parser.refuse(f"--restart {args.restart}: {error}")
 
 # %% 003's foundation: geometry, continuum moduli (section 5; E = 500 MPa, nu = 0.2, G_c = 70
 # MPa, l_c = 0.05 m in the G-reading of eq 20: the project's l_c = l_c sqrt(G / (2 G_c)))
@@ -103,7 +129,8 @@ if args.continuum == "lattice":
 elasticity = MicropolarElasticity(mu=G, lmbda=LAMBDA, mu_c=G_C, l_c=L_C * math.sqrt(G / (2 * G_C)))
 guard = RunGuard(comm, os.path.join(args.out, "summary.json"), label="footing_bsm",
                  entries={"packing": args.packing, "element": args.element, "speed": args.speed,
-                          "depth": args.depth, "mass_damping": args.mass_damping, "ranks": comm.size})
+                          "depth": args.depth, "mass_damping": args.mass_damping, "ranks": comm.size},
+                 write_now=resumed is None)
 
 # %% the mesh, and the region checked against it before any work (whole elements)
 cell = dolfinx.mesh.CellType.quadrilateral if args.element == "Q1/Q1" else dolfinx.mesh.CellType.triangle
@@ -163,23 +190,110 @@ guard.progress(grains_real=region.n_real, grains_virtual=region.n_virtual, grain
 setup_seconds = time.perf_counter() - t_setup
 
 # %% outputs as the run goes
+# a restart: the coupled state (continuum per rank, the region's engine, the coupler's run
+# state) and the demo's own (history rows, output index, plate origin) of the checkpoint
+y0 = comm.bcast(engine.plate_position()[2] if engine is not None else None, root=ROOT)
+rows = []
+outputs = {"index": 0, "series": [], "wall_s": 0.0, "cpu_s": 0.0, "xdmf": "continuum.xdmf"}
+same_partition = False
+if resumed is not None:
+    meta, states, run_state = resumed
+    try:
+        coupler.set_state(states)
+        if coupler.steps != meta["step"]:
+            raise ValueError(f"the coupler state is at step {coupler.steps}, meta.json says {meta['step']}")
+        rows, y0 = list(run_state["rows"]), float(run_state["y0"])
+        outputs.update({k: run_state[k] for k in ("index", "series", "wall_s", "cpu_s", "xdmf")})
+        # the XDMF file keeps the nodes in the order of the partition that wrote it: it goes on
+        # only where this run's partition is that one (dolfinx's partition of the same mesh on
+        # the same ranks is not always the same), otherwise a new series from this step
+        same_partition = comm.allreduce(
+            len(states) == comm.size and np.array_equal(states[comm.rank]["continuum_dof_coordinates"],
+                                                        continuum.dof_keys()[0]), op=MPI.LAND)
+        if not same_partition:
+            outputs["xdmf"] = f"continuum_from_step{coupler.steps}.xdmf"
+    except (ValueError, KeyError, TypeError) as error:        # InputError is a ValueError
+        guard.refuse(f"--restart {args.restart}: {checkpoint_path(args.out)} does not fit this run: {error}")
+    print0(comm, f"footing_bsm: continuing from the checkpoint of step {coupler.steps} (t = {continuum.time:.6g} s)")
+
+guard.steps = coupler.steps        # the coarse steps done (the setup's progress line is not one)
 history = CsvLog(comm, os.path.join(args.out, "history.csv"),
-                 ["step", "time", "settlement_mm", "load_kN_per_m", "mismatch_over_rmin", "fe_kinetic_J_per_m"])
-xdmf = dolfinx.io.XDMFFile(comm, os.path.join(args.out, "continuum.xdmf"), "w")
-xdmf.write_mesh(mesh)
+                 ["step", "time", "settlement_mm", "load_kN_per_m", "mismatch_over_rmin", "fe_kinetic_J_per_m"],
+                 resume_step=coupler.steps if resumed is not None else None)
+xdmf_path = os.path.join(args.out, outputs["xdmf"])
+# the file is open only while a step is written: an interrupted run leaves it readable
+if not same_partition or not os.path.isfile(xdmf_path):
+    with dolfinx.io.XDMFFile(comm, xdmf_path, "w") as xdmf:
+        xdmf.write_mesh(mesh)
+else:       # the series goes on after the checkpoint's time (later steps of a killed run dropped)
+    if comm.rank == ROOT:
+        truncate_xdmf(xdmf_path, continuum.time)
+    comm.barrier()
 u_space, u_map = continuum.subspace("u")
 phi_space, phi_map = continuum.subspace("phi")
 u_out = dolfinx.fem.Function(u_space, name="u")
 phi_out = dolfinx.fem.Function(phi_space, name="phi")
-outputs = {"index": 0}
+
+
+def write_series():
+    """grains.vtk.series: ParaView's file-series list, each grain file at its time [s]."""
+    files = [{"name": name, "time": t} for name, t in outputs["series"]]
+    tmp = os.path.join(args.out, "grains.vtk.series.tmp")
+    with open(tmp, "w") as f:
+        json.dump({"file-series-version": "1.0", "files": files}, f, indent=1)
+    os.replace(tmp, os.path.join(args.out, "grains.vtk.series"))
+
+
+PARAVIEW_STATE = """# ParaView Python state of demos/footing_bsm.py: paraview --state=paraview_footing.py
+# (or File > Load State). The continuum and the grains on one clock (the run's time [s]).
+import os
+from paraview import simple
+here = {directory!r}
+try:
+    here = os.path.dirname(os.path.abspath(__file__)) or here
+except NameError:
+    pass
+continuum = simple.Xdmf3ReaderT(registrationName="continuum", FileName=[os.path.join(here, {xdmf!r})])
+grains = simple.OpenDataFile(os.path.join(here, "grains.vtk.series"), registrationName="grains")
+view = simple.GetActiveViewOrCreate("RenderView")
+shown = simple.Show(continuum, view)
+simple.ColorBy(shown, ("POINTS", "u", "Magnitude"))
+shown.SetScalarBarVisibility(view, True)
+discs = simple.Show(grains, view)
+discs.SetRepresentationType("Point Gaussian")
+discs.Position = [0.0, 0.0, 0.01]        # in front of the continuum's plane
+discs.ScaleByArray = 1
+discs.SetScaleArray = ["POINTS", "radius"]
+discs.ScaleTransferFunction.Points = [0.0, 0.0, 0.5, 0.0, 1.0, 1.0, 0.5, 0.0]
+discs.GaussianRadius = 1.0
+discs.ShaderPreset = "Plain circle"
+simple.ColorBy(discs, ("POINTS", "fine", "Magnitude"))
+discs.SetScalarBarVisibility(view, True)
+scene = simple.GetAnimationScene()
+scene.UpdateAnimationUsingDataTimeSteps()
+scene.AnimationTime = scene.EndTime
+shown.RescaleTransferFunctionToDataRange(False, True)
+discs.RescaleTransferFunctionToDataRange(False, True)
+view.InteractionMode = "2D"
+simple.ResetCamera(view)
+simple.Render(view)
+"""
+
+
+def write_paraview_state():
+    """paraview_footing.py in the output directory (rank 0): the XDMF file this run writes."""
+    if comm.rank == ROOT:
+        with open(os.path.join(args.out, "paraview_footing.py"), "w") as f:
+            f.write(PARAVIEW_STATE.format(directory=os.path.abspath(args.out), xdmf=outputs["xdmf"]))
 
 
 def write_fields():
     disp = continuum.fields["displacement"].x.array
     u_out.x.array[:] = disp[u_map]
     phi_out.x.array[:] = disp[phi_map]
-    xdmf.write_function(u_out, continuum.time)
-    xdmf.write_function(phi_out, continuum.time)
+    with dolfinx.io.XDMFFile(comm, xdmf_path, "a") as xdmf:
+        xdmf.write_function(u_out, continuum.time)
+        xdmf.write_function(phi_out, continuum.time)
     parts = coupler.fine_part()
     if comm.rank == ROOT:
         from demcell.specimen.files import write_particles_vtk
@@ -191,13 +305,11 @@ def write_fields():
                 "virtual": region.is_virtual.astype(float)}
         data["coarse"][region.real] = coarse[:, :2]
         data["fine"][region.real] = fine[:, :2]
-        write_particles_vtk(os.path.join(args.out, f"grains_{outputs['index']:04d}.vtk"),
-                            region.position + full_q[:, :2], region.radius, data)
+        name = f"grains_{outputs['index']:04d}.vtk"
+        write_particles_vtk(os.path.join(args.out, name), region.position + full_q[:, :2], region.radius, data)
+        outputs["series"].append([name, continuum.time])
+        write_series()
     outputs["index"] += 1
-
-
-y0 = comm.bcast(engine.plate_position()[2] if engine is not None else None, root=ROOT)
-rows = []
 
 
 def record():
@@ -214,29 +326,59 @@ def record():
     return row
 
 
+def save_checkpoint(step):
+    """The coupled state and this demo's run state after coarse step `step` (collective)."""
+    state = {"rows": rows, "y0": y0, "index": outputs["index"], "series": outputs["series"], "xdmf": outputs["xdmf"],
+             "wall_s": outputs["wall_s"] + time.perf_counter() - t0,
+             "cpu_s": outputs["cpu_s"] + time.process_time() - c0}
+    try:
+        checkpoint.write(step, continuum.time, dt, coupler.state(), state)
+    except CheckpointError as error:
+        history.close()
+        guard.stop(error)
+
+
+write_paraview_state()
+
 # %% loading: the plate goes down at --speed; each coarse step = predictor, m DEM sub-steps,
-# projected forces, corrector
-if comm.rank == ROOT:
-    engine.set_plate_velocity(0.0, -args.speed)
-record()
-write_fields()
+# projected forces, corrector; a checkpoint when due, at --stop-after and on SIGINT/SIGTERM
+if resumed is None:
+    if comm.rank == ROOT:
+        engine.set_plate_velocity(0.0, -args.speed)
+    record()
+    write_fields()
 t0, c0 = time.perf_counter(), time.process_time()
+stop_note = ""
 try:
-    for step in range(1, n_steps + 1):
-        with guard.deferred():
+    # one deferred block around the loop: a signal waits for the end of the coarse step,
+    # where every rank learns of it together and the run ends with a checkpoint
+    with guard.deferred():
+        for step in range(coupler.steps + 1, n_steps + 1):
             recording = step % args.record_every == 0 or step == n_steps
             coupler.step(diagnose=recording)
+            entries = {}
             if recording:
                 row = record()
-                guard.progress(settlement_mm=row["settlement_mm"], load_kN_per_m=row["load_kN_per_m"])
+                entries = {"settlement_mm": row["settlement_mm"], "load_kN_per_m": row["load_kN_per_m"]}
                 if (len(rows) - 1) % args.output_every == 0 or step == n_steps:
                     write_fields()
+            guard.progress(**entries)
+            signalled = guard.signalled(comm)
+            if checkpoint.due(step) or signalled:
+                save_checkpoint(step)
+            if signalled:
+                history.close()
+                guard.interrupt_note = f" (checkpoint written: continue with --restart {args.out})"
+                guard.interrupt_now(comm)
+            if checkpoint.stops(step) and step < n_steps:
+                stop_note = checkpoint.stop_note()
+                print0(comm, f"footing_bsm: {stop_note}")
+                break
 except (BridgingStopped, DynamicsError) as error:
-    xdmf.close()
     history.close()
     guard.stop(error)
-wall, cpu = time.perf_counter() - t0, time.process_time() - c0
-xdmf.close()
+wall = outputs["wall_s"] + time.perf_counter() - t0
+cpu = outputs["cpu_s"] + time.process_time() - c0
 history.close()
 
 # %% summary and figure
@@ -257,7 +399,10 @@ summary = {"packing": args.packing, "element": args.element, "speed": args.speed
            "wall_s": wall, "cpu_s": cpu, "setup_wall_s": setup_seconds,
            "coupler_setup_wall_s": coupler.setup_seconds, "time_split": timing,
            "load_average": os.getloadavg(), "region": region.summary(),
-           "l_c_project": elasticity.l_c, "rho_c": rho_c, "micro_inertia": j}
+           "l_c_project": elasticity.l_c, "rho_c": rho_c, "micro_inertia": j, "steps_completed": coupler.steps,
+           "fields_file": outputs["xdmf"], **checkpoint.summary_entries()}
+if stop_note:
+    summary.update(completed=False, reason=stop_note)
 if comm.rank == ROOT:
     plt = pyplot()
     fig, ax = plt.subplots(figsize=(5.5, 4))

@@ -65,3 +65,22 @@ def test_only_requested_fields_are_written(demo, tmp_path):
     demo("shear_layer", "--fields", "displacement", "--out", tmp_path)
     data = paraview_read(tmp_path / "fields.xdmf", tmp_path / "render.png", "displacement")
     assert set(data["arrays"]) == {"displacement"}
+
+
+def test_footing_continuum_and_grains_open_together(demo, tmp_path):
+    """demos/footing_bsm.py's ParaView state opens continuum.xdmf and grains.vtk.series on one
+    clock: the same time steps (the run's seconds), every grain, the coarse/fine arrays; a
+    restarted run's state opens the continued series."""
+    demo("footing_bsm", "--packing", "A", "--depth", 0.004, "--record-every", 4, "--output-every", 2,
+         "--stop-after", 12, "--out", tmp_path)
+    demo("footing_bsm", "--restart", tmp_path)
+    data = pvbatch_json(os.path.join(ROOT, "tests", "paraview_footing_check.py"), tmp_path / "paraview_footing.py",
+                        tmp_path / "render.png")
+    summary = json.loads((tmp_path / "summary.json").read_text())
+    continuum, grains = data["continuum"], data["grains"]
+    assert len(continuum["times"]) == 5 and continuum["times"] == grains["times"]
+    assert np.isclose(continuum["times"][-1], summary["coarse_steps"] * summary["dt"], rtol=1e-12)
+    assert grains["points"] == summary["grains_real"] + summary["grains_virtual"]
+    assert {"coarse", "fine", "displacement", "radius", "virtual"} <= set(grains["arrays"])
+    assert {"u", "phi"} <= set(continuum["arrays"])
+    assert (tmp_path / "render.png").stat().st_size > 10000

@@ -40,6 +40,7 @@ from mpi4py import MPI
 
 from cosserat_fenicsx.bridging.projection import ScaleProjection
 from cosserat_fenicsx.bridging.shape_map import CosseratShapeMap
+from cosserat_fenicsx.dynamics.explicit import STATE_KEYS
 from cosserat_fenicsx.validation import InputError
 
 PHASES = ("dem", "projection", "fe", "interface")
@@ -71,6 +72,14 @@ class FineScale(abc.ABC):
     @abc.abstractmethod
     def set_skip_held_pairs(self, skip):
         """skip True: no contact between two held discs."""
+
+    @abc.abstractmethod
+    def checkpoint_arrays(self):
+        """{name: array}: everything a continued run needs (restore reads it back)."""
+
+    @abc.abstractmethod
+    def restore(self, arrays):
+        """Bring the engine, in place, to the state of a checkpoint_arrays() dict."""
 
 
 @dataclass
@@ -258,6 +267,99 @@ class BridgingCoupler:
         if causes:
             raise BridgingStopped(f"bridging-scale run stopped at t = {self.continuum.time:.6g} s "
                                   f"(step {self.steps}): {causes[0]}")
+
+    # ------------------------------------------------------------------ checkpoint
+    def state(self):
+        """{name: array} of this rank, everything a continued run needs: 'continuum_<k>' the
+        continuum's owned values (ExplicitCosserat.state) with their dofs' coordinates and
+        components ('continuum_dof_coordinates', 'continuum_dof_component': a restart matches
+        them whatever its partition), 'coupler_wall' this rank's per-phase wall seconds, and
+        on the root 'fine_<k>' the DEM region's engine (FineScale.checkpoint_arrays: grains,
+        contact history, plate, held grains) and 'coupler_<k>' this coupler's run state
+        (steps, the mismatch; the grain forces need no saving: they are evaluated from the
+        engine's state)."""
+        out = {f"continuum_{k}": np.asarray(v) for k, v in self.continuum.state().items()}
+        out["continuum_dof_coordinates"], out["continuum_dof_component"] = self.continuum.dof_keys()
+        out["coupler_wall"] = np.array([self.timings.wall[p] for p in PHASES])
+        if self.is_root:
+            out.update({f"fine_{k}": np.asarray(v) for k, v in self.fine.checkpoint_arrays().items()})
+            run = {"steps": np.array(self.steps), "max_mismatch": np.array(self.max_mismatch),
+                   "last_mismatch": np.array(self.last_mismatch)}
+            out.update({f"coupler_{k}": v for k, v in run.items()})
+        return out
+
+    def _matched_continuum(self, states):
+        """This rank's continuum state from the state() dicts of every rank of a saved run:
+        each owned dof takes the saved value of its component at its coordinates (within
+        1e-8 of the mesh's extent). InputError when a dof has no saved match."""
+        from scipy.spatial import cKDTree
+        keys = ("dof_coordinates", "dof_component") + STATE_KEYS
+        for rank, st in enumerate(states):
+            missing = [f"continuum_{k}" for k in keys if f"continuum_{k}" not in st]
+            if missing:
+                raise InputError(f"the state of rank {rank} lacks {', '.join(missing)}")
+        saved = {k: np.concatenate([np.asarray(st[f"continuum_{k}"]) for st in states]) for k in keys}
+        coordinates, component = self.continuum.dof_keys()
+        scale = float(np.ptp(saved["dof_coordinates"], axis=0).max()) if len(saved["dof_coordinates"]) else 1.0
+        rows = np.empty(len(component), dtype=np.int64)
+        for k in np.unique(component):
+            where = np.flatnonzero(saved["dof_component"] == k)
+            mine = np.flatnonzero(component == k)
+            if where.size == 0:
+                raise InputError(f"the saved state has no dof of component {int(k)}")
+            dist, found = cKDTree(saved["dof_coordinates"][where]).query(coordinates[mine])
+            bad = np.flatnonzero(~(dist <= 1e-8 * scale))
+            if bad.size:
+                x, y = coordinates[mine[bad[0]]]
+                raise InputError(f"no saved dof at ({x:.6g}, {y:.6g}) (and {bad.size - 1} more): not the same mesh")
+            rows[mine] = where[found]
+        out = {k: saved[k][rows] for k in STATE_KEYS}
+        out["time"] = states[0]["continuum_time"]
+        out["steps"] = states[0].get("continuum_steps", 0)
+        return out
+
+    def set_state(self, states):
+        """Restore the state() dicts of every rank of a saved run (a list in rank order; the
+        same mesh, region and options, any number of ranks: the continuum is matched by dof
+        coordinates, the DEM region and the run state are the saved root's). Collective: a
+        key missing or a shape that does not fit on any rank raises InputError on every rank
+        before anything is changed. On the ranks that saved it the continued run is the
+        straight run bit for bit; on others it differs by the order of the sums."""
+        error, continuum, root = "", None, None
+        try:
+            if not (isinstance(states, (list, tuple)) and states and all(isinstance(st, dict) for st in states)):
+                raise InputError("set_state needs the list of the saved ranks' state() dicts")
+            root = states[self.root] if len(states) > self.root else None
+            if root is None or "coupler_steps" not in root:
+                raise InputError(f"the saved state has no root rank {self.root} (coupler_steps)")
+            continuum = self._matched_continuum(states)
+            if self.is_root:
+                for key in ("steps", "max_mismatch", "last_mismatch"):
+                    if f"coupler_{key}" not in root:
+                        raise InputError(f"the coupler state lacks coupler_{key}")
+                if not any(k.startswith("fine_") for k in root):
+                    raise InputError("the coupler state has no DEM region (fine_*) on the root rank")
+        except InputError as e:
+            error = str(e)
+        errors = [e for e in self.comm.allgather(error) if e]
+        if errors:
+            raise InputError(errors[0])
+        try:
+            self.continuum.set_state(continuum)
+            if self.is_root:
+                self.fine.restore({k[len("fine_"):]: v for k, v in root.items() if k.startswith("fine_")})
+        except (InputError, ValueError) as e:
+            error = str(e)
+        errors = [e for e in self.comm.allgather(error) if e]
+        if errors:
+            raise InputError(errors[0])
+        self.steps = int(root["coupler_steps"])
+        self.max_mismatch = float(root["coupler_max_mismatch"])
+        self.last_mismatch = float(root["coupler_last_mismatch"])
+        # this rank's wall seconds so far when the saved run had it (timing_summary's max)
+        wall = states[self.comm.rank].get("coupler_wall") if len(states) == self.comm.size else None
+        if wall is not None and np.shape(wall) == (len(PHASES),):
+            self.timings.wall = dict(zip(PHASES, (float(v) for v in wall)))
 
     # ------------------------------------------------------------------ time loop
     def step(self, diagnose=None):

@@ -408,6 +408,22 @@ class ExplicitCosserat:
         out["steps"] = np.array(self.steps)
         return out
 
+    def dof_keys(self):
+        """(coordinates (n_owned, 2) [m], component (n_owned,) index into COMPONENTS) of the
+        owned dofs, in the order of state()'s arrays: what identifies a dof whatever the
+        partition (a state saved on other ranks is matched by them)."""
+        coordinates = np.full((self._n_owned, 2), np.nan)
+        component = np.full(self._n_owned, -1, dtype=np.int64)
+        for k, name in enumerate(COMPONENTS):
+            space, dofs = self.subspace(name)
+            x = space.tabulate_dof_coordinates()[:, :2]
+            mine = dofs < self._n_owned
+            coordinates[dofs[mine]] = x[mine]
+            component[dofs[mine]] = k
+        if (component < 0).any():
+            raise InputError("dof_keys: an owned dof of no component")
+        return coordinates, component
+
     def set_state(self, state):
         """Restore a state() dict (same mesh, element and ranks)."""
         missing = [k for k in STATE_KEYS + ("time",) if k not in state]

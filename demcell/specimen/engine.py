@@ -805,15 +805,73 @@ class Specimen:
         3.2.1): a run may settle with it and load without (004) or with it (000's DNS)."""
         self.options = self.options.with_(local_damping=alpha)
 
+    #: engine arrays a checkpoint keeps besides the SpecimenState: the plate (position,
+    #: velocity, friction and active flag in its vector; its last reaction; the tangential
+    #: springs of the discs on it), the held discs, the last step's net forces (disc_forces),
+    #: the moments the walls put on the discs, the mass damping c_m [1/s]
+    RUN_ARRAYS = ("plate_vector", "plate_force", "plate_fs", "held", "net", "external_moment")
+
+    def checkpoint_arrays(self):
+        """{name: array} of everything a continued run needs (``restored`` reads it back): the
+        SpecimenState (contact history included), the original disc order, the engine
+        arrays of RUN_ARRAYS under 'engine_<name>' and the mass damping."""
+        out = dict(self.state.to_dict(), order=self.order.copy(),
+                   engine_mass_damping=np.array(float(self.options.mass_damping)))
+        for name in self.RUN_ARRAYS:
+            out["engine_" + name] = np.array(getattr(self, name), copy=True)
+        return out
+
     def save(self, path, **extra):
-        """Checkpoint of the state (.npz; the original disc order in `order`) and the arrays
-        of `extra` (a scene's own: its phase, its reference configuration)."""
-        np.savez(path, order=self.order, **extra, **self.state.to_dict())
+        """Checkpoint of the state (.npz; the original disc order in `order`, the plate, the
+        held discs, the mass damping: ``checkpoint_arrays``) and the arrays of `extra` (a
+        scene's own: its phase, its reference configuration)."""
+        np.savez(path, **extra, **self.checkpoint_arrays())
 
     @classmethod
     def restored(cls, checkpoint, law, options):
         """The specimen of a checkpoint written by ``save`` (a dict or an open .npz), its discs
-        in the saved order (options.reorder is not applied again)."""
+        in the saved order (options.reorder is not applied again), with its plate, held discs,
+        last forces and mass damping (a checkpoint without them, written before they were
+        kept, restores a specimen without plate and without held discs). The mass damping of
+        `options` must be the saved one (InputError otherwise). Stepped on from here it
+        repeats the saved run bit for bit."""
+        keys = set(checkpoint.keys())
+        if "engine_mass_damping" in keys:
+            saved = float(np.asarray(checkpoint["engine_mass_damping"]))
+            if saved != float(options.mass_damping):
+                raise InputError(f"the specimen checkpoint has mass damping {saved:g} 1/s, the options "
+                                 f"{float(options.mass_damping):g} 1/s")
         specimen = cls(SpecimenState.from_dict(checkpoint), law, options.with_(reorder=False))
-        specimen.order = np.asarray(checkpoint["order"], np.int64)
+        order = np.asarray(checkpoint["order"], np.int64)
+        n = specimen.state.n_discs
+        if order.shape != (n,) or not np.array_equal(np.sort(order), np.arange(n)):
+            raise InputError(f"specimen checkpoint: 'order' is not a permutation of {n} discs")
+        specimen.order = order
+        present = [name for name in cls.RUN_ARRAYS if "engine_" + name in keys]
+        if not present:
+            return specimen
+        if len(present) != len(cls.RUN_ARRAYS):
+            missing = sorted(set(cls.RUN_ARRAYS) - set(present))
+            raise InputError(f"specimen checkpoint lacks the array(s) {', '.join('engine_' + m for m in missing)}")
+        for name in cls.RUN_ARRAYS:
+            current = getattr(specimen, name)
+            value = np.asarray(checkpoint["engine_" + name])
+            if value.shape != current.shape or not np.all(np.isfinite(value)):
+                raise InputError(f"specimen checkpoint: engine_{name} has shape {value.shape} (expected "
+                                 f"{current.shape}) or is not finite")
+            setattr(specimen, name, np.ascontiguousarray(value.astype(current.dtype)))
+        # the plate's candidate discs from the restored plate, then its springs and reaction
+        # (set after the rebuild, which forgets the springs of discs no longer near it)
+        plate_fs, plate_force = specimen.plate_fs.copy(), specimen.plate_force.copy()
+        specimen._rebuild()
+        specimen.plate_fs[:] = plate_fs
+        specimen.plate_force[:] = plate_force
         return specimen
+
+    def restore(self, checkpoint):
+        """Bring this specimen to a checkpoint of ``checkpoint_arrays`` in place (the same
+        law and options; ``restored``'s checks): a caller holding this object (a coupler, a
+        demo) continues with it. The caller's setting of ``set_skip_held_pairs`` is kept."""
+        skip = self.skip_held_pairs
+        self.__dict__.update(type(self).restored(checkpoint, self.law, self.options).__dict__)
+        self.skip_held_pairs = skip

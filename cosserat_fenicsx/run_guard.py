@@ -94,12 +94,14 @@ class RunGuard:
             self._write(completed=False, reason=RUNNING)
 
     # --- progress ---------------------------------------------------------------------
-    def progress(self, **entries):
+    def progress(self, write=True, **entries):
         """After a converged step: count it, merge `entries` (e.g. the last step's strain)
-        and rewrite summary.json (still `completed: false`)."""
+        and, with `write`, rewrite summary.json (still `completed: false`); a run of many
+        cheap steps writes it on the steps it records."""
         self.steps += 1
         self.entries.update(entries)
-        self._write(completed=False, reason=RUNNING)
+        if write:
+            self._write(completed=False, reason=RUNNING)
 
     @contextmanager
     def deferred(self):

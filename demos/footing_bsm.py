@@ -362,7 +362,7 @@ try:
                 entries = {"settlement_mm": row["settlement_mm"], "load_kN_per_m": row["load_kN_per_m"]}
                 if (len(rows) - 1) % args.output_every == 0 or step == n_steps:
                     write_fields()
-            guard.progress(**entries)
+            guard.progress(write=recording, **entries)
             signalled = guard.signalled(comm)
             if checkpoint.due(step) or signalled:
                 save_checkpoint(step)

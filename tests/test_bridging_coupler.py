@@ -129,7 +129,7 @@ def test_state_restored_on_a_fresh_coupler_repeats_the_run():
     coupler.run(20)
     straight = coupler.state()
     continuum2, _, engine2, fresh, _ = build(0.1, mass_damping=100.0, dirichlet=bcs)
-    fresh.set_state([saved])
+    fresh.set_state(MPI.COMM_WORLD.allgather(saved))   # every saved rank's state, as a checkpoint holds them
     assert fresh.steps == 20
     fresh.run(20)
     again = fresh.state()
@@ -142,4 +142,4 @@ def test_state_restored_on_a_fresh_coupler_repeats_the_run():
     broken = dict(saved)
     broken.pop("continuum_velocity")
     with pytest.raises(InputError, match="lacks continuum_velocity"):
-        fresh.set_state([broken])
+        fresh.set_state(MPI.COMM_WORLD.allgather(broken))

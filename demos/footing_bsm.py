@@ -3,7 +3,7 @@
 A Cosserat continuum (explicit dynamics, 003 eqs 19-20 and 31-34) covers the whole 18 m x 9 m
 foundation on 003's mesh (18 x 9 Q1 elements of 1 m; --element P2/P1 for the project's
 triangles). A 6 m x 3 m DEM region under the 2 m plate (x in [6, 12] m, y in [6, 9] m, six by
-three whole elements) holds the grains of packing A, B or C (003 Table 1 contact law). Inside
+three whole elements; --region-width, --region-depth for another) holds the grains of packing A, B or C (003 Table 1 contact law). Inside
 it the grains' motion is split into a coarse part, interpolated from the nodes, and a fine
 part (the mass-weighted projection, eqs 3-8); the nodes of the region take their mass and
 forces from the grains (eq 16, including the reactions on the virtual interface grains);
@@ -82,7 +82,11 @@ parser.add_argument("--mass-damping", type=number(NON_NEGATIVE), default=10.0,
 parser.add_argument("--substeps", type=number(Range(1, 1000, integer=True)), default=None,
                     help="DEM sub-steps per coarse step m (default: the largest the coarse stable step allows)")
 parser.add_argument("--domain-width", type=number(Range(6.0, 200.0)), default=18.0,
-                    help="width of the foundation [m] (003: 18); the DEM region stays 6 m wide, centred")
+                    help="width of the foundation [m] (003: 18); the DEM region stays centred under the plate")
+parser.add_argument("--region-width", type=number(Range(2.0, 200.0)), default=6.0,
+                    help="width of the DEM region [m], centred (003: 6; whole elements of 1 m)")
+parser.add_argument("--region-depth", type=number(Range(1.0, 9.0)), default=3.0,
+                    help="depth of the DEM region below the surface [m] (003: 3; whole elements of 1 m)")
 parser.add_argument("--continuum", choices=("003", "lattice"), default="003",
                     help="continuum moduli: 003's (E = 500 MPa, nu = 0.2, G_c = 70 MPa) or, for packings A/B, the "
                          "orientation average of the rotated square lattice's affine moduli (G = (kN + kS)/4, "
@@ -114,7 +118,10 @@ if args.restart is not None:
 # %% 003's foundation: geometry, continuum moduli (section 5; E = 500 MPa, nu = 0.2, G_c = 70
 # MPa, l_c = 0.05 m in the G-reading of eq 20: the project's l_c = l_c sqrt(G / (2 G_c)))
 WIDTH, HEIGHT, PLATE = args.domain_width, 9.0, 2.0
-BOX = (0.5 * WIDTH - 3.0, 0.5 * WIDTH + 3.0, 6.0, 9.0)
+BOX = (0.5 * (WIDTH - args.region_width), 0.5 * (WIDTH + args.region_width), HEIGHT - args.region_depth, HEIGHT)
+if args.region_width >= WIDTH:
+    parser.refuse(f"--region-width {args.region_width:g} m must be less than --domain-width {WIDTH:g} m: the "
+                  "continuum must surround the DEM region (the full DEM is demcell.specimen.footing)")
 E_MOD, NU, G_C, L_C = 500e6, 0.2, 70e6, 0.05
 G = E_MOD / (2 * (1 + NU))
 LAMBDA = 2 * G * NU / (1 - 2 * NU)

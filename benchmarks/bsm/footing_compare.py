@@ -6,7 +6,7 @@ loop wall times are tabulated (docs/results/bsm.md).
 
     PYTHONPATH=. python3 benchmarks/bsm/footing_compare.py [--cases A:003:10 B:003:10 C:003:10 A:lattice:100]
 
-A case is PACKING:CONTINUUM:C_M[:SPEED[:DOMAIN_WIDTH]].
+A case is PACKING:CONTINUUM:C_M[:SPEED[:DOMAIN_WIDTH[:REGION_WIDTHxREGION_DEPTH]]] (region 6x3 by default).
 """
 import argparse
 import csv
@@ -27,11 +27,12 @@ def compare(case, out):
     packing, continuum, c_m = fields[0], fields[1], float(fields[2])
     speed = float(fields[3]) if len(fields) > 3 else 1.0
     width = float(fields[4]) if len(fields) > 4 else 18.0
+    region = fields[5].split("x") if len(fields) > 5 else ("6", "3")
     run_dir = os.path.join(out, case.replace(":", "_"))
     env = dict(os.environ, OMP_NUM_THREADS="1", PYTHONPATH=ROOT)
     cmd = [sys.executable, os.path.join(ROOT, "demos", "footing_bsm.py"), "--packing", packing,
            "--continuum", continuum, "--mass-damping", str(c_m), "--speed", str(speed),
-           "--domain-width", str(width), "--out", run_dir]
+           "--domain-width", str(width), "--region-width", region[0], "--region-depth", region[1], "--out", run_dir]
     subprocess.run(cmd, check=True, env=env, capture_output=True, text=True)
     with open(os.path.join(run_dir, "summary.json")) as f:
         summary = json.load(f)

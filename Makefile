@@ -40,6 +40,7 @@ demo: deps
 	$(MPIRUN) -n $(NP) $(PYTHON) demos/femdem_biaxial.py --axial-strain 0.03 --steps 30 --out $(OUT)/femdem_biaxial
 	$(PYTHON) demos/dem_specimen.py --nx 30 --ny 69 --duration 90 --snapshots 0,30,60,90 --out $(OUT)/dem_specimen
 	$(PYTHON) demos/dem_specimen.py --specimen tiled --tiles 1x2 --axial-strain 0.02 --out $(OUT)/dem_specimen_tiled
+	$(MPIRUN) -n $(NP) $(PYTHON) demos/footing_bsm.py --packing A --out $(OUT)/footing_bsm_A
 
 test: deps
 	NP=$(NP) TEST_TIMEOUT=$(TEST_TIMEOUT) tests/run_suite.sh $(PYTHON)

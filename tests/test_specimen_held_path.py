@@ -125,10 +125,41 @@ def test_forces_now_are_the_next_steps_forces_and_commit_nothing():
     assert np.array_equal(spec.disc_forces(), now)      # bit for bit: the same sums
 
 
+def virtual_pair_forces(state, order, is_virtual):
+    """(n, 3) forces and moments, original order, that the contacts BETWEEN two virtual discs
+    put on them (demcell.specimen.state's pair convention: force fn n + fs t on j, its
+    opposite on i; moments -a_i fs - mr on i, -a_j fs + mr on j)."""
+    n = order.size
+    out = np.zeros((n, 3))
+    virtual_engine = is_virtual[order]
+    i, j = state.pair_i, state.pair_j
+    both = virtual_engine[i] & virtual_engine[j] & (state.touching != 0)
+    if not np.any(both):
+        return out
+    i, j = i[both], j[both]
+    fn, fs, mr = state.fn[both], state.fs[both], state.mr[both]
+    branch = state.position[j] - state.position[i]
+    dist = np.hypot(branch[:, 0], branch[:, 1])
+    nrm = branch / dist[:, None]
+    tng = np.column_stack([-nrm[:, 1], nrm[:, 0]])
+    force = fn[:, None] * nrm + fs[:, None] * tng
+    overlap = state.radius[i] + state.radius[j] - dist
+    a_i = state.radius[i] - 0.5 * overlap
+    a_j = state.radius[j] - 0.5 * overlap
+    engine = np.zeros((n, 3))
+    np.add.at(engine[:, 0], j, force[:, 0])
+    np.add.at(engine[:, 1], j, force[:, 1])
+    np.add.at(engine[:, 0], i, -force[:, 0])
+    np.add.at(engine[:, 1], i, -force[:, 1])
+    np.add.at(engine[:, 2], i, -a_i * fs - mr)
+    np.add.at(engine[:, 2], j, -a_j * fs + mr)
+    out[order] = engine
+    return out
+
+
 def test_skip_held_pairs_drops_exactly_their_forces():
     """Skipping the held-held contacts changes nothing for the free discs (held discs ignore
     forces) and removes from disc_forces exactly the held-held pair forces."""
-    from cosserat_fenicsx.bridging.coupler import virtual_pair_forces
     rng = np.random.default_rng(4)
     a, held = squeezed(LAW)
     b, _ = squeezed(LAW)

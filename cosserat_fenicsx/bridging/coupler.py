@@ -88,15 +88,11 @@ class Timings:
     0.3 ms per call in a process with Numba's and MPI's threads, more than some phases.)"""
     wall: dict = field(default_factory=lambda: {p: 0.0 for p in PHASES})
 
-    def add(self, phase, wall0, _unused=None):
+    def add(self, phase, wall0):
         self.wall[phase] += time.perf_counter() - wall0
 
     def as_dict(self):
         return {"wall_s": dict(self.wall)}
-
-
-def _clock():
-    return time.perf_counter(), None
 
 
 def in_original_order(order, array):
@@ -104,37 +100,6 @@ def in_original_order(order, array):
     out = np.empty_like(array)
     out[order] = array
     return out
-
-
-def virtual_pair_forces(state, order, is_virtual):
-    """(n, 3) forces and moments, original order, that the contacts BETWEEN two virtual discs
-    put on them (demcell.specimen.state's pair convention: force fn n + fs t on j, its
-    opposite on i; moments -a_i fs - mr on i, -a_j fs + mr on j)."""
-    n = order.size
-    out = np.zeros((n, 3))
-    virtual_engine = is_virtual[order]
-    i, j = state.pair_i, state.pair_j
-    both = virtual_engine[i] & virtual_engine[j] & (state.touching != 0)
-    if not np.any(both):
-        return out
-    i, j = i[both], j[both]
-    fn, fs, mr = state.fn[both], state.fs[both], state.mr[both]
-    branch = state.position[j] - state.position[i]
-    dist = np.hypot(branch[:, 0], branch[:, 1])
-    nrm = branch / dist[:, None]
-    tng = np.column_stack([-nrm[:, 1], nrm[:, 0]])
-    force = fn[:, None] * nrm + fs[:, None] * tng
-    overlap = state.radius[i] + state.radius[j] - dist
-    a_i = state.radius[i] - 0.5 * overlap
-    a_j = state.radius[j] - 0.5 * overlap
-    engine = np.zeros((n, 3))
-    np.add.at(engine[:, 0], j, force[:, 0])
-    np.add.at(engine[:, 1], j, force[:, 1])
-    np.add.at(engine[:, 0], i, -force[:, 0])
-    np.add.at(engine[:, 1], i, -force[:, 1])
-    np.add.at(engine[:, 2], i, -a_i * fs - mr)
-    np.add.at(engine[:, 2], j, -a_j * fs + mr)
-    return in_original_order(order, engine)
 
 
 def _declare_specimen():
@@ -188,7 +153,7 @@ class BridgingCoupler:
         if fine_dt is not None and abs(fine_dt - self.dt_fine) > 1e-12 * self.dt_fine:
             raise InputError(f"the DEM step {fine_dt:.6g} s must be dt / substeps = {self.dt_fine:.6g} s")
         self.timings = Timings()
-        w0, c0 = _clock()
+        w0 = time.perf_counter()
         spaces = {name: continuum.subspace(name) for name in ("u1", "u2", "phi")}
         self.shape = CosseratShapeMap(continuum.space, region.position, spaces=spaces)
         # the virtual grains alone: the interface data of every step
@@ -370,16 +335,16 @@ class BridgingCoupler:
         c = self.continuum
         region = self.region
         virtual = region.virtual
-        w0, c0 = _clock()
+        w0 = time.perf_counter()
         interface = self.shape_virtual.interpolate([c.displacement, c.velocity, c.acceleration], self.root)
-        self.timings.add("interface", w0, c0)
-        w0, c0 = _clock()
+        self.timings.add("interface", w0)
+        w0 = time.perf_counter()
         c.predict(self.dt)
-        self.timings.add("fe", w0, c0)
+        self.timings.add("fe", w0)
         forces = None
         cause = None
         if self.is_root:
-            w0, c0 = _clock()
+            w0 = time.perf_counter()
             # the virtual grains' path from t_n (full arrays in the region's order; the engine
             # reads the held rows only); the forces at q^{n+1} after the m sub-steps
             start = np.zeros((region.n_discs, 3))
@@ -395,12 +360,12 @@ class BridgingCoupler:
                 # the engine's own stop (lost discs, non-finite state) reaches every rank
                 cause = f"the DEM region stopped: {error}"
             forces = self.coupling_forces()
-            self.timings.add("dem", w0, c0)
-            w0, c0 = _clock()
+            self.timings.add("dem", w0)
+            w0 = time.perf_counter()
             if cause is None and not np.all(np.isfinite(forces)):
                 cause = "a grain force is not finite"
-            self.timings.add("interface", w0, c0)
-            w0, c0 = _clock()
+            self.timings.add("interface", w0)
+            w0 = time.perf_counter()
             q = self.grain_motion()
             escaped = region.escaped(region.position[region.real] + q[region.real, :2])
             if escaped.size and cause is None:
@@ -410,27 +375,27 @@ class BridgingCoupler:
                          f"{region.position[escaped[0], 1] + q[escaped[0], 1]:.4g}) m)")
             if diagnose:
                 self._coarse_q = self.projection.coarse(q[region.real])
-            self.timings.add("projection", w0, c0)
+            self.timings.add("projection", w0)
         self._stop(cause)
-        w0, c0 = _clock()
+        w0 = time.perf_counter()
         if self.comm.size > 1:
             if not self.is_root:
                 forces = np.empty((self.region.n_discs, 3))
             self.comm.Bcast(forces, root=self.root)
         self.coupling_force.set(0.0)
         self.shape.add_transpose(forces, self.coupling_force)
-        self.timings.add("interface", w0, c0)
-        w0, c0 = _clock()
+        self.timings.add("interface", w0)
+        w0 = time.perf_counter()
         c.correct(self.dt, self.coupling_force)
-        self.timings.add("fe", w0, c0)
+        self.timings.add("fe", w0)
         if diagnose:
-            w0, c0 = _clock()
+            w0 = time.perf_counter()
             nd = self.shape.interpolate(c.displacement, self.root)
             if self.is_root:
                 mismatch = np.abs(nd[region.real] - self._coarse_q)
                 self.last_mismatch = float(np.max(np.hypot(mismatch[:, 0], mismatch[:, 1]))) / self.r_min
                 self.max_mismatch = max(self.max_mismatch, self.last_mismatch)
-            self.timings.add("projection", w0, c0)
+            self.timings.add("projection", w0)
         self.steps += 1
 
     def run(self, n_steps, on_step=None):

@@ -37,6 +37,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 from mpi4py import MPI
+from petsc4py import PETSc
 
 from cosserat_fenicsx.bridging.projection import ScaleProjection
 from cosserat_fenicsx.bridging.shape_map import CosseratShapeMap
@@ -121,11 +122,17 @@ class BridgingCoupler:
     coarse_force: "grains" (003 eq 16: N_R^T F_R + N_V^T F_V) or "interface" (N_V^T F_V
         only: the region's nodes are not driven by the real grains, a coupling derived from
         a potential, which conserves energy where "grains" slowly does not; the region's
-        nodes then do not follow the grains, so the mismatch diagnostic is meaningless).
+        nodes then do not follow the grains, so the mismatch diagnostic is meaningless);
+        default "grains", or "interface" with region_nodes="projected" (the only one it takes);
+    region_nodes: "integrated" (default: every node of the region integrated with eqs 31-34
+        under coarse_force) or "projected" (the region's own nodes, those with no continuum
+        mass that drive no virtual grain, set to d_hat(q), d_hat(qdot), d_hat(M_p^-1 F_R)
+        (eqs 3-5) after each step; the other nodes under N_V^T F_V: the conservative
+        coupling of the module docstring, `projected_dofs` marks the set ones).
     """
 
     def __init__(self, continuum, region, fine, dt, substeps, fine_dt=None, root=0, diagnose_every=10,
-                 force_time="end", coarse_force="grains"):
+                 force_time="end", coarse_force=None, region_nodes="integrated"):
         self.continuum, self.region, self.fine = continuum, region, fine
         self.comm = continuum.comm
         self.root = root
@@ -142,9 +149,17 @@ class BridgingCoupler:
         if force_time not in ("end", "lagged"):
             raise InputError(f"force_time must be 'end' or 'lagged', got {force_time!r}")
         self.force_time = force_time
+        if region_nodes not in ("integrated", "projected"):
+            raise InputError(f"region_nodes must be 'integrated' or 'projected', got {region_nodes!r}")
+        if coarse_force is None:
+            coarse_force = "interface" if region_nodes == "projected" else "grains"
         if coarse_force not in ("grains", "interface"):
             raise InputError(f"coarse_force must be 'grains' or 'interface', got {coarse_force!r}")
+        if region_nodes == "projected" and coarse_force != "interface":
+            raise InputError("region_nodes='projected' takes coarse_force='interface' only (N_R^T F_R on the "
+                             "nodes that drive the virtual grains is the non-conservative term)")
         self.coarse_force = coarse_force
+        self.region_nodes = region_nodes
         if self.is_root:
             # the contacts between two virtual grains are the continuum's (decision 1)
             fine.set_skip_held_pairs(True)
@@ -179,11 +194,21 @@ class BridgingCoupler:
         weights = np.zeros((region.n_discs, 3))
         weights[:n_real] = np.column_stack([region.mass[:n_real], region.mass[:n_real],
                                             region.inertia[:n_real]])
+        continuum_mass = continuum.mass.array.copy()
         added = continuum.mass.duplicate()
         added.set(0.0)
         self.shape.add_lumped_mass(weights, added)
         continuum.add_mass(added)
+        # the dofs some virtual grain's shape functions see (N_V != 0), assembled over ranks
+        added.set(0.0)
+        self.shape_virtual.add_lumped_mass(np.ones((region.n_virtual, 3)), added)
+        drives_virtual = added.array > 0.0
         added.destroy()
+        self.projected_dofs = np.zeros(continuum_mass.size, dtype=bool)
+        self._projected = []
+        if region_nodes == "projected":
+            self.projected_dofs = continuum.free_dofs & (continuum_mass == 0.0) & ~drives_virtual
+            self._projected = self._projected_maps(spaces)
         stable = continuum.stable_time_step()
         self.stable_dt = stable
         if self.dt > stable["power"]:
@@ -199,6 +224,54 @@ class BridgingCoupler:
         self.last_mismatch = 0.0
         # shape maps, projection, mass and stable step: once, apart from the loop's phases
         self.setup_seconds = time.perf_counter() - w0
+
+    def _projected_maps(self, spaces):
+        """Per component (u1, u2, phi): (owned W dofs of projected_dofs, their rows in the
+        projection's coefficient arrays, column of the coefficients)."""
+        nodes = self.comm.bcast((self.projection.nodes_u, self.projection.nodes_phi)
+                                if self.is_root else None, root=self.root)
+        n_owned = self.projected_dofs.size
+        maps, found = [], 0
+        for c, name in enumerate(("u1", "u2", "phi")):
+            space, to_parent = spaces[name]
+            index_map = space.dofmap.index_map
+            local = np.arange(index_map.size_local, dtype=np.int32)
+            parent = np.asarray(to_parent)[local]
+            keep = parent < n_owned
+            local, parent = local[keep], parent[keep]
+            keep = self.projected_dofs[parent]
+            local, parent = local[keep], parent[keep]
+            glob = np.asarray(index_map.local_to_global(local))
+            node_list = nodes[0] if c < 2 else nodes[1]
+            rows = np.searchsorted(node_list, glob)
+            if np.any(rows >= node_list.size) or np.any(node_list[np.minimum(rows, node_list.size - 1)] != glob):
+                raise InputError("region_nodes='projected': a massless region dof is not a node of the projection")
+            maps.append((parent, rows, c))
+            found += parent.size
+        if self.comm.allreduce(found) == 0:
+            raise InputError("region_nodes='projected': the region has no node free of continuum mass and "
+                             "virtual grains (refine the mesh or enlarge the region)")
+        return maps
+
+    def _set_projected_nodes(self, q, forces):
+        """Projected region nodes: d = d_hat(q), v = d_hat(qdot), a = M^-1 N^T F_R (eqs 3-5,
+        the consistent M; the grains' half-step velocities), owned values then ghosts."""
+        coefficients = None
+        if self.is_root:
+            st = self.fine.state
+            real = self.region.real
+            qdot = np.column_stack([in_original_order(self.fine.order, st.velocity),
+                                    in_original_order(self.fine.order, st.spin)])[real]
+            weights = np.column_stack([self.region.mass, self.region.mass, self.region.inertia])[real]
+            coefficients = [self.projection.project(x) for x in (q[real], qdot, forces[real] / weights)]
+            coefficients = [(k.u, k.phi) for k in coefficients]
+        coefficients = self.comm.bcast(coefficients, root=self.root)
+        c = self.continuum
+        for vec, (u, phi) in zip((c.displacement, c.velocity, c.acceleration), coefficients):
+            values = vec.array
+            for dofs, rows, comp in self._projected:
+                values[dofs] = u[rows, comp] if comp < 2 else phi[rows]
+            vec.ghostUpdate(addv=PETSc.InsertMode.INSERT, mode=PETSc.ScatterMode.FORWARD)
 
     # ------------------------------------------------------------------ grain state
     def grain_motion(self):
@@ -221,8 +294,6 @@ class BridgingCoupler:
             forces = np.array(self.fine.forces_now(), dtype=float, copy=True)
         else:
             forces = np.array(self.fine.disc_forces(), dtype=float, copy=True)
-        if self.coarse_force == "interface":
-            forces[:self.region.n_real] = 0.0
         return forces
 
     def _stop(self, message):
@@ -359,7 +430,10 @@ class BridgingCoupler:
             except (RuntimeError, ValueError, FloatingPointError) as error:
                 # the engine's own stop (lost discs, non-finite state) reaches every rank
                 cause = f"the DEM region stopped: {error}"
-            forces = self.coupling_forces()
+            grain_forces = self.coupling_forces()
+            forces = grain_forces.copy()
+            if self.coarse_force == "interface":
+                forces[:region.n_real] = 0.0
             self.timings.add("dem", w0)
             w0 = time.perf_counter()
             if cause is None and not np.all(np.isfinite(forces)):
@@ -376,6 +450,8 @@ class BridgingCoupler:
             if diagnose:
                 self._coarse_q = self.projection.coarse(q[region.real])
             self.timings.add("projection", w0)
+        else:
+            q = grain_forces = None
         self._stop(cause)
         w0 = time.perf_counter()
         if self.comm.size > 1:
@@ -388,6 +464,10 @@ class BridgingCoupler:
         w0 = time.perf_counter()
         c.correct(self.dt, self.coupling_force)
         self.timings.add("fe", w0)
+        if self._projected:
+            w0 = time.perf_counter()
+            self._set_projected_nodes(q, grain_forces)
+            self.timings.add("projection", w0)
         if diagnose:
             w0 = time.perf_counter()
             nd = self.shape.interpolate(c.displacement, self.root)

@@ -324,7 +324,8 @@ class BridgingCoupler:
             weights = np.column_stack([self.region.mass, self.region.mass, self.region.inertia])[real]
             coefficients = [self.projection.project(x) for x in (q[real], qdot, forces[real] / weights)]
             coefficients = [(k.u, k.phi) for k in coefficients]
-        coefficients = self.comm.bcast(coefficients, root=self.root)
+        if self.comm.size > 1:
+            coefficients = self.comm.bcast(coefficients, root=self.root)
         c = self.continuum
         for vec, (u, phi) in zip((c.displacement, c.velocity, c.acceleration), coefficients):
             values = vec.array

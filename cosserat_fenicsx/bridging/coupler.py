@@ -349,7 +349,8 @@ class BridgingCoupler:
         """(n, 3) grain forces entering eq 16 (root): all forces on real grains, and on the
         virtual ones only those of real grains (the engine skips virtual-virtual contacts), at
         the current configuration q^{n+1} ("end") or at the start of the last sub-step
-        ("lagged": one fine step behind, kept to show the instability it causes)."""
+        ("lagged": one fine step behind, kept to show the instability it causes). All rows:
+        with coarse_force="interface" step() passes only the virtual rows to the nodes."""
         if self.force_time == "end":
             forces = np.array(self.fine.forces_now(), dtype=float, copy=True)
         else:

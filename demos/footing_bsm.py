@@ -97,6 +97,9 @@ parser.add_argument("--record-every", type=number(Range(1, integer=True)), defau
 parser.add_argument("--output-every", type=number(Range(1, integer=True)), default=10,
                     help="history rows between two XDMF/VTK outputs (default %(default)s)")
 parser.add_argument("--seed", type=number(Range(0, integer=True)), default=0, help="packing C's seed")
+parser.add_argument("--region-nodes", choices=("integrated", "projected"), default="integrated",
+                    help="BridgingCoupler(region_nodes=...): the region's nodes under 003 eq 16 (default), or "
+                         "set to the grains' projection d_hat(q) with the interface under N_V^T F_V only")
 parser.add_argument("--threads", type=number(Range(1, 256, integer=True)), default=1,
                     help="Numba threads of the DEM kernel (default 1: a region of a few thousand grains gains "
                          "nothing from threads, and loses 10-40x on a loaded machine)")
@@ -185,7 +188,8 @@ dt_fine = comm.bcast(engine.options.dt if engine is not None else None, root=ROO
 stable = continuum.stable_time_step()  # without the grains' mass: the coupler checks again with it
 substeps = args.substeps or max(1, int(0.9 * stable["power"] / dt_fine))
 try:
-    coupler = BridgingCoupler(continuum, region, engine, dt_fine * substeps, substeps, fine_dt=dt_fine)
+    coupler = BridgingCoupler(continuum, region, engine, dt_fine * substeps, substeps, fine_dt=dt_fine,
+                              region_nodes=args.region_nodes)
 except ValueError as error:
     guard.refuse(error)
 dt = coupler.dt

@@ -47,8 +47,9 @@ def hexagonal_packing(domain, radius):
 
 
 def build(radius, size=4.0, box=(1.0, 3.0, 1.0, 3.0), cells=4, substeps=2, mass_damping=0.0, dirichlet=(),
-          comm=MPI.COMM_WORLD):
-    """Continuum, region, engine (rank 0) and coupler of the hexagonal patch."""
+          comm=MPI.COMM_WORLD, **coupler_options):
+    """Continuum, region, engine (rank 0) and coupler of the hexagonal patch (coupler_options:
+    BridgingCoupler's keywords, e.g. region_nodes)."""
     from demcell.contact_law import ContactLaw
     from demcell.estimates import hexagonal_moduli
     from demcell.specimen import Specimen, SpecimenOptions, SpecimenState
@@ -75,7 +76,8 @@ def build(radius, size=4.0, box=(1.0, 3.0, 1.0, 3.0), cells=4, substeps=2, mass_
         engine.hold(region.is_virtual)
     dt = min(dt_fine * substeps, 0.9 * continuum.stable_time_step()["power"])
     substeps = max(1, int(round(dt / dt_fine)))
-    coupler = BridgingCoupler(continuum, region, engine, dt_fine * substeps, substeps, fine_dt=dt_fine)
+    coupler = BridgingCoupler(continuum, region, engine, dt_fine * substeps, substeps, fine_dt=dt_fine,
+                              **coupler_options)
     return continuum, region, engine, coupler, moduli
 
 

@@ -23,6 +23,45 @@ lumped; HRZ for P2, whose row sums can be negative), added once; the elements of
 max |N_R d - P q| / r_min = max |N_R (d - d_hat(q))| / r_min (how far the coarse nodes are
 from the projection of the grains), every `diagnose_every` steps (or on request).
 
+Energy, and the region's nodes (region_nodes). Let C be the dofs that carry continuum mass
+(the elements outside the region) or drive a virtual grain (N_V != 0), and S the region's
+other nodes (inside Omega_D, seen by real grains only). The undamped system with the energy
+
+    H = 1/2 ddot_C^T M_C ddot_C + 1/2 d^T K d + 1/2 qdot^T M_p qdot + W(q_R, N_V d)
+
+(K the Cosserat stiffness outside the region, M_C any fixed positive mass of C, W the contact
+energy of the real grains among themselves and with the virtual ones, q_V = N_V d, eq 17)
+has the Lagrange equations
+
+    M_p q_R'' = F_R = -dW/dq_R                                  (eq 15: what the engine integrates)
+    M_C d_C'' = -(K d)_C + (N_V^T F_V)_C,  F_V = -dW/dq_V       (coarse_force="interface")
+
+and d_S enters H nowhere (no mass, stiffness or virtual grain): it is free, and
+region_nodes="projected" sets it to eq 3's d_hat(q) = M^-1 N^T M_p q (consistent M, eq 5)
+after every step, with velocity d_hat(qdot) and acceleration M^-1 N^T F_R. M_C keeps the
+grains' lumped share on the nodes of Gamma_I (the stable step is unchanged; it only changes
+H's kinetic term). Eq 16 instead drives all of the region's nodes by N_R^T F_R,
+(M_FE + M_D) d'' = -K d + N_R^T F_R + N_V^T F_V with M_D = N_R^T M_p N_R (lumped here). The
+energy that counts the grains' kinetic energy once, E = 1/2 d'^T M_FE d' + 1/2 q'^T M_p q' +
+1/2 d^T K d + W, then changes at the rate (eq 15 for F_R)
+
+    dE/dt = d'^T (M_FE d'' + K d - N_V^T F_V) = (N_R d')^T M_p (q_R'' - N_R d''),
+
+which vanishes exactly when d = d_hat(q) on every node of the region with the consistent M_D
+(N_R^T M_p Q = 0, eq 12). That constraint cannot hold at the nodes of Gamma_I, which also
+carry M_FE and K: substituting it into eq 16 leaves there M_D (d - d_hat)'' = r with
+r = -(M_FE d'' + K d - N_V^T F_V) != 0, and M_D^-1 spreads r to every node of the region. It
+would hold only if the grains received the constraint's reaction M_p N_R M_D^-1 r in eq 15
+(the continuum's inertia and stiffness at Gamma_I acting on the grains, Wagner and Liu's
+full bridging scale); the engine integrates eq 15 without it. So with eq 16 the nodes drift
+from d_hat(q) and E has a source term of no sign (the slow growth of the undamped patch,
+docs/results/bsm.md), whether M_D is lumped or consistent. Time integration: at m = 1 the
+loop is velocity Verlet of H (the grains' leapfrog is Verlet for positions; F_R and F_V are
+evaluated at (q^{n+1}, N_V d^{n+1})), symplectic, so H's error stays bounded while the
+contact law is elastic (no sliding); at m > 1 the virtual grains follow the predictor's
+parabola inside the step (eqs 25-26), a multiple-time-step scheme with no such proof
+(measured: docs/results/bsm.md).
+
 MPI: the DEM lives on rank `root` (0); the continuum is distributed. Grain forces are
 broadcast, interpolated values reduced to the root (shape_map.py).
 
@@ -37,6 +76,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 from mpi4py import MPI
+from petsc4py import PETSc
 
 from cosserat_fenicsx.bridging.projection import ScaleProjection
 from cosserat_fenicsx.bridging.shape_map import CosseratShapeMap
@@ -121,11 +161,17 @@ class BridgingCoupler:
     coarse_force: "grains" (003 eq 16: N_R^T F_R + N_V^T F_V) or "interface" (N_V^T F_V
         only: the region's nodes are not driven by the real grains, a coupling derived from
         a potential, which conserves energy where "grains" slowly does not; the region's
-        nodes then do not follow the grains, so the mismatch diagnostic is meaningless).
+        nodes then do not follow the grains, so the mismatch diagnostic is meaningless);
+        default "grains", or "interface" with region_nodes="projected" (the only one it takes);
+    region_nodes: "integrated" (default: every node of the region integrated with eqs 31-34
+        under coarse_force) or "projected" (the region's own nodes, those with no continuum
+        mass that drive no virtual grain, set to d_hat(q), d_hat(qdot), d_hat(M_p^-1 F_R)
+        (eqs 3-5) after each step; the other nodes under N_V^T F_V: the conservative
+        coupling of the module docstring, `projected_dofs` marks the set ones).
     """
 
     def __init__(self, continuum, region, fine, dt, substeps, fine_dt=None, root=0, diagnose_every=10,
-                 force_time="end", coarse_force="grains"):
+                 force_time="end", coarse_force=None, region_nodes="integrated"):
         self.continuum, self.region, self.fine = continuum, region, fine
         self.comm = continuum.comm
         self.root = root
@@ -142,9 +188,17 @@ class BridgingCoupler:
         if force_time not in ("end", "lagged"):
             raise InputError(f"force_time must be 'end' or 'lagged', got {force_time!r}")
         self.force_time = force_time
+        if region_nodes not in ("integrated", "projected"):
+            raise InputError(f"region_nodes must be 'integrated' or 'projected', got {region_nodes!r}")
+        if coarse_force is None:
+            coarse_force = "interface" if region_nodes == "projected" else "grains"
         if coarse_force not in ("grains", "interface"):
             raise InputError(f"coarse_force must be 'grains' or 'interface', got {coarse_force!r}")
+        if region_nodes == "projected" and coarse_force != "interface":
+            raise InputError("region_nodes='projected' takes coarse_force='interface' only (N_R^T F_R on the "
+                             "nodes that drive the virtual grains is the non-conservative term)")
         self.coarse_force = coarse_force
+        self.region_nodes = region_nodes
         if self.is_root:
             # the contacts between two virtual grains are the continuum's (decision 1)
             fine.set_skip_held_pairs(True)
@@ -179,11 +233,22 @@ class BridgingCoupler:
         weights = np.zeros((region.n_discs, 3))
         weights[:n_real] = np.column_stack([region.mass[:n_real], region.mass[:n_real],
                                             region.inertia[:n_real]])
+        continuum_mass = continuum.mass.array.copy()
         added = continuum.mass.duplicate()
         added.set(0.0)
         self.shape.add_lumped_mass(weights, added)
         continuum.add_mass(added)
+        # the dofs some virtual grain's shape functions see (N_V != 0), assembled over ranks
+        added.set(0.0)
+        self.shape_virtual.add_lumped_mass(np.ones((region.n_virtual, 3)), added)
+        drives_virtual = added.array > 0.0
         added.destroy()
+        # S: the region's own dofs (no continuum mass, no virtual grain), set to d_hat(q) when
+        # projected; projected_dofs is S then and empty otherwise
+        self.own_dofs = continuum.free_dofs & (continuum_mass == 0.0) & ~drives_virtual
+        self._own = self._own_maps(spaces, refuse=region_nodes == "projected")
+        self.projected_dofs = self.own_dofs if region_nodes == "projected" else np.zeros_like(self.own_dofs)
+        self._projected = self._own if region_nodes == "projected" else []
         stable = continuum.stable_time_step()
         self.stable_dt = stable
         if self.dt > stable["power"]:
@@ -199,6 +264,74 @@ class BridgingCoupler:
         self.last_mismatch = 0.0
         # shape maps, projection, mass and stable step: once, apart from the loop's phases
         self.setup_seconds = time.perf_counter() - w0
+
+    def _own_maps(self, spaces, refuse):
+        """Per component (u1, u2, phi): (owned W dofs of own_dofs, their rows in the
+        projection's coefficient arrays, column of the coefficients); refuse: a region
+        without such dofs is an InputError."""
+        nodes = self.comm.bcast((self.projection.nodes_u, self.projection.nodes_phi)
+                                if self.is_root else None, root=self.root)
+        n_owned = self.own_dofs.size
+        maps, found = [], 0
+        for c, name in enumerate(("u1", "u2", "phi")):
+            space, to_parent = spaces[name]
+            index_map = space.dofmap.index_map
+            local = np.arange(index_map.size_local, dtype=np.int32)
+            parent = np.asarray(to_parent)[local]
+            keep = parent < n_owned
+            local, parent = local[keep], parent[keep]
+            keep = self.own_dofs[parent]
+            local, parent = local[keep], parent[keep]
+            glob = np.asarray(index_map.local_to_global(local))
+            node_list = nodes[0] if c < 2 else nodes[1]
+            rows = np.searchsorted(node_list, glob)
+            if np.any(rows >= node_list.size) or np.any(node_list[np.minimum(rows, node_list.size - 1)] != glob):
+                raise InputError("region_nodes='projected': a massless region dof is not a node of the projection")
+            maps.append((parent, rows, c))
+            found += parent.size
+        if refuse and self.comm.allreduce(found) == 0:
+            raise InputError("region_nodes='projected': the region has no node free of continuum mass and "
+                             "virtual grains (refine the mesh or enlarge the region)")
+        return maps
+
+    def projection_gap(self):
+        """(max |d - d_hat(q)| [m] over the translations, the same [rad] over the rotations) at
+        the region's own nodes (own_dofs), global (collective): zero to round-off with
+        region_nodes="projected", the drift of those nodes from eq 3 under eq 16."""
+        coefficients = None
+        if self.is_root:
+            q = self.grain_motion()[self.region.real]
+            coefficients = self.projection.project(q)
+            coefficients = (coefficients.u, coefficients.phi)
+        u, phi = self.comm.bcast(coefficients, root=self.root)
+        gap = np.zeros(2)
+        values = self.continuum.displacement.array
+        for dofs, rows, comp in self._own:
+            if dofs.size:
+                exact = u[rows, comp] if comp < 2 else phi[rows]
+                gap[comp // 2] = max(gap[comp // 2], float(np.abs(values[dofs] - exact).max()))
+        return tuple(self.comm.allreduce(float(g), op=MPI.MAX) for g in gap)
+
+    def _set_projected_nodes(self, q, forces):
+        """Projected region nodes: d = d_hat(q), v = d_hat(qdot), a = M^-1 N^T F_R (eqs 3-5,
+        the consistent M; the grains' half-step velocities), owned values then ghosts."""
+        coefficients = None
+        if self.is_root:
+            st = self.fine.state
+            real = self.region.real
+            qdot = np.column_stack([in_original_order(self.fine.order, st.velocity),
+                                    in_original_order(self.fine.order, st.spin)])[real]
+            weights = np.column_stack([self.region.mass, self.region.mass, self.region.inertia])[real]
+            coefficients = [self.projection.project(x) for x in (q[real], qdot, forces[real] / weights)]
+            coefficients = [(k.u, k.phi) for k in coefficients]
+        if self.comm.size > 1:
+            coefficients = self.comm.bcast(coefficients, root=self.root)
+        c = self.continuum
+        for vec, (u, phi) in zip((c.displacement, c.velocity, c.acceleration), coefficients):
+            values = vec.array
+            for dofs, rows, comp in self._projected:
+                values[dofs] = u[rows, comp] if comp < 2 else phi[rows]
+            vec.ghostUpdate(addv=PETSc.InsertMode.INSERT, mode=PETSc.ScatterMode.FORWARD)
 
     # ------------------------------------------------------------------ grain state
     def grain_motion(self):
@@ -216,13 +349,12 @@ class BridgingCoupler:
         """(n, 3) grain forces entering eq 16 (root): all forces on real grains, and on the
         virtual ones only those of real grains (the engine skips virtual-virtual contacts), at
         the current configuration q^{n+1} ("end") or at the start of the last sub-step
-        ("lagged": one fine step behind, kept to show the instability it causes)."""
+        ("lagged": one fine step behind, kept to show the instability it causes). All rows:
+        with coarse_force="interface" step() passes only the virtual rows to the nodes."""
         if self.force_time == "end":
             forces = np.array(self.fine.forces_now(), dtype=float, copy=True)
         else:
             forces = np.array(self.fine.disc_forces(), dtype=float, copy=True)
-        if self.coarse_force == "interface":
-            forces[:self.region.n_real] = 0.0
         return forces
 
     def _stop(self, message):
@@ -359,7 +491,10 @@ class BridgingCoupler:
             except (RuntimeError, ValueError, FloatingPointError) as error:
                 # the engine's own stop (lost discs, non-finite state) reaches every rank
                 cause = f"the DEM region stopped: {error}"
-            forces = self.coupling_forces()
+            grain_forces = self.coupling_forces()
+            forces = grain_forces.copy()
+            if self.coarse_force == "interface":
+                forces[:region.n_real] = 0.0
             self.timings.add("dem", w0)
             w0 = time.perf_counter()
             if cause is None and not np.all(np.isfinite(forces)):
@@ -376,6 +511,8 @@ class BridgingCoupler:
             if diagnose:
                 self._coarse_q = self.projection.coarse(q[region.real])
             self.timings.add("projection", w0)
+        else:
+            q = grain_forces = None
         self._stop(cause)
         w0 = time.perf_counter()
         if self.comm.size > 1:
@@ -388,6 +525,10 @@ class BridgingCoupler:
         w0 = time.perf_counter()
         c.correct(self.dt, self.coupling_force)
         self.timings.add("fe", w0)
+        if self._projected:
+            w0 = time.perf_counter()
+            self._set_projected_nodes(q, grain_forces)
+            self.timings.add("projection", w0)
         if diagnose:
             w0 = time.perf_counter()
             nd = self.shape.interpolate(c.displacement, self.root)

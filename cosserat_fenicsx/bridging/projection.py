@@ -58,6 +58,8 @@ class _ScalarProjection:
         used = np.unique(shape.indices[shape.data != 0.0])
         self.nodes = used
         self.shape = shape[:, used].tocsr()
+        # N^T once: building the transpose per call cost more than the solve
+        self._shape_t = self.shape.T.tocsr()
         self.weights = weights
         if element_of_particle is not None:
             self._refuse_underdetermined_elements(np.asarray(element_of_particle), label)
@@ -99,7 +101,7 @@ class _ScalarProjection:
     def coefficients(self, values):
         """d_hat = M^-1 N^T W q for one scalar component or several columns (n_p, k)."""
         weights = self.weights[:, None] if values.ndim == 2 else self.weights
-        return scipy.linalg.cho_solve(self._factor, self.shape.T @ (weights * values))
+        return scipy.linalg.cho_solve(self._factor, self._shape_t @ (weights * values))
 
     def interpolate(self, coefficients):
         return self.shape @ coefficients

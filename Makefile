@@ -16,10 +16,10 @@ export PYTHONPATH := $(CURDIR)$(if $(PYTHONPATH),:$(PYTHONPATH))
 
 DEB_PACKAGES = python3-dolfinx-real python3-numba python3-scipy python3-pytest \
 	python3-matplotlib python3-gmsh python3-h5py mpi-default-bin openmpi-bin \
-	xvfb xauth python3-paraview python3-hypothesis lammps python3-lammps
+	xvfb xauth python3-paraview python3-hypothesis python3-pytest-xdist lammps python3-lammps
 SUDO := $(shell [ "$$(id -u)" = 0 ] || echo sudo)
 DEBIAN13 ?= ../shared/tools/debian13-env.sh
-DEBIAN13_PKGS = python3-matplotlib python3-gmsh python3-h5py python3-hypothesis
+DEBIAN13_PKGS = python3-matplotlib python3-gmsh python3-h5py python3-hypothesis python3-pytest-xdist
 
 .PHONY: deps demo test test-debian13 benchmark clean
 

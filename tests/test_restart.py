@@ -92,7 +92,7 @@ def test_femdem_restart_after_a_kill_is_bit_identical(demo, tmp_path):
     assert csv_rows(tampered / "history.csv")[5:] != csv_rows(part / "history.csv")[5:]
 
 
-@pytest.mark.parametrize("ranks_before,ranks_after", [(1, 2), (2, 1)])
+@pytest.mark.parametrize("ranks_before,ranks_after", [(1, 2), pytest.param(2, 1, marks=pytest.mark.slow)])
 def test_femdem_checkpoint_moves_between_rank_counts(demo, tmp_path, ranks_before, ranks_after):
     """A checkpoint written on 1 rank continues on 2 and the reverse. The partition changes
     the assembly order, which the cells amplify up to their relaxation tolerance: the bound is

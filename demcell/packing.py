@@ -164,7 +164,8 @@ def generate_packing(n_particles=228, pressure=10.0, law=None, r_min=0.01, radiu
     first compacted under a deviatoric stress (friction 0.3 unless prep_friction is given),
     then isotropically; the deviator is scanned (up to 10 trials) and the trial closest to
     the target is kept. The achieved A0 is in info["anisotropy"], all trials in
-    info["anisotropy_trials"].
+    info["anisotropy_trials"], the fabric tensor (000 eq. 39; its major axis is x, the axis
+    more loaded in the pre-compaction, when the target raised A0) in info["fabric"].
     """
     from .interface import DemCell, RelaxationOptions, relaxation_options
     n_particles = checks.number("n_particles", n_particles, PARTICLES)
@@ -228,7 +229,7 @@ def generate_packing(n_particles=228, pressure=10.0, law=None, r_min=0.01, radiu
     info = dict(n_particles=int(st.n_particles), seed=int(seed), pressure=float(pressure),
                 pressure_achieved=hom.pressure, target_solid_fraction=solid_fraction,
                 solid_fraction=hom.solid_fraction, coordination_number=hom.coordination_number,
-                anisotropy=hom.anisotropy, anisotropy_trials=trials,
+                anisotropy=hom.anisotropy, anisotropy_trials=trials, fabric=hom.fabric.tolist(),
                 r_min_over_L=float(st.radius.min() / math.sqrt(abs(np.linalg.det(st.h)))),
                 radius_ratio=float(radius_ratio), density=float(density),
                 prep_friction=float(prep_friction), law=law.to_dict())

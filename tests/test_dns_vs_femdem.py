@@ -122,7 +122,7 @@ def test_report_writes_tables_and_figure(tmp_path):
     out = str(tmp_path)
     runs = b.plan(["dns-1x2", "classical-1x1"], [0, 1])
     for r, p in zip(runs, (0.3, 0.34, 0.33, 0.32)):
-        kind, size, _ = b.parse_case(r["study"])
+        kind, size, _, _ = b.parse_case(r["study"])
         b.write_json(b.record_path(out, r), fake_record(kind, size, r["seed"], p))
     text = "\n".join(b.report(out, runs, 0.05, "test"))
     assert "| classical-1x1 | dns-1x2 |" in text and "FEM / DNS 2x4 (1824 discs)" in text
@@ -137,7 +137,7 @@ def test_locked_runs_pair_with_locked_dns_and_give_the_rotation_ratio(tmp_path):
     runs = b.plan(["dns-1x2", "dns-1x2-locked", "classical-1x1", "classical-1x1-locked"], [0, 1])
     peaks = {"dns-1x2": 0.3, "dns-1x2-locked": 0.6, "classical-1x1": 0.4, "classical-1x1-locked": 0.5}
     for r in runs:
-        kind, size, _ = b.parse_case(r["study"])
+        kind, size, _, _ = b.parse_case(r["study"])
         b.write_json(b.record_path(out, r), fake_record(kind, size, r["seed"], peaks[r["study"]] + 0.01 * r["seed"],
                                                         case=r["study"]))
     text = "\n".join(b.report(out, runs, 0.05, "test"))

@@ -77,28 +77,41 @@ MPI_ENV = {"OMPI_ALLOW_RUN_AS_ROOT": "1", "OMPI_ALLOW_RUN_AS_ROOT_CONFIRM": "1",
 
 # %% Cases
 def parse_case(text):
-    """'dns-2x4' -> ('dns', (2, 4), False); 'classical-1x1-locked' -> ('classical', (1, 1), True)
-    (the grains' rotations locked, 000 section 4.3.2); a one-line ValueError for anything else."""
-    m = re.fullmatch(r"(dns|classical|hybrid)-(\d+)x(\d+)(-locked)?", text.strip())
-    if not m or int(m.group(2)) < 1 or int(m.group(3)) < 1:
-        raise ValueError(f"a case is KIND-NXxNY[-locked] with KIND one of {', '.join(KINDS)} (e.g. dns-2x4, "
-                         f"classical-1x2, dns-1x2-locked), got {text!r}")
-    return m.group(1), (int(m.group(2)), int(m.group(3))), bool(m.group(4))
+    """'dns-2x4' -> ('dns', (2, 4), False, None); 'classical-1x1-locked' -> ('classical', (1, 1),
+    True, None) (the grains' rotations locked, 000 section 4.3.2); 'dns-2x4-a0.05' -> ('dns',
+    (2, 4), False, 0.05) (the cell packing made with the initial fabric anisotropy A0 = 0.05,
+    000 section 4.3.3); a one-line ValueError for anything else."""
+    m = re.fullmatch(r"(dns|classical|hybrid)-(\d+)x(\d+)(?:-a(\d*\.?\d+))?(-locked)?", text.strip())
+    target = float(m.group(4)) if m and m.group(4) is not None else None
+    if not m or int(m.group(2)) < 1 or int(m.group(3)) < 1 or (target is not None and not 0.0 <= target < 1.0):
+        raise ValueError(f"a case is KIND-NXxNY[-aA0][-locked] with KIND one of {', '.join(KINDS)} and A0 in [0, 1) "
+                         f"(e.g. dns-2x4, classical-1x2, dns-1x2-locked, dns-2x4-a0.05), got {text!r}")
+    return m.group(1), (int(m.group(2)), int(m.group(3))), bool(m.group(5)), target
 
 
-def study_name(kind, size, locked=False):
-    return f"{kind}-{size[0]}x{size[1]}" + ("-locked" if locked else "")
+def study_name(kind, size, locked=False, anisotropy=None):
+    return f"{kind}-{size[0]}x{size[1]}" + variant(locked, anisotropy)
+
+
+def variant(locked=False, anisotropy=None):
+    """The suffix of a study's name after KIND-NXxNY: '-aA0' and '-locked' where they apply."""
+    return ("" if anisotropy is None else f"-a{anisotropy:g}") + ("-locked" if locked else "")
+
+
+def suffix(study):
+    """A study's variant ('-a0.05', '-locked', ''): FEM x DEM and the DNS compare within one."""
+    return re.sub(r"^[a-z]+-\d+x\d+", "", study)
 
 
 def plan(cases, seeds):
     """The runs of a study: one per case and seed, in the order given (list of dicts)."""
     runs = []
     for text in cases:
-        kind, size, locked = parse_case(text)
-        study = study_name(kind, size, locked)
+        kind, size, locked, anisotropy = parse_case(text)
+        study = study_name(kind, size, locked, anisotropy)
         for seed in seeds:
             runs.append({"label": f"{study}-s{seed}", "kind": kind, "size": list(size), "seed": int(seed),
-                         "locked": locked, "study": study})
+                         "locked": locked, "anisotropy": anisotropy, "study": study})
     return runs
 
 
@@ -113,6 +126,8 @@ def command(run, out, strain, step=0.002, ranks=2, threads=None, python=sys.exec
             cmd += ["--threads", str(threads)]
         if run.get("locked"):
             cmd.append("--no-rotation")
+        if run.get("anisotropy") is not None:
+            cmd += ["--anisotropy", repr(run["anisotropy"])]
         return cmd, {}
     if restart:
         args = ["--restart", directory, "--checkpoint-every", "5"]
@@ -122,6 +137,8 @@ def command(run, out, strain, step=0.002, ranks=2, threads=None, python=sys.exec
                 repr(strain), "--steps", str(steps), "--checkpoint-every", "5", "--out", directory]
         if run.get("locked"):
             args.append("--no-rotation")
+        if run.get("anisotropy") is not None:
+            args += ["--anisotropy", repr(run["anisotropy"])]
     cmd = [python, FEMDEM_DEMO] + args
     if ranks > 1:
         cmd = ["mpirun", "-n", str(ranks)] + cmd
@@ -188,6 +205,12 @@ def make_record(run, cmd, returncode, wall, cpu, load_before, load_after, curves
                load_average_before=load_before, load_average_after=load_after, curves=curves,
                peak_stress_ratio=ratio_peak, axial_strain_at_peak=strain_peak, final_axial_strain=final,
                completed=bool(summary.get("completed", returncode == 0)) if summary else False)
+    # the achieved initial fabric anisotropy (000 eq. 38) of the generated cell packing, the same
+    # grains in both demos
+    packing = ((summary.get("specimen_info") if run["kind"] == "dns" else summary.get("packing")) or {}) \
+        if summary else {}
+    rec["packing_anisotropy"] = packing.get("packing_anisotropy", packing.get("anisotropy"))
+    rec["packing_fabric"] = packing.get("fabric")
     if run["kind"] == "dns":
         rec["discs"] = summary.get("n_discs", CELL_DISCS * nx * ny) if summary else CELL_DISCS * nx * ny
         rec["dem_steps"] = summary.get("dem_steps") if summary else None
@@ -368,7 +391,7 @@ def cost_rows(records, strain):
     (DNS: CPU per percent per disc x discs; FEM x DEM: per Gauss point x points)."""
     per = {}
     for rec in records:
-        if rec.get("locked"):
+        if rec.get("locked") or rec.get("anisotropy") is not None:     # the cost of the reference cases
             continue
         pct = -100.0 * rec["final_axial_strain"]
         if pct <= 0:
@@ -479,7 +502,7 @@ def agreement_lines(st, grid):
              "between the lowest and highest DNS seed | largest |FEM - DNS| / std |", "|---|---|---|---|---|---|"]
     found = []
     for f in sorted(n for n in st if st[n]["kind"] != "dns"):
-        for d in sorted(n for n in st if st[n]["kind"] == "dns" and n.endswith("-locked") == f.endswith("-locked")):
+        for d in sorted(n for n in st if st[n]["kind"] == "dns" and suffix(n) == suffix(f)):
             rng, worst, compared = agreement(st[f], st[d], grid)
             text = ", ".join(f"{100 * a:.1f}-{100 * b:.1f} %" for a, b in rng) or "nowhere"
             span = inside_seeds(st[f], st[d], grid)
@@ -512,6 +535,61 @@ def rotation_lines(st):
         lines.append(f"| {free} | {','.join(map(str, st[free]['seeds']))} / {','.join(map(str, st[name]['seeds']))} | "
                      f"{fmt(pf)} ({fmt(ef, '.2f')} %) | {fmt(pl)} ({fmt(el, '.2f')} %) | {fmt(ratio)} |")
         found.append({"case": free, "peak_free": pf, "peak_locked": pl, "ratio": ratio})
+    return lines, found
+
+
+def _mean_std(values):
+    v = [float(x) for x in values if x is not None and np.isfinite(x)]
+    if not v:
+        return None, None
+    return float(np.mean(v)), (float(np.std(v, ddof=1)) if len(v) > 1 else None)
+
+
+def major_axis(fabric):
+    """'x' or 'y': the axis nearer the fabric tensor's major eigenvector (the platens load y);
+    '' when unknown."""
+    if fabric is None:
+        return ""
+    w, v = np.linalg.eigh(np.array(fabric, dtype=float))
+    return "x" if abs(v[0, -1]) >= abs(v[1, -1]) else "y"
+
+
+def anisotropy_lines(st):
+    """000 section 4.3.3: per case (KIND-NXxNY) and target A0 (none: the isotropic compaction),
+    the achieved A0 of the packings and the peak stress ratio and its strain, mean +- the
+    sample standard deviation over the seeds, and the peak over that of the case without a
+    target (000 Fig. 13: a higher A0 gives a lower peak, at a smaller strain)."""
+    lines = ["| case | A0 target | seeds | achieved A0 (each seed; x: major axis across the load, y: along) | "
+             "peak stress ratio | strain at peak [%] | peak / peak without target |", "|---|---|---|---|---|---|---|"]
+    found = []
+    groups = {}
+    for name, s in st.items():
+        recs = s["records"]
+        base = re.sub(r"-a[0-9.]+", "", name)
+        groups.setdefault(base, []).append((recs[0].get("anisotropy"), name, s))
+    if not any(t is not None for g in groups.values() for t, _, _ in g):
+        return lines, found
+    for base in sorted(groups, key=lambda n: (st[groups[n][0][1]]["kind"] != "dns", n)):
+        rows = sorted(groups[base], key=lambda g: -1.0 if g[0] is None else g[0])
+        reference = None
+        for target, name, s in rows:
+            recs = sorted(s["records"], key=lambda r: r["seed"])
+            a0 = [r.get("packing_anisotropy") for r in recs]
+            axes = [major_axis(r.get("packing_fabric")) for r in recs]
+            pk, pk_sd = _mean_std([r["peak_stress_ratio"] for r in recs])
+            ep, ep_sd = _mean_std([None if r["axial_strain_at_peak"] is None else -100 * r["axial_strain_at_peak"]
+                                   for r in recs])
+            if target is None:
+                reference = pk
+            ratio = pk / reference if pk and reference and target is not None else None
+            lines.append(f"| {base} | {'none' if target is None else f'{target:g}'} | "
+                         f"{','.join(str(r['seed']) for r in recs)} | "
+                         f"{', '.join(fmt(a, '.3f') + x for a, x in zip(a0, axes))} (mean {fmt(_mean_std(a0)[0])}) | "
+                         f"{fmt(pk)} +- {fmt(pk_sd)} | {fmt(ep, '.2f')} +- {fmt(ep_sd, '.2f')} | {fmt(ratio)} |")
+            found.append({"case": base, "target": target, "seeds": [r["seed"] for r in recs], "achieved": a0,
+                          "major_axis": axes,
+                          "peak_mean": pk, "peak_std": pk_sd, "strain_at_peak_pct_mean": ep,
+                          "strain_at_peak_pct_std": ep_sd, "peak_over_no_target": ratio})
     return lines, found
 
 
@@ -550,7 +628,9 @@ def figure(st, grid, path):
     for k, name in enumerate(sorted(st, key=lambda n: (st[n]["kind"] != "dns", n))):
         s = st[name]
         c = colours[k % len(colours)]
-        locked = ", rotations locked" if name.endswith("-locked") else ""
+        anisotropy = s["records"][0].get("anisotropy")
+        locked = ("" if anisotropy is None else f", A0 target {anisotropy:g}") + \
+            (", rotations locked" if name.endswith("-locked") else "")
         for ax, (key, ylabel) in zip(axes, keys):
             if key == "stress_ratio":
                 mean, std = s["mean"], s["std"]
@@ -590,12 +670,14 @@ def report(out, runs, strain, args_line):
     summary = study_table(st, grid)
     agree, found = agreement_lines(st, grid)
     rotation, rotation_found = rotation_lines(st)
+    fabric, fabric_found = anisotropy_lines(st)
     measured, dns_unit, fem_unit, table = cost_rows(records, strain)
     cost = cost_lines(measured, dns_unit, fem_unit, table, strain)
     figure(st, grid, os.path.join(out, "dns_vs_femdem.png"))
     text = [f"# DNS against FEM x DEM ({args_line})", "", "## Cases", ""] + cases + \
         ["", "## Mean and scatter over seeds", ""] + summary + ["", "## Agreement", ""] + agree + \
         (["", "## Rotations free against locked (000 section 4.3.2)", ""] + rotation if rotation_found else []) + \
+        (["", "## Initial fabric anisotropy (000 section 4.3.3)", ""] + fabric if fabric_found else []) + \
         ["", "## Cost", ""] + cost + ["", "Figure: dns_vs_femdem.png"]
     with open(os.path.join(out, "dns_vs_femdem.md"), "w") as f:
         f.write("\n".join(text) + "\n")
@@ -604,7 +686,7 @@ def report(out, runs, strain, args_line):
         w.writeheader()
         w.writerows(rows_csv)
     write_json(os.path.join(out, "dns_vs_femdem.json"),
-               {"agreement": found, "rotation": rotation_found, "cost": table, "cost_measured": measured, "dns_cpu_per_pct_per_disc": dns_unit,
+               {"agreement": found, "rotation": rotation_found, "anisotropy": fabric_found, "cost": table, "cost_measured": measured, "dns_cpu_per_pct_per_disc": dns_unit,
                 "femdem_cpu_per_pct_per_point": fem_unit})
     print("\n".join(text))
     return text

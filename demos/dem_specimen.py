@@ -206,7 +206,8 @@ try:
         # the achieved initial fabric (000 eqs. 38-39) of the packing and of the tiled reference cell
         reference = cell.homogenized()
         discs.info.update(packing_anisotropy=packing["anisotropy"], cell_anisotropy=reference.anisotropy,
-                          cell_fabric=reference.fabric.tolist())
+                          fabric=packing["fabric"], cell_fabric=reference.fabric.tolist(),
+                          packing_solid_fraction=packing["solid_fraction"], prep_friction=packing["prep_friction"])
         if args.anisotropy is not None:
             print(f"[dem_specimen] initial fabric anisotropy A0: target {args.anisotropy:g}, packing "
                   f"{packing['anisotropy']:.4f}, reference cell {reference.anisotropy:.4f}", flush=True)

@@ -36,6 +36,20 @@ def test_the_isotropic_compaction_is_not_isotropic_and_a_target_of_zero_lowers_i
     assert zero["anisotropy"] < 0.5 * free["anisotropy"]
 
 
+
+def test_a_series_of_targets_shares_its_preparation():
+    """Every trial of a target, the deviator 0 included, is compacted with friction 0.3: seed 0
+    at 0.08 keeps the deviator 0 (its frictional compaction gives 0.078 along x), and is as
+    loose as the others of the series, not as dense as the frictionless plain packing."""
+    law = dc.ContactLaw(**LAW)
+    _, plain = dc.generate_packing(228, pressure=10.0, law=law, seed=0)
+    _, high = dc.generate_packing(228, pressure=10.0, law=law, seed=0, anisotropy=0.08)
+    _, low = dc.generate_packing(228, pressure=10.0, law=law, seed=0, anisotropy=0.02)
+    assert plain["prep_friction"] == 0.0 and high["prep_friction"] == low["prep_friction"] == 0.3
+    assert high["anisotropy_trials"][0][0] == 0.0 and high["anisotropy"] == high["anisotropy_trials"][0][1]
+    assert abs(high["solid_fraction"] - low["solid_fraction"]) < 0.01 < plain["solid_fraction"] - high["solid_fraction"]
+
+
 def test_femdem_cells_and_the_tiled_dns_share_the_grains():
     """CellOptions (femdem_biaxial --anisotropy) and dem_specimen --specimen tiled --anisotropy
     both call generate_packing with the demos' law: the same discs, bit for bit."""

@@ -20,6 +20,8 @@ from .checks import POSITIVE, SEED, Range
 from .contact_law import ContactLaw
 from .errors import InputError, SolveError
 
+#: preparation friction of the packings made to a target anisotropy (unless one is given)
+TARGET_PREP_FRICTION = 0.3
 #: discs of one cell: at least 2; a million is hours of compaction and about 0.5 GB of state
 PARTICLES = Range(2, 10 ** 6, integer=True)
 
@@ -162,9 +164,11 @@ def generate_packing(n_particles=228, pressure=10.0, law=None, r_min=0.01, radiu
 
     anisotropy: None (whatever the random compaction gives) or a target A0: the packing is
     first compacted under a deviatoric stress (friction 0.3 unless prep_friction is given),
-    then isotropically; the deviator is scanned (up to 10 trials) and the trial closest to
-    the target is kept. The achieved A0 is in info["anisotropy"], all trials in
-    info["anisotropy_trials"].
+    then isotropically with the same friction; the deviator is scanned from 0 (up to 11
+    trials, all with that friction) and the trial closest to the target is kept. The
+    friction used is info["prep_friction"]. The achieved A0 is in info["anisotropy"], all trials in
+    info["anisotropy_trials"], the fabric tensor (000 eq. 39; its major axis is x, the axis
+    more loaded in the pre-compaction, when the target raised A0) in info["fabric"].
     """
     from .interface import DemCell, RelaxationOptions, relaxation_options
     n_particles = checks.number("n_particles", n_particles, PARTICLES)
@@ -183,13 +187,16 @@ def generate_packing(n_particles=228, pressure=10.0, law=None, r_min=0.01, radiu
                              stress_tol=1e-2) if options is None else relaxation_options(options)
     base = loose_state(n_particles, r_min, radius_ratio, 0.45, seed, density)
 
+    # with a target every trial, the deviator 0 included, is prepared with the same friction, so
+    # that the packings of a series of targets differ by the deviator only (a frictionless
+    # compaction gives a denser packing: the trial kept would otherwise set the density too)
+    mu_prep = prep_friction if anisotropy is None or prep_friction > 0 else TARGET_PREP_FRICTION
+
     def make(dev):
         cell = DemCell(base.copy(), law, opts)
-        mu_prep = prep_friction
         if dev > 0.0:
             # frictional pre-compaction under a deviator, then isotropic with the same friction
             # (frictionless isotropic compaction would erase most of the induced fabric)
-            mu_prep = prep_friction if prep_friction > 0 else 0.3
             r = compact_in_stages(cell, pressure, mu_prep, deviator=dev)
             if not r.converged:
                 raise InputError(f"deviatoric pre-compaction did not converge: {r.message}")
@@ -228,10 +235,10 @@ def generate_packing(n_particles=228, pressure=10.0, law=None, r_min=0.01, radiu
     info = dict(n_particles=int(st.n_particles), seed=int(seed), pressure=float(pressure),
                 pressure_achieved=hom.pressure, target_solid_fraction=solid_fraction,
                 solid_fraction=hom.solid_fraction, coordination_number=hom.coordination_number,
-                anisotropy=hom.anisotropy, anisotropy_trials=trials,
+                anisotropy=hom.anisotropy, anisotropy_trials=trials, fabric=hom.fabric.tolist(),
                 r_min_over_L=float(st.radius.min() / math.sqrt(abs(np.linalg.det(st.h)))),
                 radius_ratio=float(radius_ratio), density=float(density),
-                prep_friction=float(prep_friction), law=law.to_dict())
+                prep_friction=float(mu_prep), law=law.to_dict())
     return st, info
 
 

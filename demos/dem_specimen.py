@@ -22,9 +22,11 @@ Two specimens (``--specimen``):
 * ``tiled``: paper 000's DNS A / B (section 4.2): the FEM x DEM reference cell of
   demos/femdem_biaxial.py (--particles, --seed, the same law: kn = 1e4, ks = 2e3 N/m,
   mu = 0.4, p0 = 10 N/m) tiled --tiles NXxNY times (1x2 is DNS A, 2x4 DNS B), so the DNS and
-  FEM x DEM share grains and law; servo-controlled side walls (or --lateral membrane /
-  periodic), local damping 0.7 (000 section 3.2.1) throughout, platens at the speed that
-  gives an inertial number of 1e-4, to an axial strain of 0.1.
+  FEM x DEM share grains and law (--anisotropy A0: the cell packing made with an initial fabric
+  anisotropy, 000 section 4.3.3, as femdem_biaxial.py --anisotropy makes its cells');
+  servo-controlled side walls (or --lateral membrane / periodic), local damping 0.7 (000
+  section 3.2.1) throughout, platens at the speed that gives an inertial number of 1e-4, to
+  an axial strain of 0.1.
 * ``file``: the discs of --packing (a demcell packing .npz, tiled --tiles; or a table x y r).
 
 Outputs in --out, written as the run goes:
@@ -130,6 +132,9 @@ parser.add_argument("--particles", type=number(low=10, high=10 ** 5, integer=Tru
                     help="tiled: discs of the FEM x DEM cell (default 228)")
 parser.add_argument("--seed", type=number(NON_NEGATIVE_INTEGER), default=0, help="tiled: packing seed / "
                     "thesis: perturbation seed (default 0)")
+parser.add_argument("--anisotropy", type=number(low=0.0, high=1.0, high_open=True), default=None,
+                    help="tiled: target initial fabric anisotropy A0 in [0, 1) of the cell packing (000 section "
+                         "4.3.3: 0.02, 0.05, 0.08; demcell.generate_packing's deviatoric pre-compaction)")
 parser.add_argument("--packing", default=None, help="file: the packing (.npz of demcell, or text x y r)")
 parser.add_argument("--density", type=number(POSITIVE), default=None,
                     help="file: grain density [kg/m^2] for a table without masses")
@@ -178,6 +183,8 @@ for name, value in SPECIMEN_DEFAULTS[args.specimen].items():
         setattr(args, name, value)
 if args.axial_strain is not None and "--duration" in sys.argv[1:]:
     parser.refuse("give --duration or --axial-strain, not both")
+if args.anisotropy is not None and args.specimen != "tiled":
+    parser.refuse("--anisotropy is an option of --specimen tiled (the generated cell packing)")
 if args.specimen == "file" and args.packing is None:
     parser.refuse("--specimen file needs --packing")
 if args.restart is not None and not os.path.isfile(args.restart):
@@ -191,10 +198,19 @@ try:
     elif args.specimen == "tiled":
         print(f"[dem_specimen] the FEM x DEM cell: {args.particles} discs, seed {args.seed}, isotropic stage at "
               f"{args.pressure:g} N/m", flush=True)
-        state, _ = dc.generate_packing(args.particles, pressure=args.pressure, law=law, seed=args.seed)
+        state, packing = dc.generate_packing(args.particles, pressure=args.pressure, law=law, seed=args.seed,
+                                             anisotropy=args.anisotropy)
         cell = dc.reference_cell(state, law, dc.RelaxationOptions(tol=1e-3, damping=0.7, criterion="force"),
                                  args.pressure)
         discs = tiled_cell(cell.state, *args.tiles, periodic_sides=args.lateral == "periodic")
+        # the achieved initial fabric (000 eqs. 38-39) of the packing and of the tiled reference cell
+        reference = cell.homogenized()
+        discs.info.update(packing_anisotropy=packing["anisotropy"], cell_anisotropy=reference.anisotropy,
+                          fabric=packing["fabric"], cell_fabric=reference.fabric.tolist(),
+                          packing_solid_fraction=packing["solid_fraction"], prep_friction=packing["prep_friction"])
+        if args.anisotropy is not None:
+            print(f"[dem_specimen] initial fabric anisotropy A0: target {args.anisotropy:g}, packing "
+                  f"{packing['anisotropy']:.4f}, reference cell {reference.anisotropy:.4f}", flush=True)
     else:
         discs = read_discs(args.packing, density=args.density, tiles=args.tiles,
                            periodic_sides=args.lateral == "periodic")

@@ -114,7 +114,7 @@ g = parser.add_argument_group("specimen and loading (000 section 4.1)")
 g.add_argument("--mesh", default="2x4", help="NXxNY rectangles (000: 1x1, 1x2, 2x4, 4x8; default %(default)s)")
 cli.add_settings(g, FemDemSettings, SPECIMEN)
 g = parser.add_argument_group("the cell (as demos/dem_cell.py)")
-cli.add_settings(g, CellOptions, ("particles", "seed"))
+cli.add_settings(g, CellOptions, ("particles", "seed", "anisotropy"))
 g.add_argument("--packing", default=None, help="packing file (.npz from demos/dem_cell.py) instead of generating one")
 cli.add_settings(g, CellOptions, CELL)
 g.add_argument("--cell-option", type=cli.key_value, action="append", default=[], metavar="KEY=VALUE",
@@ -140,7 +140,7 @@ def femdem_settings(args):
         nx=nx, ny=ny, **cli.settings_values(FemDemSettings, args, DISCRETISATION + SPECIMEN + COUPLING + CELLS),
         accept_rtol=args.accept_rtol if args.accept_rtol != 0 else None,
         stagnation_its=args.stagnation_its if args.stagnation_its != 0 else None,
-        cell=CellOptions(**dict(cli.settings_values(CellOptions, args, ("particles", "seed") + CELL),
+        cell=CellOptions(**dict(cli.settings_values(CellOptions, args, ("particles", "seed", "anisotropy") + CELL),
                                 packing=args.packing, extra=dict(args.cell_option),
                                 # a checkpoint's options may hold the older flag no_rotation instead
                                 rotation=args.rotation and not getattr(args, "no_rotation", False))))
@@ -153,7 +153,7 @@ def check(args):
         raise ValueError("--mu-c and --l-c are hybrid-mode options: in mode micropolar the skew and couple "
                          "stresses come from the cells")
     if args.packing is not None and args.restart is None:
-        ignored = sorted(parser.given_options() & {"particles", "seed"})
+        ignored = sorted(parser.given_options() & {"particles", "seed", "anisotropy"})
         if ignored:           # the file sets the discs: these would be silently without effect
             raise ValueError(f"--packing gives the discs: {', '.join('--' + o for o in ignored)} would have no "
                              f"effect (leave {'it' if len(ignored) == 1 else 'them'} out)")

@@ -99,6 +99,8 @@ def test_sigint_leaves_readable_outputs(tmp_path):
 @pytest.mark.parametrize("args, words", [
     (["--nx", 1], "--nx"),
     (["--tiles", "0x2", "--specimen", "tiled"], "--tiles"),
+    (["--anisotropy", "1.5", "--specimen", "tiled"], "--anisotropy"),
+    (["--anisotropy", "0.05"], "--specimen tiled"),
     (["--pressure", "-1"], "--pressure"),
     (["--dt", "nan"], "--dt"),
     (["--dt", 10], "stability limit"),

@@ -122,7 +122,7 @@ def test_report_writes_tables_and_figure(tmp_path):
     out = str(tmp_path)
     runs = b.plan(["dns-1x2", "classical-1x1"], [0, 1])
     for r, p in zip(runs, (0.3, 0.34, 0.33, 0.32)):
-        kind, size, _ = b.parse_case(r["study"])
+        kind, size, _, _ = b.parse_case(r["study"])
         b.write_json(b.record_path(out, r), fake_record(kind, size, r["seed"], p))
     text = "\n".join(b.report(out, runs, 0.05, "test"))
     assert "| classical-1x1 | dns-1x2 |" in text and "FEM / DNS 2x4 (1824 discs)" in text
@@ -137,7 +137,7 @@ def test_locked_runs_pair_with_locked_dns_and_give_the_rotation_ratio(tmp_path):
     runs = b.plan(["dns-1x2", "dns-1x2-locked", "classical-1x1", "classical-1x1-locked"], [0, 1])
     peaks = {"dns-1x2": 0.3, "dns-1x2-locked": 0.6, "classical-1x1": 0.4, "classical-1x1-locked": 0.5}
     for r in runs:
-        kind, size, _ = b.parse_case(r["study"])
+        kind, size, _, _ = b.parse_case(r["study"])
         b.write_json(b.record_path(out, r), fake_record(kind, size, r["seed"], peaks[r["study"]] + 0.01 * r["seed"],
                                                         case=r["study"]))
     text = "\n".join(b.report(out, runs, 0.05, "test"))
@@ -196,3 +196,47 @@ def test_a_named_stop_is_recorded_and_a_killed_run_restarts(tmp_path, monkeypatc
     seen = _fake_demo(tmp_path, monkeypatch, {"completed": True}, 0)
     rec = b.execute(killed, out, 0.05, 0.002, 1, None, log=lambda m: None)
     assert seen == [True] and rec["completed"] and os.path.isfile(b.record_path(out, killed))
+
+
+def test_anisotropic_cases_pass_their_target_to_both_demos_and_pair_within_their_target(tmp_path):
+    """000 section 4.3.3: 'dns-2x4-a0.05' and 'classical-1x1-a0.05' make the cell packing with
+    --anisotropy 0.05; the report lists the achieved A0 with its major axis and the peak per
+    target, and compares FEM x DEM with the DNS of the same target only."""
+    assert b.parse_case("dns-2x4-a0.05") == ("dns", (2, 4), False, 0.05)
+    assert b.parse_case("classical-1x1-a0-locked") == ("classical", (1, 1), True, 0.0)
+    cell = b.plan(["cell-1x1-a0.08"], [3])[0]
+    cmd = b.command(cell, str(tmp_path), 0.05, step=0.002)[0]
+    assert cmd[1].endswith("dem_cell.py") and cmd[cmd.index("--anisotropy") + 1] == "0.08"
+    assert cmd[cmd.index("--axial-direction") + 1] == "2" and cmd[cmd.index("--lateral-control") + 1] == "strain"
+    assert cmd[cmd.index("--increment") + 1] == "0.002" and cmd[cmd.index("--seed") + 1] == "3"
+    for bad in ("dns-2x4-a1.5", "dns-2x4-a", "dns-2x4-locked-a0.05", "dns-2x4-a-0.1", "cell-1x2"):
+        with pytest.raises(ValueError, match="KIND-NXxNY"):
+            b.plan([bad], [0])
+    runs = b.plan(["dns-2x4", "dns-2x4-a0.02", "dns-2x4-a0.05", "classical-1x1", "classical-1x1-a0.02",
+                   "classical-1x1-a0.05"], [0, 1])
+    assert [r["study"] for r in runs[::2]] == ["dns-2x4", "dns-2x4-a0.02", "dns-2x4-a0.05", "classical-1x1",
+                                               "classical-1x1-a0.02", "classical-1x1-a0.05"]
+    for r in runs:
+        cmd = b.command(r, str(tmp_path), 0.05)[0]
+        assert ("--anisotropy" in cmd) == (r["anisotropy"] is not None)
+        if r["anisotropy"] is not None:
+            assert cmd[cmd.index("--anisotropy") + 1] == repr(r["anisotropy"])
+    out = str(tmp_path)
+    peaks = {"dns-2x4": 0.4, "dns-2x4-a0.02": 0.35, "dns-2x4-a0.05": 0.3, "classical-1x1": 0.5,
+             "classical-1x1-a0.02": 0.48, "classical-1x1-a0.05": 0.45}
+    for r in runs:
+        kind, size, _, target = b.parse_case(r["study"])
+        rec = fake_record(kind, size, r["seed"], peaks[r["study"]] + 0.02 * r["seed"], case=r["study"])
+        rec["packing_anisotropy"] = 0.06 if target is None else target + 0.002 * r["seed"]
+        rec["packing_solid_fraction"] = 0.84 if target is None else 0.80
+        rec["packing_fabric"] = [[0.485, 0.0], [0.0, 0.515]] if target is None else [[0.51, 0.0], [0.0, 0.49]]
+        b.write_json(b.record_path(out, r), rec)
+    text = "\n".join(b.report(out, runs, 0.05, "test"))
+    assert "| classical-1x1-a0.05 | dns-2x4-a0.05 |" in text and "| classical-1x1-a0.05 | dns-2x4 |" not in text
+    assert "| dns-2x4 | 0.05 | 0,1 | 0.050x, 0.052x (mean 0.051) | 0.800 | 0.310 +- 0.014 |" in text
+    assert "| dns-2x4 | none | 0,1 | 0.060y, 0.060y" in text
+    with open(os.path.join(out, "dns_vs_femdem.json")) as f:
+        found = {(r["case"], r["target"]): r for r in json.load(f)["anisotropy"]}
+    assert found[("classical-1x1", 0.05)]["peak_over_lowest_target"] == pytest.approx(0.46 / 0.49)
+    assert found[("classical-1x1", None)]["peak_over_lowest_target"] is None
+    assert "dns-2x4-a0.05 |" not in text.split("## Cost")[1]

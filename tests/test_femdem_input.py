@@ -78,6 +78,8 @@ CASES = [   # (id, args, pattern the error line must match)
     ("classical-l-c", ["--mode", "classical", "--l-c", 1e-3], r"--l-c"),
     ("kn-zero", ["--kn", 0], r"\bkn\b"),
     ("seed-beside-packing", ["--packing", "p.npz", "--seed", 3], r"--packing gives the discs: --seed"),
+    ("anisotropy-1.5", ["--anisotropy", 1.5], r"--anisotropy.*\[0, 1\)"),
+    ("anisotropy-beside-packing", ["--packing", "p.npz", "--anisotropy", 0.05], r"--packing gives the discs: --anisotropy"),
     ("kn-negative", ["--kn", -1], r"\bkn\b"),
     ("ks-negative", ["--ks", -1], r"\bks\b"),
     ("friction-negative", ["--friction", -0.1], r"\bfriction\b"),

@@ -10,6 +10,14 @@ Every case is one run of an existing demo in its own process:
 * ``classical-NXxNY`` / ``hybrid-NXxNY``: ``demos/femdem_biaxial.py --mode M --mesh NXxNY``
   (10 mm x 20 mm, no weak zone; lateral traction p0, smooth platens) under ``mpirun -n
   --ranks``, one cell of the same seed at every Gauss point.
+* ``cell-1x1``: ``demos/dem_cell.py`` loaded as a homogeneous FEM x DEM Gauss point is
+  (vertical axis e2 shortened in --step increments, each a straight path in F with the
+  lateral stress held at -p0 by an outer iteration; FIRE to the force ratio 1e-3 as the
+  FEM x DEM cells): the stand-alone cell, without the Newton of the FE side, which stalls on
+  the loose cells of the anisotropic packings.
+* a suffix ``-aA0`` (e.g. ``dns-2x4-a0.05``, ``cell-1x1-a0.05``): the cell packing made with
+  the initial fabric anisotropy A0 (000 section 4.3.3; ``--anisotropy`` of the demos,
+  demcell.generate_packing's deviatoric pre-compaction); ``-locked``: rotations locked.
 
 Both take the demos' defaults for the law and the cell (228 discs, kn = 1e4, ks = 2e3 N/m,
 mu = 0.4, p0 = 10 N/m): the same grains (``--seed``: the DNS tiles are copies of the cell
@@ -63,7 +71,8 @@ FEMDEM_DEMO = os.path.join(ROOT, "demos", "femdem_biaxial.py")
 DEFAULT_CASES = "dns-1x2,dns-2x4,dns-4x8,classical-1x1,classical-1x2"
 #: packing seeds whose cell tiles (the cells of seeds 2, 4 and 5 are sheared by more than 1 %)
 DEFAULT_SEEDS = "0,1,3"
-KINDS = ("dns", "classical", "hybrid")
+KINDS = ("dns", "classical", "hybrid", "cell")
+CELL_DEMO = os.path.join(ROOT, "demos", "dem_cell.py")
 #: Gauss points per rectangle of femdem_biaxial's default mesh (two P2 triangles, 3 points each)
 GAUSS_POINTS_PER_RECTANGLE = 6
 #: discs of the demos' default cell (000 Table 3)
@@ -77,28 +86,42 @@ MPI_ENV = {"OMPI_ALLOW_RUN_AS_ROOT": "1", "OMPI_ALLOW_RUN_AS_ROOT_CONFIRM": "1",
 
 # %% Cases
 def parse_case(text):
-    """'dns-2x4' -> ('dns', (2, 4), False); 'classical-1x1-locked' -> ('classical', (1, 1), True)
-    (the grains' rotations locked, 000 section 4.3.2); a one-line ValueError for anything else."""
-    m = re.fullmatch(r"(dns|classical|hybrid)-(\d+)x(\d+)(-locked)?", text.strip())
-    if not m or int(m.group(2)) < 1 or int(m.group(3)) < 1:
-        raise ValueError(f"a case is KIND-NXxNY[-locked] with KIND one of {', '.join(KINDS)} (e.g. dns-2x4, "
-                         f"classical-1x2, dns-1x2-locked), got {text!r}")
-    return m.group(1), (int(m.group(2)), int(m.group(3))), bool(m.group(4))
+    """'dns-2x4' -> ('dns', (2, 4), False, None); 'classical-1x1-locked' -> ('classical', (1, 1),
+    True, None) (the grains' rotations locked, 000 section 4.3.2); 'dns-2x4-a0.05' -> ('dns',
+    (2, 4), False, 0.05) (the cell packing made with the initial fabric anisotropy A0 = 0.05,
+    000 section 4.3.3); a one-line ValueError for anything else."""
+    m = re.fullmatch(r"(dns|classical|hybrid|cell)-(\d+)x(\d+)(?:-a(\d*\.?\d+))?(-locked)?", text.strip())
+    target = float(m.group(4)) if m and m.group(4) is not None else None
+    if not m or int(m.group(2)) < 1 or int(m.group(3)) < 1 or (target is not None and not 0.0 <= target < 1.0) \
+            or (m.group(1) == "cell" and m.group(2, 3) != ("1", "1")):
+        raise ValueError(f"a case is KIND-NXxNY[-aA0][-locked] with KIND one of {', '.join(KINDS)} (cell: 1x1 only) "
+                         f"and A0 in [0, 1) (e.g. dns-2x4, classical-1x2, dns-1x2-locked, dns-2x4-a0.05), got {text!r}")
+    return m.group(1), (int(m.group(2)), int(m.group(3))), bool(m.group(5)), target
 
 
-def study_name(kind, size, locked=False):
-    return f"{kind}-{size[0]}x{size[1]}" + ("-locked" if locked else "")
+def study_name(kind, size, locked=False, anisotropy=None):
+    return f"{kind}-{size[0]}x{size[1]}" + variant(locked, anisotropy)
+
+
+def variant(locked=False, anisotropy=None):
+    """The suffix of a study's name after KIND-NXxNY: '-aA0' and '-locked' where they apply."""
+    return ("" if anisotropy is None else f"-a{anisotropy:g}") + ("-locked" if locked else "")
+
+
+def suffix(study):
+    """A study's variant ('-a0.05', '-locked', ''): FEM x DEM and the DNS compare within one."""
+    return re.sub(r"^[a-z]+-\d+x\d+", "", study)
 
 
 def plan(cases, seeds):
     """The runs of a study: one per case and seed, in the order given (list of dicts)."""
     runs = []
     for text in cases:
-        kind, size, locked = parse_case(text)
-        study = study_name(kind, size, locked)
+        kind, size, locked, anisotropy = parse_case(text)
+        study = study_name(kind, size, locked, anisotropy)
         for seed in seeds:
             runs.append({"label": f"{study}-s{seed}", "kind": kind, "size": list(size), "seed": int(seed),
-                         "locked": locked, "study": study})
+                         "locked": locked, "anisotropy": anisotropy, "study": study})
     return runs
 
 
@@ -113,6 +136,17 @@ def command(run, out, strain, step=0.002, ranks=2, threads=None, python=sys.exec
             cmd += ["--threads", str(threads)]
         if run.get("locked"):
             cmd.append("--no-rotation")
+        if run.get("anisotropy") is not None:
+            cmd += ["--anisotropy", repr(run["anisotropy"])]
+        return cmd, {}
+    if run["kind"] == "cell":
+        cmd = [python, CELL_DEMO, "--seed", str(run["seed"]), "--axial-strain", repr(strain), "--increment",
+               repr(step), "--axial-direction", "2", "--lateral-control", "strain", "--relaxation", "fire",
+               "--criterion", "force", "--relaxation-tol", "1e-3", "--out", directory]
+        if run.get("locked"):
+            cmd.append("--no-rotation")
+        if run.get("anisotropy") is not None:
+            cmd += ["--anisotropy", repr(run["anisotropy"])]
         return cmd, {}
     if restart:
         args = ["--restart", directory, "--checkpoint-every", "5"]
@@ -122,6 +156,8 @@ def command(run, out, strain, step=0.002, ranks=2, threads=None, python=sys.exec
                 repr(strain), "--steps", str(steps), "--checkpoint-every", "5", "--out", directory]
         if run.get("locked"):
             args.append("--no-rotation")
+        if run.get("anisotropy") is not None:
+            args += ["--anisotropy", repr(run["anisotropy"])]
     cmd = [python, FEMDEM_DEMO] + args
     if ranks > 1:
         cmd = ["mpirun", "-n", str(ranks)] + cmd
@@ -160,6 +196,10 @@ def curves_from_outputs(kind, directory, pressure=10.0):
         return {"axial_strain": _column(rows, "axial_strain"), "stress_ratio": _column(rows, "stress_ratio"),
                 "volumetric_strain": _column(rows, "volumetric_strain"),
                 "coordination": _column(rows, "coordination")}
+    if kind == "cell":       # from the end of the isotropic stage
+        return {"axial_strain": _column(rows, "axial_strain"), "stress_ratio": _column(rows, "stress_ratio"),
+                "volumetric_strain": _column(rows, "volumetric_strain"),
+                "coordination": _column(rows, "coordination_number"), "anisotropy": _column(rows, "anisotropy")}
     # the end of the isotropic stage (phase 1, axial strain 0) and the compression (phase 2)
     iso = [r for r in rows if int(float(r["phase"])) == 1]
     rows = iso[-1:] + [r for r in rows if int(float(r["phase"])) == 2]
@@ -188,8 +228,19 @@ def make_record(run, cmd, returncode, wall, cpu, load_before, load_after, curves
                load_average_before=load_before, load_average_after=load_after, curves=curves,
                peak_stress_ratio=ratio_peak, axial_strain_at_peak=strain_peak, final_axial_strain=final,
                completed=bool(summary.get("completed", returncode == 0)) if summary else False)
+    # the achieved initial fabric anisotropy (000 eq. 38) of the generated cell packing, the same
+    # grains in both demos
+    packing = ((summary.get("specimen_info") if run["kind"] == "dns" else summary.get("packing")) or {}) \
+        if summary else {}
+    rec["packing_anisotropy"] = packing.get("packing_anisotropy", packing.get("anisotropy"))
+    rec["packing_fabric"] = packing.get("fabric")
+    rec["packing_solid_fraction"] = packing.get("packing_solid_fraction", packing.get("solid_fraction"))
     if run["kind"] == "dns":
         rec["discs"] = summary.get("n_discs", CELL_DISCS * nx * ny) if summary else CELL_DISCS * nx * ny
+    elif run["kind"] == "cell":
+        rec["gauss_points"] = 1
+        rec["dem_steps"] = summary.get("dem_steps") if summary else None
+        rec["stop_reason"] = summary.get("reason") or None if summary else None
         rec["dem_steps"] = summary.get("dem_steps") if summary else None
     else:
         rec["gauss_points"] = summary.get("n_gauss_points", GAUSS_POINTS_PER_RECTANGLE * nx * ny) if summary \
@@ -205,7 +256,7 @@ def execute(run, out, strain, step, ranks, threads, log=print):
     included); the load average is read before and after."""
     directory = os.path.join(out, run["label"])
     os.makedirs(directory, exist_ok=True)
-    restart = run["kind"] != "dns" and os.path.isdir(os.path.join(directory, "checkpoint"))
+    restart = run["kind"] not in ("dns", "cell") and os.path.isdir(os.path.join(directory, "checkpoint"))
     cmd, env_add = command(run, out, strain, step, ranks, threads, restart=restart)
     log(f"[dns_vs_femdem] {run['label']}: {' '.join(cmd)}")
     load_before = list(os.getloadavg())
@@ -239,7 +290,7 @@ def execute(run, out, strain, step, ranks, threads, log=print):
     named_stop = summary.get("stopped") or summary.get("reason")
     if named_stop:
         rec["stop_reason"] = named_stop
-    if proc.returncode != 0 and run["kind"] != "dns" and os.path.isdir(os.path.join(directory, "checkpoint")) \
+    if proc.returncode != 0 and run["kind"] not in ("dns", "cell") and os.path.isdir(os.path.join(directory, "checkpoint")) \
             and not rec["completed"] and not named_stop:
         # killed part-way (no stop the demo named): keep its cost and leave no record, so the next call restarts it
         with open(os.path.join(directory, "earlier_cost.json"), "w") as f:
@@ -368,8 +419,8 @@ def cost_rows(records, strain):
     (DNS: CPU per percent per disc x discs; FEM x DEM: per Gauss point x points)."""
     per = {}
     for rec in records:
-        if rec.get("locked"):
-            continue
+        if rec.get("locked") or rec.get("anisotropy") is not None or rec["kind"] == "cell":
+            continue         # the cost of the reference cases, DNS against FEM x DEM
         pct = -100.0 * rec["final_axial_strain"]
         if pct <= 0:
             continue
@@ -479,7 +530,7 @@ def agreement_lines(st, grid):
              "between the lowest and highest DNS seed | largest |FEM - DNS| / std |", "|---|---|---|---|---|---|"]
     found = []
     for f in sorted(n for n in st if st[n]["kind"] != "dns"):
-        for d in sorted(n for n in st if st[n]["kind"] == "dns" and n.endswith("-locked") == f.endswith("-locked")):
+        for d in sorted(n for n in st if st[n]["kind"] == "dns" and suffix(n) == suffix(f)):
             rng, worst, compared = agreement(st[f], st[d], grid)
             text = ", ".join(f"{100 * a:.1f}-{100 * b:.1f} %" for a, b in rng) or "nowhere"
             span = inside_seeds(st[f], st[d], grid)
@@ -512,6 +563,67 @@ def rotation_lines(st):
         lines.append(f"| {free} | {','.join(map(str, st[free]['seeds']))} / {','.join(map(str, st[name]['seeds']))} | "
                      f"{fmt(pf)} ({fmt(ef, '.2f')} %) | {fmt(pl)} ({fmt(el, '.2f')} %) | {fmt(ratio)} |")
         found.append({"case": free, "peak_free": pf, "peak_locked": pl, "ratio": ratio})
+    return lines, found
+
+
+def _mean_std(values):
+    v = [float(x) for x in values if x is not None and np.isfinite(x)]
+    if not v:
+        return None, None
+    return float(np.mean(v)), (float(np.std(v, ddof=1)) if len(v) > 1 else None)
+
+
+def major_axis(fabric):
+    """'x' or 'y': the axis nearer the fabric tensor's major eigenvector (the platens load y);
+    '' when unknown."""
+    if fabric is None:
+        return ""
+    w, v = np.linalg.eigh(np.array(fabric, dtype=float))
+    return "x" if abs(v[0, -1]) >= abs(v[1, -1]) else "y"
+
+
+def anisotropy_lines(st):
+    """000 section 4.3.3: per case (KIND-NXxNY) and target A0 (none: the isotropic compaction),
+    the achieved A0 of the packings (and the axis of the fabric's major eigenvector), their
+    solid fraction, the peak stress ratio and its strain, mean +- the sample standard
+    deviation over the seeds, and the peak over that of the lowest target (000 Fig. 13: a
+    higher A0 gives a lower peak, at a smaller strain). The packings made to a target share
+    their preparation (friction 0.3), the plain one (none) is compacted without friction and
+    is denser: it is listed, not compared."""
+    lines = ["| case | A0 target | seeds | achieved A0 (each seed; x: major axis across the load, y: along) | "
+             "solid fraction | peak stress ratio | strain at peak [%] | peak / peak at the lowest target |",
+             "|---|---|---|---|---|---|---|---|"]
+    found = []
+    groups = {}
+    for name, s in st.items():
+        recs = s["records"]
+        base = re.sub(r"-a[0-9.]+", "", name)
+        groups.setdefault(base, []).append((recs[0].get("anisotropy"), name, s))
+    if not any(t is not None for g in groups.values() for t, _, _ in g):
+        return lines, found
+    for base in sorted(groups, key=lambda n: (st[groups[n][0][1]]["kind"] != "dns", n)):
+        rows = sorted(groups[base], key=lambda g: -1.0 if g[0] is None else g[0])
+        targets = [t for t, _, _ in rows if t is not None]
+        reference = None
+        for target, name, s in rows:
+            recs = sorted(s["records"], key=lambda r: r["seed"])
+            a0 = [r.get("packing_anisotropy") for r in recs]
+            axes = [major_axis(r.get("packing_fabric")) for r in recs]
+            pk, pk_sd = _mean_std([r["peak_stress_ratio"] for r in recs])
+            ep, ep_sd = _mean_std([None if r["axial_strain_at_peak"] is None else -100 * r["axial_strain_at_peak"]
+                                   for r in recs])
+            if targets and target == min(targets):
+                reference = pk
+            ratio = pk / reference if pk and reference and target is not None else None
+            phi = [r.get("packing_solid_fraction") for r in recs]
+            lines.append(f"| {base} | {'none' if target is None else f'{target:g}'} | "
+                         f"{','.join(str(r['seed']) for r in recs)} | "
+                         f"{', '.join(fmt(a, '.3f') + x for a, x in zip(a0, axes))} (mean {fmt(_mean_std(a0)[0])}) | "
+                         f"{fmt(_mean_std(phi)[0])} | {fmt(pk)} +- {fmt(pk_sd)} | {fmt(ep, '.2f')} +- {fmt(ep_sd, '.2f')} | {fmt(ratio)} |")
+            found.append({"case": base, "target": target, "seeds": [r["seed"] for r in recs], "achieved": a0,
+                          "major_axis": axes, "solid_fraction": phi,
+                          "peak_mean": pk, "peak_std": pk_sd, "strain_at_peak_pct_mean": ep,
+                          "strain_at_peak_pct_std": ep_sd, "peak_over_lowest_target": ratio})
     return lines, found
 
 
@@ -550,7 +662,9 @@ def figure(st, grid, path):
     for k, name in enumerate(sorted(st, key=lambda n: (st[n]["kind"] != "dns", n))):
         s = st[name]
         c = colours[k % len(colours)]
-        locked = ", rotations locked" if name.endswith("-locked") else ""
+        anisotropy = s["records"][0].get("anisotropy")
+        locked = ("" if anisotropy is None else f", A0 target {anisotropy:g}") + \
+            (", rotations locked" if name.endswith("-locked") else "")
         for ax, (key, ylabel) in zip(axes, keys):
             if key == "stress_ratio":
                 mean, std = s["mean"], s["std"]
@@ -566,7 +680,8 @@ def figure(st, grid, path):
                 for r in s["records"]:
                     ax.plot(100 * grid, on_grid(r, grid, key), "--", color=c, lw=0.7)
                 ax.plot(x, mean, "-", color=c, lw=1.5, marker="o", ms=2.5,
-                        label=f"FEM x DEM {s['kind']} {s['size'][0]}x{s['size'][1]}{locked} (mean of seeds "
+                        label=(f"stand-alone cell{locked} (mean of seeds " if s["kind"] == "cell" else
+                               f"FEM x DEM {s['kind']} {s['size'][0]}x{s['size'][1]}{locked} (mean of seeds ") +
                         f"{','.join(map(str, s['seeds']))}; dashed: each)")
             ax.set_xlabel("axial strain [%] (compression)")
             ax.set_ylabel(ylabel)
@@ -590,12 +705,14 @@ def report(out, runs, strain, args_line):
     summary = study_table(st, grid)
     agree, found = agreement_lines(st, grid)
     rotation, rotation_found = rotation_lines(st)
+    fabric, fabric_found = anisotropy_lines(st)
     measured, dns_unit, fem_unit, table = cost_rows(records, strain)
     cost = cost_lines(measured, dns_unit, fem_unit, table, strain)
     figure(st, grid, os.path.join(out, "dns_vs_femdem.png"))
     text = [f"# DNS against FEM x DEM ({args_line})", "", "## Cases", ""] + cases + \
         ["", "## Mean and scatter over seeds", ""] + summary + ["", "## Agreement", ""] + agree + \
         (["", "## Rotations free against locked (000 section 4.3.2)", ""] + rotation if rotation_found else []) + \
+        (["", "## Initial fabric anisotropy (000 section 4.3.3)", ""] + fabric if fabric_found else []) + \
         ["", "## Cost", ""] + cost + ["", "Figure: dns_vs_femdem.png"]
     with open(os.path.join(out, "dns_vs_femdem.md"), "w") as f:
         f.write("\n".join(text) + "\n")
@@ -604,7 +721,7 @@ def report(out, runs, strain, args_line):
         w.writeheader()
         w.writerows(rows_csv)
     write_json(os.path.join(out, "dns_vs_femdem.json"),
-               {"agreement": found, "rotation": rotation_found, "cost": table, "cost_measured": measured, "dns_cpu_per_pct_per_disc": dns_unit,
+               {"agreement": found, "rotation": rotation_found, "anisotropy": fabric_found, "cost": table, "cost_measured": measured, "dns_cpu_per_pct_per_disc": dns_unit,
                 "femdem_cpu_per_pct_per_point": fem_unit})
     print("\n".join(text))
     return text

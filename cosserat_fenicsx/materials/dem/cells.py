@@ -60,6 +60,8 @@ MICRO_BCS = ("periodic", "frame")
 RELAXATION = {"method": "fire", "damping": 0.7}
 #: ... and of frame cells (micro_bc 'frame'): local damping, as 000 section 3.2.1 (demcell.frame)
 FRAME_RELAXATION = {"method": "local", "damping": 0.7}
+#: a target initial fabric anisotropy A0 = Phi_1 / Phi_2 - 1 (000 eq. 38)
+ANISOTROPY = Range(0.0, 1.0, high_open=True)
 #: DEM steps allowed per cell solve at most (the relaxation kernel counts in int64; a
 #: billion steps is days of one cell)
 MAX_STEPS = 10 ** 9
@@ -74,6 +76,10 @@ class CellOptions:
     with a help text are demos/femdem_biaxial.py's cell options (cli.add_settings)."""
     particles: int = setting(228, DISCS, "number of discs (000 Table 3)")
     seed: int = setting(0, NON_NEGATIVE_INTEGER, "packing seed")
+    anisotropy: float = setting(None, ANISOTROPY,
+                                "target initial fabric anisotropy A0 in [0, 1) of the generated packing "
+                                "(000 section 4.3.3: 0.02, 0.05, 0.08; deviatoric pre-compaction, "
+                                "demcell.generate_packing; default: none, the isotropic compaction's)")
     packing: str = None              # .npz written by demos/dem_cell.py (or demcell.save_packing)
     friction: float = setting(0.4, FRICTION, "Coulomb friction mu (inf: no sliding)")
     pressure: float = setting(10.0, POSITIVE, "confining pressure p0 [N/m] (compaction and isotropic stage)")
@@ -118,6 +124,10 @@ class CellOptions:
             raise ValueError(f"criterion must be 'energy' or 'force', got {self.criterion!r}")
         if not (isinstance(self.seed, (int, np.integer)) and self.seed >= 0):
             raise ValueError(f"seed must be an integer >= 0, got {self.seed!r}")
+        if self.anisotropy is not None:
+            ANISOTROPY.check("anisotropy (the target A0)", self.anisotropy)
+            if self.packing is not None:
+                raise ValueError("anisotropy is a target of the generated packing: a packing file has its own")
         check_every = self.relaxation().check_every
         if not (isinstance(self.max_steps, (int, np.integer)) and 2 * check_every <= self.max_steps <= MAX_STEPS):
             raise ValueError(f"max_steps must be an integer in [{2 * check_every}, {MAX_STEPS:.0e}] (the convergence "
@@ -164,7 +174,8 @@ class CellOptions:
         import demcell as dc
         if self.packing is not None:
             return self.load_packing()
-        return dc.generate_packing(self.particles, pressure=self.pressure, law=self.law(), seed=self.seed)
+        return dc.generate_packing(self.particles, pressure=self.pressure, law=self.law(), seed=self.seed,
+                                   anisotropy=self.anisotropy)
 
 
 def reference_cells(options, frictions, comm=None, micropolar=False):

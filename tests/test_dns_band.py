@@ -8,7 +8,8 @@ from scipy.special import erf
 
 import demcell as dc
 from demcell.specimen.specimens import tiled_cell
-from benchmarks.dns.dns_band import SINGLE_BAND_SHARE, window_band
+from benchmarks.dns.dns_band import (PATCH_RADIUS, PATCH_WIDENING, SINGLE_BAND_SHARE, WIDE_PATCH_RADIUS, corrected,
+                                     window_band)
 
 
 @pytest.fixture(scope="module")
@@ -39,7 +40,7 @@ def snapshots(x, radius, excluded, increment):
     return start, end
 
 
-@pytest.mark.parametrize("alpha_deg,H_d50", [(55.0, 2.0), (-60.0, 3.0)])
+@pytest.mark.parametrize("alpha_deg,H_d50", [(55.0, 3.0), (-60.0, 4.0)])
 def test_known_band_is_recovered(grains, alpha_deg, H_d50):
     x, radius, excluded = grains
     d50 = float(np.median(2 * radius))
@@ -49,36 +50,39 @@ def test_known_band_is_recovered(grains, alpha_deg, H_d50):
     rec = window_band(*snapshots(x, radius, excluded, increment))
     assert rec["band"], rec["no_band_reason"]
     assert rec["d50"] == pytest.approx(d50)
-    assert rec["thickness_over_d50"] == pytest.approx(H_d50, rel=0.05)
+    assert corrected(rec["thickness_over_d50"], PATCH_RADIUS) == pytest.approx(H_d50, rel=0.03)
+    assert rec["thickness_over_d50"] < 1.1 * H_d50
     assert rec["inclination_deg"] == pytest.approx(alpha_deg, abs=0.5)
     assert rec["top_decile_share"] > 0.95
 
 
-def test_patch_widens_a_band_one_grain_thick_by_at_most_a_fifth(grains):
-    """The resolution of the measurement: the 1.5-diameter patch smooths the increment, so a
-    band with H = d50 reads 1.0-1.2 d50 (the docs quote this bias)."""
+@pytest.mark.parametrize("patch", [PATCH_RADIUS, WIDE_PATCH_RADIUS])
+def test_patch_widening_in_quadrature(grains, patch):
+    """The resolution the benchmark corrects for: H_read^2 - H^2 = s^2 of PATCH_WIDENING
+    (within 0.25 d50) for bands 2-6 d50 thick; a band of one diameter reads wider than H."""
     x, radius, excluded = grains
     d50 = float(np.median(2 * radius))
-    rec = window_band(*snapshots(x, radius, excluded, shear_band(x, x.mean(axis=0), 55.0, d50, 0.02)))
-    assert rec["band"], rec["no_band_reason"]
-    assert 1.0 <= rec["thickness_over_d50"] <= 1.2
+    for H in (2.0, 4.0, 6.0):
+        rec = window_band(*snapshots(x, radius, excluded, shear_band(x, x.mean(axis=0), 55.0, H * d50, 0.02)),
+                          patch)
+        assert rec["band"], rec["no_band_reason"]
+        assert math.sqrt(rec["thickness_over_d50"] ** 2 - H ** 2) == pytest.approx(PATCH_WIDENING[patch], abs=0.25)
+    rec = window_band(*snapshots(x, radius, excluded, shear_band(x, x.mean(axis=0), 55.0, d50, 0.02)), patch)
+    assert rec["thickness_over_d50"] > 1.4
 
 
 def test_norm_of_a_background_narrows_the_bell(grains):
     """gamma is a norm: on a homogeneous increment of a tenth of the band's peak the tails
-    read sqrt(g'^2 + b^2) - b, so H comes out below the band's own (2 d50 reads about 1.65 d50)."""
+    read sqrt(g'^2 + b^2) - b, so H comes out below the band's own (the benchmark reports
+    the contrast A / e0 beside H for this reason)."""
     x, radius, excluded = grains
     d50 = float(np.median(2 * radius))
     centre = x.mean(axis=0)
-    increment = shear_band(x, centre, 55.0, 2.0 * d50, 0.02) + np.column_stack(
+    increment = shear_band(x, centre, 55.0, 4.0 * d50, 0.02) + np.column_stack(
         [0.0 * x[:, 0], -0.002 * (x[:, 1] - centre[1])])
     rec = window_band(*snapshots(x, radius, excluded, increment))
     assert rec["band"], rec["no_band_reason"]
-    assert 1.5 < rec["thickness_over_d50"] < 1.8
-    removed = rec["far_field_removed"]      # relative to the median increment: the band's own H
-    assert removed["band"], removed["no_band_reason"]
-    assert removed["thickness_over_d50"] == pytest.approx(2.0, rel=0.05)
-    assert removed["inclination_deg"] == pytest.approx(55.0, abs=0.5)
+    assert 0.6 * 4.0 < corrected(rec["thickness_over_d50"], PATCH_RADIUS) < 0.9 * 4.0
 
 
 def test_homogeneous_increment_has_no_band(grains):

@@ -190,43 +190,43 @@ def _cell(w, patch_radius_d):
             f"({fmt(w['inclination_deg'], '+.1f')})")
 
 
-def table(results):
-    """Markdown lines: one row per run (its last window) and one per tiling (mean +- std over
-    the seeds with a single band; a fit that is no band is shown in parentheses and left out)."""
+def table(results, shown=2):
+    """Markdown lines: one row per run and window (the last `shown` windows) and one per tiling
+    and window (mean +- std over the seeds with a single band; a fit that is no band is shown in
+    parentheses and left out)."""
     r3, r5 = f"{PATCH_RADIUS:g} d", f"{WIDE_PATCH_RADIUS:g} d"
     lines = [f"| tiling | seed | discs | window (axial strain) | band (patch {r3}) | H_read / d50 | H / d50 | "
-             f"inclination [deg] | top decile within 2H | band (patch {r5}) | H_read / d50 | H / d50 | "
-             "inclination [deg] | peak stress ratio (strain) | CPU s | load after |",
-             "|" + "---|" * 16]
-    by_tiling = {}
+             f"inclination [deg] | top decile within 2H | contrast A / e0 | band (patch {r5}) | H_read / d50 | "
+             "H / d50 | inclination [deg] | peak stress ratio (strain) | CPU s | load after |",
+             "|" + "---|" * 17]
+    groups = {}
     for label in sorted(results, key=lambda k: (results[k]["discs"], results[k]["seed"])):
         r = results[label]
-        w, v = r["windows"][-1], r["windows_wide"][-1]
-        lines.append(f"| {r['study']} | {r['seed']} | {r['discs']} | {-100 * w['axial_strain'][0]:.1f}-"
-                     f"{-100 * w['axial_strain'][1]:.1f} % | " + " | ".join(_cell(w, PATCH_RADIUS)[:3]) + " | "
-                     f"{_cell(w, PATCH_RADIUS)[3]} | {fmt(w['top_decile_share'])} | " +
-                     " | ".join(_cell(v, WIDE_PATCH_RADIUS)) + f" | {fmt(r['peak_stress_ratio'], '.3f')} "
-                     f"({fmt(r['axial_strain_at_peak'], '.1f')} %) | {r['cpu_s']:.0f} | {r['load_after']:.2f} |")
-        t = by_tiling.setdefault(r["study"], {"runs": 0, "H": [], "a": [], "H5": [], "a5": []})
-        t["runs"] += 1
-        for rec, radius, hk, ak in ((w, PATCH_RADIUS, "H", "a"), (v, WIDE_PATCH_RADIUS, "H5", "a5")):
-            if rec["band"]:
-                t[hk].append(corrected(rec["thickness_over_d50"], radius))
-                t[ak].append(abs(rec["inclination_deg"]))
-    lines += ["", f"| tiling | runs | single bands (patch {r3}) | H / d50 (mean +- std over seeds) | "
+        for w, v in list(zip(r["windows"], r["windows_wide"]))[-shown:]:
+            window = f"{-100 * w['axial_strain'][0]:.0f}-{-100 * w['axial_strain'][1]:.0f} %"
+            fit = w["fit"] or {}
+            contrast = fit["amplitude"] / fit["offset"] if fit.get("offset", 0) > 0 else None
+            lines.append(f"| {r['study']} | {r['seed']} | {r['discs']} | {window} | " +
+                         " | ".join(_cell(w, PATCH_RADIUS)) + f" | {fmt(w['top_decile_share'])} | "
+                         f"{fmt(contrast)} | " + " | ".join(_cell(v, WIDE_PATCH_RADIUS)) +
+                         f" | {fmt(r['peak_stress_ratio'], '.3f')} ({fmt(r['axial_strain_at_peak'], '.1f')} %) | "
+                         f"{r['cpu_s']:.0f} | {r['load_after']:.2f} |")
+            for key in ((r["study"], window), ("all tilings", window)):
+                t = groups.setdefault(key, {"runs": 0, "H": [], "a": [], "H5": [], "a5": []})
+                t["runs"] += 1
+                for rec, radius, hk, ak in ((w, PATCH_RADIUS, "H", "a"), (v, WIDE_PATCH_RADIUS, "H5", "a5")):
+                    if rec["band"]:
+                        t[hk].append(corrected(rec["thickness_over_d50"], radius))
+                        t[ak].append(abs(rec["inclination_deg"]))
+    lines += ["", f"| tiling | window | runs | single bands (patch {r3}) | H / d50 (mean +- std over seeds) | "
               f"|inclination| [deg] | single bands (patch {r5}) | H / d50 | |inclination| [deg] |",
-              "|---|---|---|---|---|---|---|---|"]
-    every = {"runs": 0, "H": [], "a": [], "H5": [], "a5": []}
-    for study, t in list(by_tiling.items()) + [("all tilings", every)]:
-        if study != "all tilings":
-            for k in ("H", "a", "H5", "a5"):
-                every[k] += t[k]
-            every["runs"] += t["runs"]
+              "|---|---|---|---|---|---|---|---|---|"]
+    for (study, window), t in sorted(groups.items(), key=lambda kv: (kv[0][0] == "all tilings", kv[0])):
         cells = []
         for hk, ak in (("H", "a"), ("H5", "a5")):
             (h, hs, n), (a, as_, _) = _mean_sd(t[hk]), _mean_sd(t[ak])
             cells.append(f"{n} | {fmt(h)} +- {fmt(hs)} | {fmt(a, '.1f')} +- {fmt(as_, '.1f')}")
-        lines.append(f"| {study} | {t['runs']} | " + " | ".join(cells) + " |")
+        lines.append(f"| {study} | {window} | {t['runs']} | " + " | ".join(cells) + " |")
     return lines
 
 

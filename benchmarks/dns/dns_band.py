@@ -178,14 +178,18 @@ def corrected(h_read, patch_radius_d):
     return math.sqrt(h_read ** 2 - s ** 2) if h_read is not None and h_read > s else None
 
 
+#: a fitted H / d50 above this is a fit run off the specimen, not a thickness
+DIVERGED = 1e3
+
+
 def _cell(w, patch_radius_d):
     """(verdict text, H_read / d50, H / d50, inclination) of one measure_band dict; a fit that
     is no band in parentheses."""
     h = w["thickness_over_d50"]
     if w["band"]:
         return "yes", fmt(h), fmt(corrected(h, patch_radius_d)), fmt(w["inclination_deg"], "+.1f")
-    if h is None:
-        return f"no: {w['no_band_reason']}", "-", "-", "-"
+    if h is None or not h < DIVERGED:
+        return f"no: {w['no_band_reason'] if h is None else 'the fit diverged (no bell in the field)'}", "-", "-", "-"
     return (f"no: {w['no_band_reason']}", f"({fmt(h)})", f"({fmt(corrected(h, patch_radius_d))})",
             f"({fmt(w['inclination_deg'], '+.1f')})")
 
@@ -206,6 +210,7 @@ def table(results, shown=2):
             window = f"{-100 * w['axial_strain'][0]:.0f}-{-100 * w['axial_strain'][1]:.0f} %"
             fit = w["fit"] or {}
             contrast = fit["amplitude"] / fit["offset"] if fit.get("offset", 0) > 0 else None
+            contrast = contrast if contrast is not None and abs(contrast) < DIVERGED else None
             lines.append(f"| {r['study']} | {r['seed']} | {r['discs']} | {window} | " +
                          " | ".join(_cell(w, PATCH_RADIUS)) + f" | {fmt(w['top_decile_share'])} | "
                          f"{fmt(contrast)} | " + " | ".join(_cell(v, WIDE_PATCH_RADIUS)) +

@@ -224,7 +224,7 @@ def table(results, shown=2):
                         t[hk].append(corrected(rec["thickness_over_d50"], radius))
                         t[ak].append(abs(rec["inclination_deg"]))
     lines += ["", f"| tiling | window | runs | single bands (patch {r3}) | H / d50 (mean +- std over seeds) | "
-              f"|inclination| [deg] | single bands (patch {r5}) | H / d50 | |inclination| [deg] |",
+              f"abs(inclination) [deg] | single bands (patch {r5}) | H / d50 | abs(inclination) [deg] |",
               "|---|---|---|---|---|---|---|---|---|"]
     for (study, window), t in sorted(groups.items(), key=lambda kv: (kv[0][0] == "all tilings", kv[0])):
         cells = []

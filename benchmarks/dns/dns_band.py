@@ -7,11 +7,12 @@ case whose record OUT/LABEL.json exists is skipped) to --strain, then measures t
 each run from the per-disc snapshots the demo writes (particles/fields_NNNN.npz at 0, 1/4,
 1/2, 3/4 and all of the strain):
 
-1. the incremental displacement of every disc over a window of two consecutive snapshots
-   (default the last: 6-8 % axial strain at --strain 0.08), du = u(end) - u(start);
+1. the incremental displacement of every disc over each window of two consecutive snapshots
+   (the table shows the last two: 4-6 % and 6-8 % axial strain at --strain 0.08),
+   du = u(end) - u(start);
 2. its gradient at each disc by the least-squares quadratic patch fit of demcell's
-   ``patch_gradient`` over the discs whose centres lie within --patch-radius mean diameters
-   (default 3; a second measure with 5) in the window's start configuration. The patch
+   ``patch_gradient`` over the discs whose centres lie within PATCH_RADIUS = 3 mean
+   diameters (a second measure with WIDE_PATCH_RADIUS = 5) in the window's start configuration. The patch
    smooths: a band of the bell's shape is read wider, in quadrature, H_read^2 = H^2 + s^2
    with s = 1.2 d50 at 3 diameters and 2.0 d50 at 5 (measured on known bands on the
    grains, tests/test_dns_band.py); both H_read and H = sqrt(H_read^2 - s^2) are reported;
@@ -31,7 +32,7 @@ bands of equal strength put about half of it outside). Otherwise the table says 
 no thickness enters the means. The discs on the walls are left out of the fit (their patch
 is one-sided).
 
-    /usr/bin/python3 benchmarks/dns/dns_band.py --out results/dns_band            # 9 runs, about 40 CPU min
+    /usr/bin/python3 benchmarks/dns/dns_band.py --out results/dns_band            # 9 runs, about 30 CPU min
     /usr/bin/python3 benchmarks/dns/dns_band.py --cases dns-2x4 --seeds 0 --out DIR
     /usr/bin/python3 benchmarks/dns/dns_band.py --report-only --out DIR
 

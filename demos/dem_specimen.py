@@ -402,7 +402,8 @@ def on_row(row):
         rows.append(row)
         history.write(**row)
         t = row["time"]
-        while pending and t >= pending[0] - 1e-9 * max(1.0, t):
+        # the run ends on a whole step, up to one dt short of the last snapshot time
+        while pending and t >= pending[0] - max(1e-9 * max(1.0, t), args.dt):
             pending.pop(0)
             snapshot(len(kept["snapshots_done"]), t)
         if len(rows) % 20 == 0:

@@ -116,3 +116,14 @@ def test_bad_input_is_refused_in_one_line(tmp_path, args, words):
     lines = proc.stderr.strip().splitlines()
     assert len(lines) == 1 and words in lines[0]
     assert not (tmp_path / "summary.json").exists()
+
+
+def test_the_last_snapshot_is_taken_at_the_end_of_the_run(tmp_path):
+    """The default snapshots (5 over the run) include the end: the run stops on a whole step,
+    up to one time step short of the duration, and that row is the last snapshot."""
+    run_demo("dem_specimen", "--specimen", "tiled", "--tiles", "1x2", "--axial-strain", 0.003, "--threads", 1,
+             "--out", tmp_path)
+    summary = json.load(open(tmp_path / "summary.json"))
+    assert [f"fields_{k:04d}.npz" for k in range(5)] == sorted(
+        f for f in os.listdir(tmp_path / "particles") if f.startswith("fields_"))
+    assert summary["snapshots_done"][-1] == pytest.approx(summary["final_time"])

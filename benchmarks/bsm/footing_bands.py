@@ -15,10 +15,10 @@ Method (all lengths in m):
   eps_eq = sqrt(2/3 e:e), e the deviator of the 3x3 strain with eps33 = 0 (003-bsm.md [R]
   for 003's undefined "effective strain");
 * ray scan from each plate edge E = (x_edge, y_surface) (moved along the surface by up to
-  0.5 m, the best origin kept per angle): for angles phi in (0, 180) deg, the
+  0.5 m, the best origin kept per angle): for angles phi in [10, 170] deg, the
   mean eps_eq of the grains near the ray E + t (cos phi, -sin phi) (x
   pointing towards the plate centre), t in [t_min, t_max], Gaussian-weighted by the distance
-  from the ray (ray_scan). phi < 90: the ray runs under the
+  from the ray (ray_scan), the grains of the top 0.1 m left out (edge_bands). phi < 90: the ray runs under the
   plate (inward, a wedge); phi > 90: away from it (outward, Prandtl's fan side). The band is
   the phi of the largest mean, its inclination from the horizontal min(phi, 180 - phi)
   (within 4 degrees on synthetic wedges of 30-70 degrees on lattice A's grains); the
@@ -29,8 +29,9 @@ Method (all lengths in m):
 
     PYTHONPATH=. python3 benchmarks/bsm/footing_bands.py RUN_DIR [RUN_DIR ...] --window 40 60 --out DIR
 
-RUN_DIR: a benchmarks/dns/footing_dem.py run with --snapshots (grains_S.npz) or a
-demos/footing_bsm.py run (grains.vtk.series, the frames nearest to the window's ends).
+RUN_DIR: a benchmarks/dns/footing_dem.py run with --snapshots (grains_S.npz; --window 0 S:
+from the reference positions) or a demos/footing_bsm.py run (grains.vtk.series, the frames
+nearest to the window's ends).
 Writes DIR/bands.json and one strain map DIR/<run>_bands.png per run.
 """
 import argparse
@@ -92,7 +93,7 @@ def ray_scan(position, strain, edge, inward, half_width, t_min, t_max, angles_de
 
 
 def edge_bands(position, strain, plate_x, surface_y, half_width=0.05, t_min=0.2, t_max=1.2, step_deg=1.0,
-               shift=0.5, shift_step=0.05):
+               shift=0.5, shift_step=0.05, skin=0.1, min_deg=10.0):
     """The band from each plate edge: {"left"/"right": {"phi_deg", "inclination_deg",
     "inward", "origin_shift_m", "contrast", "best_inward_deg", "best_outward_deg",
     "inward_over_outward"}} and "v_shape": both bands inward (a wedge under the plate).
@@ -167,7 +168,8 @@ def analyse(position, displacement, plate_x, surface_y, box=None):
 
 
 # %% reading runs
-def _history(run):
+def load_history(run):
+    """(settlement [mm], plate load [kN/m]) of a footing_dem or footing_bsm run folder."""
     with open(os.path.join(run, "history.csv")) as f:
         rows = list(csv.DictReader(f))
     if "settlement_mm" in rows[0]:
@@ -200,11 +202,14 @@ def read_window(run, s1_mm, s2_mm):
         under = (ref[:, 0] + r > plate_x[0]) & (ref[:, 0] - r < plate_x[1])
         surface = float(np.max(ref[under, 1] + r[under]))
         return p1[real], p2[real] - p1[real], plate_x, surface - s[k1] * 1e-3, (s[k1], s[k2]), "BSM"
-    g1 = np.load(os.path.join(run, f"grains_{s1_mm:g}.npz"))
     g2 = np.load(os.path.join(run, f"grains_{s2_mm:g}.npz"))
-    return (g1["position"], g2["position"] - g1["position"], tuple(g1["plate_x"]),
-            float(g1["plate_y0"]) - float(g1["settlement"]),
-            (1e3 * float(g1["settlement"]), 1e3 * float(g2["settlement"])), "DEM")
+    if s1_mm == 0.0:              # the whole history: from the reference positions
+        p1, s1, y1 = g2["reference_position"], 0.0, float(g2["plate_y0"])
+    else:
+        g1 = np.load(os.path.join(run, f"grains_{s1_mm:g}.npz"))
+        p1, s1 = g1["position"], float(g1["settlement"])
+        y1 = float(g1["plate_y0"]) - s1
+    return p1, g2["position"] - p1, tuple(g2["plate_x"]), y1, (1e3 * s1, 1e3 * float(g2["settlement"])), "DEM"
 
 
 def strain_map(path, position, strain, inside, plate_x, surface_y, res, title):
@@ -244,7 +249,7 @@ def main():
         name = os.path.basename(os.path.normpath(run))
         position, du, plate_x, surface_y, window, kind = read_window(run, *args.window)
         res, strain, inside = analyse(position, du, plate_x, surface_y)
-        res.update(kind=kind, window_mm=window, softening=softening(*_history(run)))
+        res.update(kind=kind, window_mm=window, softening=softening(*load_history(run)))
         table[name] = res
         b = res["bands"]
         title = (f"{name} ({kind}): eps_eq {window[0]:.1f}-{window[1]:.1f} mm; left {b['left']['inclination_deg']:.0f} "

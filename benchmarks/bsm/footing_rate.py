@@ -8,7 +8,7 @@ quasi-static where halving the speed changes the curve by less than 1 %.
 
 RUN_DIR: benchmarks/dns/footing_dem.py or demos/footing_bsm.py folders (history.csv,
 summary.json), sorted here by speed, fastest first. Prints one table row per pair and the
-cost of each run (loading CPU and wall seconds, load average).
+cost of each run (loading CPU and wall seconds, load average); --png FILE: the curves.
 """
 import argparse
 import json
@@ -46,6 +46,7 @@ def main():
     ap.add_argument("runs", nargs="+")
     ap.add_argument("--from", dest="s0", type=float, default=0.5, help="first settlement compared [mm]")
     ap.add_argument("--to", dest="s1", type=float, default=60.0, help="last settlement compared [mm]")
+    ap.add_argument("--png", help="a figure of the load curves, speed by speed")
     args = ap.parse_args()
     runs = sorted(((run_info(r), r) for r in args.runs), key=lambda x: -x[0][0])
     grid = np.arange(args.s0, args.s1 + 1e-9, 0.1)
@@ -58,6 +59,19 @@ def main():
     for (i1, r1), (i2, r2) in zip(runs[:-1], runs[1:]):
         c, at, dp, dm = change(load_history(r1), load_history(r2), grid)
         print(f"| {i1[0]:g} -> {i2[0]:g} | {100 * c:.1f} % | {at:.1f} | {100 * dp:+.1f} % | {100 * dm:+.1f} % |")
+    if args.png:
+        import matplotlib
+        matplotlib.use("Agg")
+        import matplotlib.pyplot as plt
+        fig, ax = plt.subplots(figsize=(6, 4))
+        for info, run in runs:
+            ax.plot(*load_history(run), lw=0.8, label=f"{info[0]:g} m/s")
+        ax.set_xlabel("settlement [mm]")
+        ax.set_ylabel("plate load [kN/m]")
+        ax.set_yscale("symlog", linthresh=10.0)
+        ax.legend(fontsize=8)
+        fig.tight_layout()
+        fig.savefig(args.png, dpi=120)
 
 
 if __name__ == "__main__":

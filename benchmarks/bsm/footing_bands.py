@@ -99,10 +99,16 @@ def edge_bands(position, strain, plate_x, surface_y, half_width=0.05, t_min=0.2,
     "inward_over_outward"}} and "v_shape": both bands inward (a wedge under the plate).
     plate_x (x0, x1) [m]; surface_y [m]: the surface the edges sit on. The rays start at
     the edge moved by up to `shift` [m] along the surface (origin_shift_m > 0: under the
-    plate), since a band need not leave the plate's corner exactly."""
-    angles = np.arange(step_deg, 180.0, step_deg)
-    shifts = np.arange(-shift, shift + 0.5 * shift_step, shift_step)
+    plate), since a band need not leave the plate's corner exactly. The grains within
+    `skin` [m] of the surface are left out of the scan and the angles kept within
+    [min_deg, 180 - min_deg]: the patch fits of the free surface's grains are one-sided and
+    their strain is large wherever the surface heaves; a ray along it is not a band. The
+    background of the contrast is the mean over the whole window."""
     background = float(np.nanmean(strain))
+    angles = np.arange(min_deg, 180.0 - min_deg + 0.5 * step_deg, step_deg)
+    deep = position[:, 1] <= surface_y - skin
+    position, strain = position[deep], strain[deep]
+    shifts = np.arange(-shift, shift + 0.5 * shift_step, shift_step)
     out = {}
     for side, x_edge, inward in (("left", plate_x[0], 1.0), ("right", plate_x[1], -1.0)):
         means = np.array([ray_scan(position, strain, (x_edge + inward * o, surface_y), inward, half_width, t_min,

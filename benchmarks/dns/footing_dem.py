@@ -32,6 +32,14 @@ from demcell.specimen.footing import footing_packing, run_footing
 TABLE_2_DEM = 1674.19e3     # [N/m] at 60 mm, 003 Table 2 (whole-domain DEM)
 
 
+def snapshot(out, mm, specimen, settlement, load):
+    """grains_MM.npz of the engine's state now (module docstring)."""
+    st, plate = specimen.state, specimen.plate_position()
+    np.savez(os.path.join(out, f"grains_{mm:g}.npz"), position=st.position,
+             reference_position=st.reference_position, radius=st.radius, settlement=settlement, load=load,
+             plate_x=np.array(plate[:2]), plate_y0=plate[2] + settlement)
+
+
 def main():
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("--packing", default="A", choices=("A", "B", "C"))
@@ -71,15 +79,14 @@ def main():
                 fh.flush()
                 print(f"  s = {1e3 * row['settlement']:6.2f} mm  load = {row['load'] / 1e3:9.2f} kN/m", flush=True)
             while pending and 1e3 * row["settlement"] >= pending[0] - 1e-2:
-                st, plate = row["specimen"].state, row["specimen"].plate_position()
-                np.savez(os.path.join(args.out, f"grains_{pending.pop(0):g}.npz"), position=st.position,
-                         reference_position=st.reference_position, radius=st.radius,
-                         settlement=row["settlement"], load=row["load"],
-                         plate_x=np.array(plate[:2]), plate_y0=plate[2] + row["settlement"])
+                snapshot(args.out, pending.pop(0), row["specimen"], row["settlement"], row["load"])
 
         res = run_footing(args.packing, args.width, args.height, args.plate_width, args.speed, args.depth,
                           args.rough, args.mass_damping, args.dt_fraction, args.record_every, args.seed,
                           discs=discs, threads=args.threads, on_record=record)
+    # the last step can end up to half a step short of --depth: the final state stands for it
+    for s in [s for s in pending if s <= 1e3 * args.depth + 1e-9]:
+        snapshot(args.out, s, res.specimen, float(res.settlement[-1]), float(res.load[-1]))
     peak, at = res.peak()
     info = dict(res.info)
     info["packing"] = args.packing

@@ -15,7 +15,7 @@ Method (all lengths in m):
   eps_eq = sqrt(2/3 e:e), e the deviator of the 3x3 strain with eps33 = 0 (003-bsm.md [R]
   for 003's undefined "effective strain");
 * ray scan from each plate edge E = (x_edge, y_surface) (moved along the surface by up to
-  0.5 m, the best origin kept per angle): for angles phi in [10, 170] deg, the
+  1 m, the best origin kept per angle): for angles phi in [10, 170] deg, the
   mean eps_eq of the grains near the ray E + t (cos phi, -sin phi) (x
   pointing towards the plate centre), t in [t_min, t_max], Gaussian-weighted by the distance
   from the ray (ray_scan), the grains of the top 0.1 m left out (edge_bands). phi < 90: the ray runs under the
@@ -93,7 +93,7 @@ def ray_scan(position, strain, edge, inward, half_width, t_min, t_max, angles_de
 
 
 def edge_bands(position, strain, plate_x, surface_y, half_width=0.05, t_min=0.2, t_max=1.2, step_deg=1.0,
-               shift=0.5, shift_step=0.05, skin=0.1, min_deg=10.0):
+               shift=1.0, shift_step=0.05, skin=0.1, min_deg=10.0):
     """The band from each plate edge: {"left"/"right": {"phi_deg", "inclination_deg",
     "inward", "origin_shift_m", "contrast", "best_inward_deg", "best_outward_deg",
     "inward_over_outward"}} and "v_shape": both bands inward (a wedge under the plate).

@@ -254,6 +254,10 @@ def main():
     for run in args.runs:
         name = os.path.basename(os.path.normpath(run))
         position, du, plate_x, surface_y, window, kind = read_window(run, *args.window)
+        if window[1] - window[0] < 0.5 * (args.window[1] - args.window[0]):
+            print(f"{name}: skipped, its frames cover only {window[0]:.1f}-{window[1]:.1f} mm of the window "
+                  f"(a run that stopped early?)")
+            continue
         res, strain, inside = analyse(position, du, plate_x, surface_y)
         res.update(kind=kind, window_mm=window, softening=softening(*load_history(run)))
         table[name] = res

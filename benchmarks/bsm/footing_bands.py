@@ -21,7 +21,8 @@ Method (all lengths in m):
   from the ray (ray_scan), the grains of the top 0.1 m left out (edge_bands). phi < 90: the ray runs under the
   plate (inward, a wedge); phi > 90: away from it (outward, Prandtl's fan side). The band is
   the phi of the largest mean, its inclination from the horizontal min(phi, 180 - phi)
-  (within 4 degrees on synthetic wedges of 30-70 degrees on lattice A's grains); the
+  (within 3 degrees on synthetic wedges of 30-70 degrees on lattice A's grains; fit_band within
+  0.7 degrees); the
   contrast is that mean over the mean eps_eq of the window;
 * cross-check: cosserat_fenicsx.shear_band.fit_band (thesis 004 eq 4.22, a Gaussian bell
   along a straight band) on each half of the window;

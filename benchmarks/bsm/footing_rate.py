@@ -26,7 +26,8 @@ def run_info(run):
     if "loading_cpu_s" in s:            # footing_dem.py
         return (float(s["options"]["speed"]), s["loading_cpu_s"], s["loading_wall_s"],
                 max(s["loadavg_before"][0], s["loadavg_after"][0]))
-    return float(s["speed"]), s["cpu_s"], s["wall_s"], s["load_average"][0]
+    # a run that stopped early (footing_bsm: a grain left the region) has no timing
+    return float(s["speed"]), s.get("cpu_s", float("nan")), s.get("wall_s", float("nan")), s["load_average"][0]
 
 
 def change(fast, slow, grid):

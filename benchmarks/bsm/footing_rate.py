@@ -27,7 +27,8 @@ def run_info(run):
         return (float(s["options"]["speed"]), s["loading_cpu_s"], s["loading_wall_s"],
                 max(s["loadavg_before"][0], s["loadavg_after"][0]))
     # a run that stopped early (footing_bsm: a grain left the region) has no timing
-    return float(s["speed"]), s.get("cpu_s", float("nan")), s.get("wall_s", float("nan")), s["load_average"][0]
+    nan = float("nan")
+    return float(s["speed"]), s.get("cpu_s", nan), s.get("wall_s", nan), s.get("load_average", [nan])[0]
 
 
 def change(fast, slow, grid):

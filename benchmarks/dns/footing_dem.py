@@ -11,7 +11,10 @@ missing: Li-Chu's rolling force). Writes, in --out:
   the final settlement, wall and CPU seconds of the loading (and of the preparation),
   os.getloadavg() before and after, the options;
 * force_settlement.png: load [kN/m] against settlement [mm], 003 Table 2's DEM value
-  (1674.19 kN/m at 60 mm, packing not stated) marked.
+  (1674.19 kN/m at 60 mm, packing not stated) marked;
+* with --snapshots S1 S2 ... [mm]: grains_S.npz at the first record at or past each
+  settlement S: position, reference_position (n, 2) [m], radius (n,) [m], settlement [m],
+  load [N/m], plate_x (2,) [m], plate_y0 [m] (the input of benchmarks/bsm/footing_bands.py).
 
     /usr/bin/python3 benchmarks/dns/footing_dem.py --packing A --out results/footing_A
     /usr/bin/python3 benchmarks/dns/footing_dem.py --packing A --width 6 --height 3 --out /tmp/f6
@@ -27,6 +30,14 @@ import numpy as np
 from demcell.specimen.footing import footing_packing, run_footing
 
 TABLE_2_DEM = 1674.19e3     # [N/m] at 60 mm, 003 Table 2 (whole-domain DEM)
+
+
+def snapshot(out, mm, specimen, settlement, load):
+    """grains_MM.npz of the engine's state now (module docstring)."""
+    st, plate = specimen.state, specimen.plate_position()
+    np.savez(os.path.join(out, f"grains_{mm:g}.npz"), position=st.position,
+             reference_position=st.reference_position, radius=st.radius, settlement=settlement, load=load,
+             plate_x=np.array(plate[:2]), plate_y0=plate[2] + settlement)
 
 
 def main():
@@ -45,6 +56,8 @@ def main():
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--threads", type=int, default=1,
                     help="Numba threads (1: on a loaded shared machine two threads ran 100x slower)")
+    ap.add_argument("--snapshots", type=float, nargs="*", default=[],
+                    help="settlements [mm] at which the grains are saved (grains_S.npz)")
     ap.add_argument("--out", default="footing_dem", help="output folder")
     args = ap.parse_args()
     os.makedirs(args.out, exist_ok=True)
@@ -54,6 +67,7 @@ def main():
     prep_cpu, prep_wall = time.process_time() - c0, time.perf_counter() - w0
     print(f"packing {args.packing}: {discs.n_discs} discs, solid fraction {discs.solid_fraction():.4f} "
           f"({prep_wall:.1f} s wall)", flush=True)
+    pending = sorted(args.snapshots)
     csv_path = os.path.join(args.out, "history.csv")
     with open(csv_path, "w", newline="") as fh:
         writer = csv.writer(fh)
@@ -64,10 +78,15 @@ def main():
             if row["step"] % (50 * args.record_every) == 0:
                 fh.flush()
                 print(f"  s = {1e3 * row['settlement']:6.2f} mm  load = {row['load'] / 1e3:9.2f} kN/m", flush=True)
+            while pending and 1e3 * row["settlement"] >= pending[0] - 1e-2:
+                snapshot(args.out, pending.pop(0), row["specimen"], row["settlement"], row["load"])
 
         res = run_footing(args.packing, args.width, args.height, args.plate_width, args.speed, args.depth,
                           args.rough, args.mass_damping, args.dt_fraction, args.record_every, args.seed,
                           discs=discs, threads=args.threads, on_record=record)
+    # the last step can end up to half a step short of --depth: the final state stands for it
+    for s in [s for s in pending if s <= 1e3 * args.depth + 1e-9]:
+        snapshot(args.out, s, res.specimen, float(res.settlement[-1]), float(res.load[-1]))
     peak, at = res.peak()
     info = dict(res.info)
     info["packing"] = args.packing

@@ -4,6 +4,8 @@ the continuum fields of the grains on a grid as an XDMF time series.
 * ``write_particles_vtk``: one binary POLYDATA file of disc centres (z = 0) with point data (radius,
   rotation, velocity and whatever the caller adds: displacement, coordination, the REV fields);
   ParaView opens a numbered family ``particles_0000.vtk, ...`` as a time series.
+* ``read_particles_vtk``: the inverse, (position (n, 2), {name: (n,) or (n, 2)}) with radius
+  among the point data.
 * ``write_contacts_vtk``: one line per touching contact, from centre i to centre j (the
   minimum image across an x-periodic side), normal and tangential force as cell data.
 * ``GridSeries``: fields on a regular 2D grid (cell-centred values of a 2DCoRectMesh), one raw
@@ -68,6 +70,43 @@ def write_particles_vtk(path, position, radius, point_data=None):
             _point_table(f, name, values, n)
     os.replace(tmp, path)
     return str(path)
+
+
+def read_particles_vtk(path):
+    """A file of ``write_particles_vtk``: (position (n, 2) [m], {name: (n,) or (n, 2)}), the
+    radius among the point data; the z components dropped."""
+    with open(path, "rb") as f:
+        raw = f.read()
+
+    def line(at):
+        end = raw.index(b"\n", at)
+        return raw[at:end].decode().split(), end + 1
+
+    at = 0
+    for _ in range(4):
+        words, at = line(at)
+    words, at = line(at)
+    if words[:1] != ["POINTS"]:
+        raise InputError(f"{path}: not a file of write_particles_vtk (no POINTS line)")
+    n = int(words[1])
+    position = np.frombuffer(raw, ">f8", 3 * n, at).reshape(n, 3)[:, :2].astype(float)
+    at += 24 * n + 1
+    words, at = line(at)
+    at += 8 * n + 1                          # VERTICES: 2 n big-endian int32
+    words, at = line(at)                     # POINT_DATA n
+    data = {}
+    while at < len(raw):
+        words, at = line(at)
+        if words[0] == "SCALARS":
+            _, at = line(at)                 # LOOKUP_TABLE
+            data[words[1]] = np.frombuffer(raw, ">f8", n, at).astype(float)
+            at += 8 * n + 1
+        elif words[0] == "VECTORS":
+            data[words[1]] = np.frombuffer(raw, ">f8", 3 * n, at).reshape(n, 3)[:, :2].astype(float)
+            at += 24 * n + 1
+        else:
+            raise InputError(f"{path}: unexpected section {words[0]!r}")
+    return position, data
 
 
 def write_contacts_vtk(path, position, pair_i, pair_j, normal_force, tangential_force, periodic_width=0.0):

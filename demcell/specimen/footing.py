@@ -133,8 +133,10 @@ def run_footing(packing="A", width=18.0, height=9.0, plate_width=2.0, speed=1.0,
                 on_record=None):
     """The footing (``footing_specimen``) loaded: the plate goes down at `speed` [m/s] to the
     settlement `depth` [m]; every `record_every` steps the settlement and the load are
-    recorded (the load of the last step: no averaging). on_record(result_so_far_dict) is
-    called at each record if given. Returns a FootingResult."""
+    recorded (the load of the last step: no averaging). on_record(dict) is called at each
+    record if given, with the settlement [m], load [N/m], time [s], step count and the
+    engine itself ("specimen": read its state, e.g. grain positions, do not advance it).
+    Returns a FootingResult."""
     speed = checks.number("speed", speed, POSITIVE)
     depth = checks.number("depth", depth, POSITIVE)
     record_every = checks.number("record_every", record_every, Range(1, integer=True))
@@ -155,7 +157,8 @@ def run_footing(packing="A", width=18.0, height=9.0, plate_width=2.0, speed=1.0,
         load.append(-float(spec.plate_reaction()[1]))
         times.append(spec.state.time)
         if on_record is not None:
-            on_record({"settlement": settlement[-1], "load": load[-1], "time": times[-1], "step": done})
+            on_record({"settlement": settlement[-1], "load": load[-1], "time": times[-1], "step": done,
+                       "specimen": spec})
     cpu, wall = time.process_time() - c0, time.perf_counter() - w0
     info.update(speed=speed, depth=depth, n_steps=n_steps, record_every=record_every, rebuilds=spec.rebuilds,
                 kernel_wall_seconds=spec.wall_seconds, kernel_cpu_seconds=spec.cpu_seconds,

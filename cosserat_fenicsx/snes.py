@@ -25,6 +25,14 @@ converged as the cells allow. With `stagnation_its` = k as well, such a solve do
 snes_max_it: it ends as soon as its best FNORM/RNORM is <= accept_rtol and has improved by less
 than 10 % over the last k iterations (past the peak a DEM-backed step otherwise spends most of
 its cap wandering at its floor: docs/reference/femdem.md, "Past the peak").
+
+Reusing the Jacobian. With `jacobian_refresh` = c (in (0, 1), needs force_rtol) the Jacobian of
+the first iteration of a solve is kept (a modified Newton: the callback leaves the assembled
+matrix, and with it the factorisation, as it is) until an iteration reduces FNORM/RNORM by less
+than the factor c; the next iteration builds it anew and keeps that one by the same rule. The converged state is the same equilibrium (the residual does not
+depend on the operator); what changes is the number of operators built, against iterations.
+Worth it where an operator costs more than a residual: a DEM cell's PSTLO operator (a sparse
+LU per cell) costs one to two cell solves (docs/results/femdem.md, "Newton operators").
 """
 from dataclasses import dataclass, field
 import time
@@ -90,7 +98,7 @@ class NewtonSolver:
     STAGNATION_GAIN = 0.9
 
     def __init__(self, problem, options=None, prefix="cosserat_", force_rtol=None, accept_rtol=None,
-                 stagnation_its=None):
+                 stagnation_its=None, jacobian_refresh=None):
         if force_rtol is not None and not (np.isfinite(force_rtol) and force_rtol > 0):
             raise ValueError(f"force_rtol must be a positive number, got {force_rtol!r}")
         if accept_rtol is not None and not (force_rtol is not None and np.isfinite(accept_rtol)
@@ -99,7 +107,11 @@ class NewtonSolver:
         if stagnation_its is not None and not (accept_rtol is not None and isinstance(stagnation_its, (int, np.integer))
                                                and stagnation_its >= 1):
             raise ValueError(f"stagnation_its must be an integer >= 1 (and needs accept_rtol), got {stagnation_its!r}")
+        if jacobian_refresh is not None and not (force_rtol is not None and 0 < jacobian_refresh < 1):
+            raise ValueError(f"jacobian_refresh must be a number in (0, 1) (and needs force_rtol), "
+                             f"got {jacobian_refresh!r}")
         self.problem = problem
+        self.jacobian_refresh = jacobian_refresh
         self.stagnation_its = stagnation_its
         self._best_by_it = []
         self.force_rtol = force_rtol
@@ -116,6 +128,7 @@ class NewtonSolver:
         prefix = f"{prefix}{NewtonSolver._count}_"
         self.snes.setOptionsPrefix(prefix)
         self._failure, self._fatal, self._first_residual = "", False, True
+        self._keep_jacobian = False
         opts = PETSc.Options()
         merged = dict(DEFAULT_OPTIONS)
         if problem.mesh.comm.size > 1:
@@ -162,6 +175,8 @@ class NewtonSolver:
             return PETSc.SNES.ConvergedReason.DIVERGED_FNORM_NAN
         if it >= 1 and ratio <= self.force_rtol:
             return PETSc.SNES.ConvergedReason.CONVERGED_FNORM_RELATIVE
+        if self.jacobian_refresh is not None and it >= 2 and ratio > self.jacobian_refresh * self._force_ratios[-2]:
+            self._keep_jacobian = False     # the kept operator has stopped paying: build the next one
         self._best_by_it.append(self._best[0])
         k = self.stagnation_its
         if k is not None and it > k:
@@ -250,7 +265,11 @@ class NewtonSolver:
         return False
 
     def jacobian(self, snes, x, A, P):
-        """The SNES Jacobian callback: A = dF/dx with the material's tangents."""
+        """The SNES Jacobian callback: A = dF/dx with the material's tangents (or A left as it
+        is, so that its factorisation is reused, while jacobian_refresh keeps it)."""
+        if self._keep_jacobian:
+            return
+        self._keep_jacobian = self.jacobian_refresh is not None
         failed = self._material_step(self.problem.before_jacobian)
         start = time.perf_counter()
         A.zeroEntries()
@@ -270,6 +289,7 @@ class NewtonSolver:
         self._best = (np.inf, None)
         self._best_by_it = []
         self._residual_calls = 0
+        self._keep_jacobian = False     # the first iteration's operator is built (then kept if refreshing)
         start = time.perf_counter()
         try:
             self.snes.solve(None, self.x)

@@ -101,14 +101,15 @@ DISCRETISATION = ["cell_type", "degree_u", "degree_phi"]
 CELL = ("friction", "pressure", "kn", "ks", "rotation", "relaxation_tol", "criterion", "max_steps", "micro_bc",
         "frame_thickness", "frame_tol")
 SPECIMEN = ["width", "height", "axial_strain", "steps", "weak_size", "weak_friction_factor"]
-COUPLING = ["mode", "mu_c", "l_c", "grain_diameter", "tangent", "fallback_tangent", "fallback_hold", "force_rtol"]
+COUPLING = ["mode", "mu_c", "l_c", "grain_diameter", "tangent", "jacobian_lag", "jacobian_refresh", "fallback_tangent",
+            "fallback_hold", "force_rtol"]
 CELLS = ["balance", "balance_threshold", "balance_cost", "balance_passes", "batched", "cell_threads", "cell_device"]
 
 parser = cli.make_parser(__doc__)
 cli.add_settings(parser.add_argument_group("discretization"), FemDemSettings, DISCRETISATION)
 cli.add_output_options(parser, "results/femdem_biaxial")
 cli.add_checkpoint_options(parser, "femdem_biaxial",
-                           solver_options=("tangent", "fallback_tangent", "fallback_hold", "force_rtol", "accept_rtol", "stagnation_its", "batched",
+                           solver_options=("tangent", "jacobian_lag", "jacobian_refresh", "fallback_tangent", "fallback_hold", "force_rtol", "accept_rtol", "stagnation_its", "batched",
                                            "cell_threads", "cell_device"))
 g = parser.add_argument_group("specimen and loading (000 section 4.1)")
 g.add_argument("--mesh", default="2x4", help="NXxNY rectangles (000: 1x1, 1x2, 2x4, 4x8; default %(default)s)")
@@ -255,6 +256,8 @@ summary = {
     "steps_accepted_above_force_rtol": int(sum(r["accepted"] for r in test.history)),
     "steps_with_fallback_tangent": int(sum(r["fallback"] for r in test.history)),
     "dem_steps_total": float(sum(r["dem_steps"] for r in test.history)),
+    "cell_tangents_total": comm.allreduce(test.point_tangents()),
+    "operator_rule": list(settings.jacobian_rule()),
     "steps": len(test.history), "cut_backs": test.stepper.cuts,
     "cell_preparation_time": test.preparation_time, "ranks": comm.size,
     "cell_device": test.cell_device,

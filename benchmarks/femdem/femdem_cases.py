@@ -136,6 +136,7 @@ def run_case(comm, out, label, s, log=print):
         "coordination_number": [r["coordination_number"] for r in rows],
         "vertical_stress": [r["vertical_stress"] for r in rows],
         "newton_iterations": iterations, "dem_steps": [r["dem_steps"] for r in rows],
+        "cell_tangents_total": comm.allreduce(test.point_tangents()),
         "accepted": [r["accepted"] for r in rows], "final_force_ratio": [r["force_ratio"] for r in rows],
         "force_ratios": [info.force_ratios for info in test.solver.infos_converged()][1:],
         "peak_stress_ratio": float(ratio[i_peak]) if rows else None,

@@ -37,8 +37,10 @@ from mpi4py import MPI
 from benchmarks.femdem.femdem_cases import (homogeneous_path, parse_mesh, run_case, settings, stress_ratio, table,
                                             write_report)
 
-#: label -> (CellOptions overrides, tangent, batched). `extra` is demcell.RelaxationOptions
-#: (--cell-option); every case names its relaxation method, so the defaults can move
+#: label -> (CellOptions overrides, tangent, batched[, Newton settings]). `extra` is
+#: demcell.RelaxationOptions (--cell-option); the Newton settings are FemDemSettings' jacobian_lag
+#: (1 if left out) or jacobian_refresh; every case names its relaxation method and its lag, so
+#: the defaults can move
 LOCAL, FIRE = {"method": "local"}, {"method": "fire"}
 #: the quasi-static answer as well as we know it: relaxed 10x further than the default and
 #: loaded 4x more slowly (the cells' ramp at the default rate, 1e-5 per step, is a dynamic load
@@ -57,14 +59,34 @@ CASES = {
     "fire pstlo_sliding": ({"extra": FIRE}, "pstlo_sliding", False),
     "fire batched": ({"extra": FIRE}, "pstlo", True),
     "fire kruyt batched": ({"extra": FIRE}, "kruyt", True),
+    "fire batched lag 2": ({"extra": FIRE}, "pstlo", True, {"jacobian_lag": 2}),
+    "fire batched lag 3": ({"extra": FIRE}, "pstlo", True, {"jacobian_lag": 3}),
+    "fire batched lag 5": ({"extra": FIRE}, "pstlo", True, {"jacobian_lag": 5}),
+    "fire kruyt batched lag 3": ({"extra": FIRE}, "kruyt", True, {"jacobian_lag": 3}),
+    "fire batched refresh 0.5": ({"extra": FIRE}, "pstlo", True, {"jacobian_refresh": 0.5}),
+    "fire batched refresh 0.7": ({"extra": FIRE}, "pstlo", True, {"jacobian_refresh": 0.7}),
+    "fire batched refresh 0.9": ({"extra": FIRE}, "pstlo", True, {"jacobian_refresh": 0.9}),
+    "fire fire_dt_max 4 batched": ({"extra": dict(FIRE, fire_dt_max=4.0)}, "pstlo", True),
+    "fire fire_dt_max 4 kruyt batched": ({"extra": dict(FIRE, fire_dt_max=4.0)}, "kruyt", True),
 }
 REFERENCE = "reference"
 
 
+def case(label):
+    """(CellOptions overrides, tangent, batched, Newton settings) of a case."""
+    cell, tangent, batched, *newton = CASES[label]
+    return cell, tangent, batched, dict(newton[0]) if newton else {"jacobian_lag": 1}
+
+
+def newton_words(newton):
+    """A case's Newton settings in the table: the lag, or the refresh factor."""
+    return f"refresh {newton['jacobian_refresh']:g}" if "jacobian_refresh" in newton else f"lag {newton['jacobian_lag']}"
+
+
 def case_settings(label, mode, a):
-    cell, tangent, batched = CASES[label]
+    cell, tangent, batched, newton = case(label)
     return settings(mesh=parse_mesh(a.mesh), particles=a.particles, cell=dict(cell), mode=mode, tangent=tangent,
-                    batched=batched, axial_strain=a.axial_strain, steps=a.steps)
+                    batched=batched, axial_strain=a.axial_strain, steps=a.steps, **newton)
 
 
 def is_default(label, mode, a):
@@ -73,7 +95,7 @@ def is_default(label, mode, a):
     from cosserat_fenicsx.materials.dem import CellOptions
     s = case_settings(label, mode, a)
     d = FemDemSettings()
-    return (s.tangent == d.tangent and s.batched == d.batched
+    return (s.tangent == d.tangent and s.batched == d.batched and s.jacobian_rule() == d.jacobian_rule()
             and s.cell.relaxation() == CellOptions(particles=a.particles).relaxation())
 
 
@@ -147,7 +169,7 @@ def main():
     records = []
     for mode in a.modes:
         for label in labels:
-            cell, tangent, batched = CASES[label]
+            cell, tangent, batched, newton = case(label)
             if mode == "micropolar" and tangent == "pstlo_sliding":
                 continue             # Cauchy cells only (materials.dem.cells.check_tangent)
             r = run_case(comm, os.path.join(a.out, mode), label, case_settings(label, mode, a),
@@ -174,6 +196,8 @@ def main():
                     next(q for q in records if q["mode"] == r["mode"] and q["label"] == REFERENCE))
         r["speed_up"] = base["cpu_per_step"] / r["cpu_per_step"]
     columns = [("mode", "mode", "s"), ("case", "name", "s"), ("tangent", "tangent", "s"),
+               ("operator built", lambda r: newton_words(case(r["label"])[3]), "s"),
+               ("operators", lambda r: r.get("cell_tangents_total", float("nan")), ".0f"),
                ("wall s/step", "wall_per_step", ".2f"), ("CPU s/step", "cpu_per_step", ".2f"),
                ("vs local", "speed_up", ".2f"), ("Newton", "newton_total", "d"), ("DEM steps", "dem_steps_total", ".3g"),
                ("reached", "reached", ".4f"), ("peak", "peak_stress_ratio", ".4f"),

@@ -282,17 +282,26 @@ def label(run):
     return run.get("label", run["tangent"])
 
 
-def run_words(tangent, cell_options=(), batched=False):
+def run_words(tangent, cell_options=(), batched=False, rule=None):
     """The words naming one of ours' runs: its label in the record and the tables (joined by
-    spaces) and its folder (by underscores)."""
-    return [tangent, *cell_options] + (["batched"] if batched else [])
+    spaces) and its folder (by underscores); rule: how often the operator is built, if given."""
+    return [tangent, *cell_options] + (["batched"] if batched else []) + ([rule] if rule else [])
+
+
+def operator_rule(word):
+    """'lag-N' or 'refresh-C' as the demo's options (--jacobian-lag N, --jacobian-refresh C)."""
+    kind, _, value = word.partition("-")
+    if kind not in ("lag", "refresh") or not value:
+        raise ValueError(f"an operator rule is lag-N or refresh-C, got {word!r}")
+    return [f"--jacobian-{kind}", value]
 
 
 def ours_run(packing, law, increments, np_, tangent, force_rtol, relaxation_tol, out, mpirun, timeout,
-             cell_options=(), batched=False):
+             cell_options=(), batched=False, rule=None):
     """One run of the demo on YADE's problem; cell_options: "KEY=VALUE" strings passed on as
     --cell-option (demcell.RelaxationOptions of the cells); batched: the demo's --batched (a
-    rank's cells in one struct of arrays, solved and homogenised by one Numba call each)."""
+    rank's cells in one struct of arrays, solved and homogenised by one Numba call each); rule:
+    how often the operator is built ('lag-N' or 'refresh-C'; None: the demo's default)."""
     os.makedirs(out, exist_ok=True)
     cmd = ["nice", mpirun, "-n", str(np_), sys.executable, os.path.join(ROOT, "demos", "femdem_biaxial.py"),
            "--mesh", MESH, "--cell-type", "quadrilateral", "--degree-u", "1", "--mode", "classical",
@@ -308,6 +317,8 @@ def ours_run(packing, law, increments, np_, tangent, force_rtol, relaxation_tol,
         cmd += ["--cell-option", option]
     if batched:
         cmd.append("--batched")
+    if rule:
+        cmd += operator_rule(rule)
     env = dict(os.environ, OMP_NUM_THREADS="1", OMPI_ALLOW_RUN_AS_ROOT="1", OMPI_ALLOW_RUN_AS_ROOT_CONFIRM="1",
                OMPI_MCA_rmaps_base_oversubscribe="1")
     hist = os.path.join(out, "history.csv")
@@ -333,8 +344,8 @@ def ours_run(packing, law, increments, np_, tangent, force_rtol, relaxation_tol,
                         force_ratio=float(r["force_ratio"]), accepted=int(r["accepted"])))
     curve = [(float(r["axial_strain"]), float(r["vertical_reaction"])) for r in rows]
     m.update(command=" ".join(cmd), increments=inc, curve_strain_force=curve, tangent=tangent,
-             label=" ".join(run_words(tangent, cell_options, batched)),
-             cell_options=list(cell_options), batched=batched, force_rtol=force_rtol,
+             label=" ".join(run_words(tangent, cell_options, batched, rule)),
+             cell_options=list(cell_options), batched=batched, operator_rule=rule, force_rtol=force_rtol,
              setup_wall=m["wall"] - sum(i["wall"] for i in inc), summary={
                  k: summary.get(k) for k in ("memory_per_cell_bytes", "time_max_over_ranks", "n_gauss_points",
                                              "particles_per_cell", "cell_preparation_time", "wall_time",
@@ -499,6 +510,9 @@ def main(argv=None):
     p.add_argument("--cell-option", action="append", default=[], metavar="KEY=VALUE",
                    help="run every tangent a second time with these cells (demcell.RelaxationOptions, e.g. "
                         "method=fire; repeat for more; passed on to demos/femdem_biaxial.py)")
+    p.add_argument("--operator-rules", nargs="+", default=None, metavar="RULE",
+                   help="run every tangent once per rule for how often the operator is built: lag-N (the demo's "
+                        "--jacobian-lag N) or refresh-C (--jacobian-refresh C); default: the demo's default only")
     p.add_argument("--batched", action="store_true",
                    help="label ours' runs 'batched' and pass --batched (the demo's default since the defaults "
                         "study), so that --reuse-yade keeps older per-cell runs beside them")
@@ -522,6 +536,11 @@ def main(argv=None):
         return
     if a.increments < 1 or a.np < 1:
         raise SystemExit("--increments and --np must be >= 1")
+    for rule in a.operator_rules or ():
+        try:
+            operator_rule(rule)
+        except ValueError as error:
+            raise SystemExit(f"--operator-rules: {error}")
     if a.force_rtol is not None and not 0 < a.force_rtol < 1:
         raise SystemExit("--force-rtol must be in (0, 1)")
     if a.cell_option:       # refused here, before YADE's 10 minutes, not by the demo after them
@@ -599,17 +618,20 @@ def run_ours(res, a, law, packing, rtol):
     the cell and the report, added to ``res`` and written as they go."""
     y = res["yade"]
     record = os.path.join(a.out, "femdem_yade.json")
-    variants = [(t, ()) for t in a.tangents] + ([(t, tuple(a.cell_option)) for t in a.tangents] if a.cell_option else [])
-    if a.like_yade:
+    rules = a.operator_rules or [None]
+    variants = [(t, (), rule) for t in a.tangents for rule in rules]
+    if a.cell_option:
+        variants += [(t, tuple(a.cell_option), rule) for t in a.tangents for rule in rules]
+    if a.like_yade:     # YADE builds its operator at every pass
         res["yade_steps_per_cell_pass"] = yade_steps_per_cell_pass(y)
-        variants.append(("kruyt", (f"fixed_steps={res['yade_steps_per_cell_pass']}",)))
-    for tangent, cell_options in variants:
-        words = run_words(tangent, cell_options, a.batched)
+        variants.append(("kruyt", (f"fixed_steps={res['yade_steps_per_cell_pass']}",), "lag-1"))
+    for tangent, cell_options, rule in variants:
+        words = run_words(tangent, cell_options, a.batched, rule)
         name = " ".join(words)
         print(f"ours: {name}, force_rtol {rtol:.3g} ...", flush=True)
         o = ours_run(packing, law, a.increments, a.np, tangent, rtol, a.relaxation_tol,
                      os.path.join(a.out, "ours_" + "_".join(words).replace("=", "-")), a.mpirun,
-                     a.timeout, cell_options, a.batched)
+                     a.timeout, cell_options, a.batched, rule)
         print(f"ours {name}: {o['wall']:.0f} s, mean {mean(o['increments'], 'wall'):.2f} s per increment",
               flush=True)
         fy = np.array(y["curve_strain_force"])[:, 1]

@@ -56,6 +56,9 @@ from ..validation import (AXIAL_STRAIN, COUNT, DEGREE, FRACTION, NON_NEGATIVE, N
 from .platen_test import CELL_TYPES, PlatenTest
 
 DEFAULT_SOLVER_OPTIONS = {"snes_linesearch_type": "basic"}   # full Newton steps, as 001 and YADE
+#: the operator is kept while each Newton iteration reduces FNORM/RNORM to 70 % or less (the
+#: fastest rule measured in all three modes: docs/results/femdem.md, "How often the operator is built")
+DEFAULT_JACOBIAN_REFRESH = 0.7
 
 
 #: Gauss points (one cell each) of one NXxNY rectangle: two triangles of 3 points
@@ -100,6 +103,14 @@ class FemDemSettings:
     weak_friction_factor: float = setting(1.0, FRACTION, "contact friction of the weak cells / --friction, in (0, 1]",
                                           flag="--weak-friction")
     force_rtol: float = setting(1e-2, POSITIVE, "Newton stops at FNORM/RNORM <= this")
+    jacobian_lag: int = setting(None, COUNT, "the cells' operator is built at the first Newton iteration of a step and "
+                                             "then every N-th (PETSc's -snes_lag_jacobian; 1: every iteration; "
+                                             "default: the --jacobian-refresh rule)")
+    jacobian_refresh: float = setting(None, Range(0.0, 1.0, low_open=True, high_open=True),
+                                      "the operator of a step's first Newton iteration is kept until an iteration "
+                                      "reduces FNORM/RNORM by less than this factor, then built anew (default "
+                                      f"{DEFAULT_JACOBIAN_REFRESH} unless --jacobian-lag is given; snes.py, "
+                                      "docs/reference/femdem.md 'How often the operator is built')")
     # a stagnating step ends at its best iterate if below this (None: never), as soon as its
     # best gained < 10 % in stagnation_its iterations (None: at the cap); the demo's
     # --accept-rtol 0 and --stagnation-its 0 are the None
@@ -126,12 +137,21 @@ class FemDemSettings:
                                help="where a rank's cells live: cpu or gpu, its CUDA device (rank r on GPU r mod the "
                                     "GPUs; batched; docs/results/gpu.md); refused without a GPU and Numba's CUDA target")
 
+    def jacobian_rule(self):
+        """How often the cells' operator is built: ("lag", N) or ("refresh", factor)."""
+        if self.jacobian_lag is not None:
+            return "lag", self.jacobian_lag
+        return "refresh", self.jacobian_refresh if self.jacobian_refresh is not None else DEFAULT_JACOBIAN_REFRESH
+
     def check(self):
         """Raises ValueError naming the setting; called before any cell is created."""
         from ..materials.dem import CellOptions, check_tangent
         if self.cell is None:
             self.cell = CellOptions()
         check_settings(self, "femdem")
+        if self.jacobian_lag is not None and self.jacobian_refresh is not None:
+            raise ValueError("femdem: give --jacobian-lag or --jacobian-refresh, not both (two rules for when the "
+                             "operator is built)")
         if not self.grain_diameter < min(self.width, self.height):
             raise ValueError(f"femdem: grain_diameter must be below the specimen's width and height, "
                              f"got {self.grain_diameter!r}")
@@ -297,10 +317,12 @@ class FemDemBiaxial(PlatenTest):
         self.in_imperfection = zone.astype(bool)   # per owned Gauss point
         self.material.set_point_coordinates(self.points)
         self.load_platens(s.cell.pressure, lambda t: 1.0)
-        options = dict(DEFAULT_SOLVER_OPTIONS, **s.solver_options)
+        rule, value = s.jacobian_rule()
+        options = dict(DEFAULT_SOLVER_OPTIONS, snes_lag_jacobian=value if rule == "lag" else 1, **s.solver_options)
         self.newton = NewtonSolver(self.problem, options=options, force_rtol=s.force_rtol,
                                    accept_rtol=s.accept_rtol,
-                                   stagnation_its=s.stagnation_its if s.accept_rtol is not None else None)
+                                   stagnation_its=s.stagnation_its if s.accept_rtol is not None else None,
+                                   jacobian_refresh=value if rule == "refresh" else None)
         self.fallback = FallbackSolver(self.newton, self.problem, self.material, hold=s.fallback_hold)
         self.use_solver(self.fallback, t_end=1.0 + s.steps)
         cb = self.problem.gauss_points     # fluxes sigma = -p0 I before any solve (initial_fluxes)
@@ -412,6 +434,10 @@ class FemDemBiaxial(PlatenTest):
         """What the load balancer did (balancing.BalancedMaterial.balance_report); None when
         the cells do not move between ranks."""
         return self.material.balance_report() if self.balanced else None
+
+    def point_tangents(self):
+        """Cell operators built on this rank so far (one per Gauss point and Jacobian)."""
+        return self.gauss_points.counters["point_tangents"]
 
     def timing(self):
         """Where the time went on this rank [s]: cell solves, cell tangents, assembly,

@@ -21,16 +21,17 @@ solve: converged, or failed (then it cuts the step as before). `SolveInfo.fallba
 step used the fallback (the first try's cause, or that it was held), so the runs report how
 many steps needed it. `held` is run state: a checkpoint keeps it (same bits after a restart).
 
-Damped retry (`damping`, e.g. 0.3; None: off). Past the peak a step can fail with both
-operators for another reason: its Newton stagnates above accept_rtol because a full correction
-carries the cells across a rearrangement (contacts opening and closing) and the next one
-back, so the residual jumps between two states instead of contracting. Such a step, failed
-on the fallback operator (its retry or a held step), is solved once more from the committed
-state on the fallback operator with damped updates (x += damping dx,
-NewtonSolver.set_step_damping) before it goes back to the stepping to be cut; shorter
-corrections stay on one side of the jump more often. Converged, it is reported with
-`SolveInfo.damped` and the hold starts as after a fallback step. A material without a
-fallback operator (fallback none: cut at once) gets no damped retry either.
+Damped retry (`damping`, e.g. 0.3; None: off). Past the peak a step can also fail with both
+operators because its Newton stagnates above accept_rtol: each correction carries cells across
+contact events (contacts opening and closing), so the residual jumps by what no operator sees.
+Such a step, failed on the fallback operator (its retry or a held step), is solved once more
+from the committed state on the fallback operator with damped updates (x += damping dx,
+NewtonSolver.set_step_damping) before it goes back to the stepping to be cut, in case shorter
+corrections get under the floor. Converged, it is reported with `SolveInfo.damped` and the hold
+starts as after a fallback step. A material without a fallback operator (fallback none: cut at
+once) gets no damped retry either. Measured so far it has not turned a cut step into a
+converged one (docs/reference/femdem.md, "Past the peak: ending a stagnating step"): it costs
+one Newton solve more per step that is then cut anyway.
 """
 import dataclasses
 

@@ -37,10 +37,9 @@ LU per cell) costs one to two cell solves (docs/results/femdem.md, "Newton opera
 Damped updates. `set_step_damping(alpha)` (alpha in (0, 1]; None or 1: full steps) makes every
 Newton update of the free dofs alpha times the correction, x += alpha dx; the Dirichlet rows
 still take their full value, so the load of the step is applied at the first iteration as
-without damping. Meant for a step whose full corrections jump between two contact states of
-the cells (fallback.FallbackSolver's damped retry): with a kept operator (jacobian_refresh = c)
-the rule that rebuilds it is scaled to the damped step, an iteration that would contract by c
-undamped contracting by 1 - alpha (1 - c).
+without damping. Used by fallback.FallbackSolver's damped retry of a step that failed with full
+updates. With a kept operator (jacobian_refresh = c) the rule that rebuilds it is scaled to the
+damped step: an iteration that would contract by c undamped contracts by 1 - alpha (1 - c).
 """
 from dataclasses import dataclass, field
 import time

@@ -160,6 +160,11 @@ def test_no_damped_retry_without_damping_or_without_a_fallback(has_fallback, dam
     assert not info.converged and "damped" not in newton.solves
 
 
+def test_the_scene_retries_damped_by_default():
+    from cosserat_fenicsx.scenes.femdem_biaxial import FemDemSettings
+    assert FemDemSettings().retry_damping == 0.3
+
+
 @pytest.mark.parametrize("bad", [0, -0.3, 1.2, True, "0.3"])
 def test_the_damping_is_checked(bad):
     with pytest.raises(ValueError, match="damping"):
@@ -192,3 +197,24 @@ def test_the_demo_reports_damped_steps_and_a_restart_may_change_the_damping(demo
     assert summary["changed_at_restart"] == {"retry_damping": [0.3, 0.0]}
     header = (part / "history.csv").read_text().splitlines()[0].split(",")
     assert "damped" in header and header.index("damped") == header.index("fallback") + 1
+
+
+@pytest.mark.serial
+def test_in_the_scene_a_step_failed_with_both_operators_is_retried_damped_then_cut():
+    """A force_rtol no cell can reach: every solve fails, so each try of the first step is the
+    material's operator, the fallback and the damped retry (3 iterations each), then the cut;
+    the scene goes back to its own operator and full updates after each."""
+    from cosserat_fenicsx.scenes.femdem_biaxial import FemDemBiaxial, FemDemSettings
+    from cosserat_fenicsx.materials.dem import CellOptions
+    from cosserat_fenicsx.stepping import LoadSteppingError
+
+    settings = FemDemSettings(nx=1, ny=1, mode="classical", axial_strain=0.002, steps=2, force_rtol=1e-14,
+                              accept_rtol=1e-14, dt_min_fraction=0.5, solver_options={"snes_max_it": 3},
+                              cell=CellOptions(particles=20, seed=1))
+    test = FemDemBiaxial(COMM, settings, verbose=False)
+    with pytest.raises(LoadSteppingError, match="after 9 iterations"):
+        test.run()
+    infos = test.solver.infos
+    assert len(infos) == 2 and not any(i.converged or i.damped for i in infos)
+    assert test.fallback.failures == 2 and test.fallback.damped_steps == 0
+    assert test.newton.step_damping is None and test.material.tangent_kind.name == "pstlo"

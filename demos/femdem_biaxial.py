@@ -94,7 +94,7 @@ from cosserat_fenicsx.output import print0
 from cosserat_fenicsx.scenes.femdem_biaxial import (DEFAULT_RETRY_DAMPING, FemDemBiaxial, FemDemSettings, max_over_ranks,
                                                     parse_mesh)
 from cosserat_fenicsx.shear_band import assess_band, no_band
-from cosserat_fenicsx.validation import COUNT, NON_NEGATIVE, NON_NEGATIVE_INTEGER, Range, number
+from cosserat_fenicsx.validation import COUNT, NON_NEGATIVE, NON_NEGATIVE_INTEGER, Number, Range, number
 
 #: the scene's settings given as options (their ranges and help: scenes/femdem_biaxial.py)
 DISCRETISATION = ["cell_type", "degree_u", "degree_phi"]
@@ -108,11 +108,15 @@ COUPLING = ["mode", "mu_c", "l_c", "grain_diameter", "tangent", "jacobian_lag", 
 CELLS = ["balance", "balance_threshold", "balance_cost", "balance_passes", "batched", "cell_threads", "cell_device"]
 
 
-def retry_damping(text):
-    """--retry-damping: a number in [0, 1], or none (= 0, no damped retry)."""
-    if text.strip().lower() == "none":
-        return 0.0
-    return number(Range(0.0, 1.0))(text)
+class RetryDamping(Number):
+    """--retry-damping: a number in [0, 1], or none (= 0, no damped retry); a Number, so that the
+    option's range is declared like every numeric option's."""
+
+    def __init__(self):
+        super().__init__(Range(0.0, 1.0))
+
+    def __call__(self, text):
+        return 0.0 if str(text).strip().lower() == "none" else super().__call__(text)
 
 
 parser = cli.make_parser(__doc__)
@@ -134,7 +138,7 @@ g.add_argument("--cell-option", type=cli.key_value, action="append", default=[],
                     "relaxation) (repeat for more; docs/reference/femdem.md, 'The cells' relaxation')")
 g = parser.add_argument_group("coupling")
 cli.add_settings(g, FemDemSettings, COUPLING)
-g.add_argument("--retry-damping", type=retry_damping, default=DEFAULT_RETRY_DAMPING,
+g.add_argument("--retry-damping", type=RetryDamping(), default=DEFAULT_RETRY_DAMPING,
                help="a step that failed with --tangent and --fallback-tangent is solved once more from the "
                     "committed state on the fallback with Newton updates x += this * dx before it is cut "
                     "(history.csv column damped; default %(default)g; 0 or none: cut at once; "

@@ -20,6 +20,18 @@ the fallback operator directly, then the material's own is tried again. The step
 solve: converged, or failed (then it cuts the step as before). `SolveInfo.fallback` says why a
 step used the fallback (the first try's cause, or that it was held), so the runs report how
 many steps needed it. `held` is run state: a checkpoint keeps it (same bits after a restart).
+
+Damped retry (`damping`, e.g. 0.3; None: off). Past the peak a step can also fail with both
+operators because its Newton stagnates above accept_rtol: each correction carries cells across
+contact events (contacts opening and closing), so the residual jumps by what no operator sees.
+Such a step, failed on the fallback operator (its retry or a held step), is solved once more
+from the committed state on the fallback operator with damped updates (x += damping dx,
+NewtonSolver.set_step_damping) before it goes back to the stepping to be cut, in case shorter
+corrections get under the floor. Converged, it is reported with `SolveInfo.damped` and the hold
+starts as after a fallback step. A material without a fallback operator (fallback none: cut at
+once) gets no damped retry either. Measured so far it has not turned a cut step into a
+converged one (docs/reference/femdem.md, "Past the peak: ending a stagnating step"): it costs
+one Newton solve more per step that is then cut anyway.
 """
 import dataclasses
 
@@ -31,11 +43,17 @@ class FallbackSolver:
     #: steps solved with the fallback operator directly after one that needed it
     HOLD = 5
 
-    def __init__(self, solver, problem, material, hold=HOLD):
+    def __init__(self, solver, problem, material, hold=HOLD, damping=None):
         if not (isinstance(hold, int) and hold >= 0):
             raise ValueError(f"fallback: hold must be an integer >= 0, got {hold!r}")
+        if damping is not None and not (isinstance(damping, (int, float)) and not isinstance(damping, bool)
+                                        and 0 < damping <= 1):
+            raise ValueError(f"fallback: damping must be a number in (0, 1] or None, got {damping!r}")
         self.solver, self.problem, self.material = solver, problem, material
         self.hold = hold
+        self.damping = damping
+        #: steps that converged only in the damped retry
+        self.damped_steps = 0
         #: converged steps still to be solved with the fallback operator (run state)
         self.held = 0
         #: first tries with the material's own operator that failed
@@ -49,6 +67,8 @@ class FallbackSolver:
                 self._switch(False)
             if info.converged:
                 self.held -= 1
+            else:
+                info = self._damped_retry(info)
             return dataclasses.replace(info, fallback=f"held after a step that needed it ({self.held} more)")
         info = self.solver.solve()
         if info.converged or not self._switch(True):      # converged, or no other operator
@@ -62,8 +82,28 @@ class FallbackSolver:
             self._switch(False)
         if retry.converged:
             self.held = self.hold
+        else:
+            retry = self._damped_retry(retry)
         return dataclasses.replace(retry, fallback=cause, iterations=info.iterations + retry.iterations,
                                    wall_time=info.wall_time + retry.wall_time)
+
+    def _damped_retry(self, failed):
+        """The step `failed` on the fallback operator, solved again from the committed state on
+        that operator with damped updates; `failed` itself if there is no damping."""
+        if self.damping is None or not self._switch(True):      # off, or no fallback operator
+            return failed
+        self.problem.rollback()
+        self.solver.set_step_damping(self.damping)
+        try:
+            retry = self.solver.solve()
+        finally:
+            self.solver.set_step_damping(None)
+            self._switch(False)
+        if retry.converged:
+            self.held = self.hold
+            self.damped_steps += 1
+        return dataclasses.replace(retry, damped=retry.converged, iterations=failed.iterations + retry.iterations,
+                                   wall_time=failed.wall_time + retry.wall_time)
 
     def _switch(self, on):
         """Set the material's operator; the stored tangents are computed again with it."""

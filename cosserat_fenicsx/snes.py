@@ -33,6 +33,13 @@ than the factor c; the next iteration builds it anew and keeps that one by the s
 depend on the operator); what changes is the number of operators built, against iterations.
 Worth it where an operator costs more than a residual: a DEM cell's PSTLO operator (a sparse
 LU per cell) costs one to two cell solves (docs/results/femdem.md, "Newton operators").
+
+Damped updates. `set_step_damping(alpha)` (alpha in (0, 1]; None or 1: full steps) makes every
+Newton update of the free dofs alpha times the correction, x += alpha dx; the Dirichlet rows
+still take their full value, so the load of the step is applied at the first iteration as
+without damping. Used by fallback.FallbackSolver's damped retry of a step that failed with full
+updates. With a kept operator (jacobian_refresh = c) the rule that rebuilds it is scaled to the
+damped step: an iteration that would contract by c undamped contracts by 1 - alpha (1 - c).
 """
 from dataclasses import dataclass, field
 import time
@@ -86,6 +93,7 @@ class SolveInfo:
     flags: str = ""     # a flagged Gauss point at the last iterate (e.g. a cell without contacts)
     accepted: bool = False   # ended at its best iterate above force_rtol but below accept_rtol
     fallback: str = ""       # the cause a first try with the material's own operator failed (fallback.py)
+    damped: bool = False     # converged only when solved again with damped updates (fallback.py)
 
 
 class NewtonSolver:
@@ -129,6 +137,8 @@ class NewtonSolver:
         self.snes.setOptionsPrefix(prefix)
         self._failure, self._fatal, self._first_residual = "", False, True
         self._keep_jacobian = False
+        self.step_damping = None
+        self._precheck_installed = False
         opts = PETSc.Options()
         merged = dict(DEFAULT_OPTIONS)
         if problem.mesh.comm.size > 1:
@@ -175,7 +185,7 @@ class NewtonSolver:
             return PETSc.SNES.ConvergedReason.DIVERGED_FNORM_NAN
         if it >= 1 and ratio <= self.force_rtol:
             return PETSc.SNES.ConvergedReason.CONVERGED_FNORM_RELATIVE
-        if self.jacobian_refresh is not None and it >= 2 and ratio > self.jacobian_refresh * self._force_ratios[-2]:
+        if self.jacobian_refresh is not None and it >= 2 and ratio > self._refresh_factor() * self._force_ratios[-2]:
             self._keep_jacobian = False     # the kept operator has stopped paying: build the next one
         self._best_by_it.append(self._best[0])
         k = self.stagnation_its
@@ -186,6 +196,38 @@ class NewtonSolver:
         if it >= snes.getTolerances()[3]:
             return PETSc.SNES.ConvergedReason.DIVERGED_MAX_IT
         return PETSc.SNES.ConvergedReason.ITERATING
+
+    def _refresh_factor(self):
+        """The contraction below which a kept operator is kept, for the current step damping."""
+        c, alpha = self.jacobian_refresh, self.step_damping
+        return c if alpha is None else 1.0 - alpha * (1.0 - c)
+
+    def set_step_damping(self, alpha):
+        """Newton updates of the free dofs x += alpha dx from the next iteration on (alpha in
+        (0, 1]; None: full steps, the default). Collective in effect: give every rank the same."""
+        if alpha is not None and not (isinstance(alpha, (int, float, np.floating)) and not isinstance(alpha, bool)
+                                      and 0 < alpha <= 1):
+            raise ValueError(f"step damping must be a number in (0, 1] or None, got {alpha!r}")
+        self.step_damping = None if alpha is None or alpha == 1 else float(alpha)
+        if self.step_damping is not None and not self._precheck_installed:
+            # the line search's pre-check may change the search direction y (x_new = x - lambda y):
+            # with the basic line search (the FEM x DEM scene's) the update is alpha dx exactly
+            self._damp_rows = self._free_dofs()
+            self.snes.setLineSearchPreCheck(self._damp)
+            self._precheck_installed = True
+
+    def _free_dofs(self):
+        if self.force_rtol is not None:
+            return self._free_rows
+        return np.setdiff1d(np.arange(self.x.getLocalSize()), self._owned_dirichlet_rows())
+
+    def _damp(self, x, y):
+        """Line-search pre-check: the correction of the free dofs scaled by the step damping."""
+        if self.step_damping is None:
+            return False
+        with y.localForm() as local:
+            local.array[self._damp_rows] *= self.step_damping
+        return True
 
     def _record_force_ratio(self, b):
         """FNORM / RNORM of the assembled residual b (before the Dirichlet rows are set)."""

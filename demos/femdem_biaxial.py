@@ -75,7 +75,8 @@ ending at their best iterate: --accept-rtol), and a step can cost ten times as m
 Where the consistent operator (--tangent pstlo) of the sliding cells turns indefinite past the
 peak, a step it cannot solve is solved with --fallback-tangent (kruyt) and so are the
 --fallback-hold steps after it (history.csv column fallback; docs/reference/femdem.md, "Past
-the peak").
+the peak"); a step that fails with both is solved once more on the fallback with damped Newton
+updates (--retry-damping, history.csv column damped) before it is cut.
 """
 import sys, os  # noqa: E401
 sys.path.insert(0, os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
@@ -90,9 +91,10 @@ from cosserat_fenicsx.demo_run import DemoRun
 from cosserat_fenicsx.figures import pyplot
 from cosserat_fenicsx.materials.dem import CellOptions
 from cosserat_fenicsx.output import print0
-from cosserat_fenicsx.scenes.femdem_biaxial import FemDemBiaxial, FemDemSettings, max_over_ranks, parse_mesh
+from cosserat_fenicsx.scenes.femdem_biaxial import (DEFAULT_RETRY_DAMPING, FemDemBiaxial, FemDemSettings, max_over_ranks,
+                                                    parse_mesh)
 from cosserat_fenicsx.shear_band import assess_band, no_band
-from cosserat_fenicsx.validation import COUNT, NON_NEGATIVE, NON_NEGATIVE_INTEGER, number
+from cosserat_fenicsx.validation import COUNT, NON_NEGATIVE, NON_NEGATIVE_INTEGER, Number, Range, number
 
 #: the scene's settings given as options (their ranges and help: scenes/femdem_biaxial.py)
 DISCRETISATION = ["cell_type", "degree_u", "degree_phi"]
@@ -105,11 +107,23 @@ COUPLING = ["mode", "mu_c", "l_c", "grain_diameter", "tangent", "jacobian_lag", 
             "fallback_hold", "force_rtol"]
 CELLS = ["balance", "balance_threshold", "balance_cost", "balance_passes", "batched", "cell_threads", "cell_device"]
 
+
+class RetryDamping(Number):
+    """--retry-damping: a number in [0, 1], or none (= 0, no damped retry); a Number, so that the
+    option's range is declared like every numeric option's."""
+
+    def __init__(self):
+        super().__init__(Range(0.0, 1.0))
+
+    def __call__(self, text):
+        return 0.0 if str(text).strip().lower() == "none" else super().__call__(text)
+
+
 parser = cli.make_parser(__doc__)
 cli.add_settings(parser.add_argument_group("discretization"), FemDemSettings, DISCRETISATION)
 cli.add_output_options(parser, "results/femdem_biaxial")
 cli.add_checkpoint_options(parser, "femdem_biaxial",
-                           solver_options=("tangent", "jacobian_lag", "jacobian_refresh", "fallback_tangent", "fallback_hold", "force_rtol", "accept_rtol", "stagnation_its", "batched",
+                           solver_options=("tangent", "jacobian_lag", "jacobian_refresh", "fallback_tangent", "fallback_hold", "retry_damping", "force_rtol", "accept_rtol", "stagnation_its", "batched",
                                            "cell_threads", "cell_device"))
 g = parser.add_argument_group("specimen and loading (000 section 4.1)")
 g.add_argument("--mesh", default="2x4", help="NXxNY rectangles (000: 1x1, 1x2, 2x4, 4x8; default %(default)s)")
@@ -124,6 +138,11 @@ g.add_argument("--cell-option", type=cli.key_value, action="append", default=[],
                     "relaxation) (repeat for more; docs/reference/femdem.md, 'The cells' relaxation')")
 g = parser.add_argument_group("coupling")
 cli.add_settings(g, FemDemSettings, COUPLING)
+g.add_argument("--retry-damping", type=RetryDamping(), default=DEFAULT_RETRY_DAMPING,
+               help="a step that failed with --tangent and --fallback-tangent is solved once more from the "
+                    "committed state on the fallback with Newton updates x += this * dx before it is cut "
+                    "(history.csv column damped; default %(default)g; 0 or none: cut at once; "
+                    "docs/reference/femdem.md, 'Past the peak')")
 g.add_argument("--accept-rtol", type=number(NON_NEGATIVE), default=3e-2,
                help="a step whose Newton stagnates ends at its best iterate if FNORM/RNORM <= this, reported as "
                     "accepted (default %(default)g; 0: never)")
@@ -140,6 +159,7 @@ def femdem_settings(args):
     return FemDemSettings(
         nx=nx, ny=ny, **cli.settings_values(FemDemSettings, args, DISCRETISATION + SPECIMEN + COUPLING + CELLS),
         accept_rtol=args.accept_rtol if args.accept_rtol != 0 else None,
+        retry_damping=args.retry_damping,
         stagnation_its=args.stagnation_its if args.stagnation_its != 0 else None,
         cell=CellOptions(**dict(cli.settings_values(CellOptions, args, ("particles", "seed", "anisotropy") + CELL),
                                 packing=args.packing, extra=dict(args.cell_option),
@@ -191,7 +211,7 @@ run.fields(test.cell_fields())
 history = run.log("history.csv", ["step", "time", "phase", "axial_strain", "stress_ratio", "volumetric_strain",
                                   "coordination_number", "anisotropy", "sliding_fraction", "vertical_reaction",
                                   "vertical_stress", "mean_sigma11", "mean_sigma22", "newton_iterations",
-                                  "force_ratio", "accepted", "fallback", "dem_steps", "points_without_contacts", "cuts",
+                                  "force_ratio", "accepted", "fallback", "damped", "dem_steps", "points_without_contacts", "cuts",
                                   "wall_time"])
 gauss_log = run.log("gauss_points.csv", ["step", "axial_strain", "point", "x", "y", "stress_ratio"])
 
@@ -255,6 +275,7 @@ summary = {
     "newton_force_ratios": [info.force_ratios for info in test.solver.infos_converged()],
     "steps_accepted_above_force_rtol": int(sum(r["accepted"] for r in test.history)),
     "steps_with_fallback_tangent": int(sum(r["fallback"] for r in test.history)),
+    "steps_with_damped_retry": int(sum(r.get("damped", 0) for r in test.history)),
     "dem_steps_total": float(sum(r["dem_steps"] for r in test.history)),
     "cell_tangents_total": comm.allreduce(test.point_tangents()),
     "operator_rule": list(settings.jacobian_rule()),

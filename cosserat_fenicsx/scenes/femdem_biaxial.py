@@ -35,7 +35,8 @@ as soon as that best has gained less than 10 % in stagnation_its (4) iterations.
 peak the consistent operators (pstlo, demqo, perturbation) of cells with sliding contacts turn
 indefinite and the Newton corrections explode: a step that fails with `tangent` is solved again
 with `fallback_tangent` (kruyt, positive definite while the contact network holds), and the
-`fallback_hold` (5) steps after it too (fallback.py).
+`fallback_hold` (5) steps after it too (fallback.py); a step that fails with both is solved
+once more on the fallback with damped Newton updates (`retry_damping`, 0.3) before it is cut.
 """
 from dataclasses import dataclass, field
 import time
@@ -59,6 +60,9 @@ DEFAULT_SOLVER_OPTIONS = {"snes_linesearch_type": "basic"}   # full Newton steps
 #: the operator is kept while each Newton iteration reduces FNORM/RNORM to 70 % or less (the
 #: fastest rule measured in all three modes: docs/results/femdem.md, "How often the operator is built")
 DEFAULT_JACOBIAN_REFRESH = 0.7
+#: Newton updates of the damped retry of a step that failed with both operators (fallback.py), as a
+#: fraction of the full correction (docs/reference/femdem.md, "Past the peak: ending a stagnating step")
+DEFAULT_RETRY_DAMPING = 0.3
 
 
 #: Gauss points (one cell each) of one NXxNY rectangle: two triangles of 3 points
@@ -94,6 +98,10 @@ class FemDemSettings:
                                          "'Past the peak')")
     fallback_hold: int = setting(5, NON_NEGATIVE_INTEGER, "steps solved with the fallback tangent directly "
                                                                 "after one that needed it")
+    # a step that failed with tangent and fallback_tangent is solved once more on the fallback with
+    # Newton updates x += retry_damping dx before it is cut (fallback.py; 0: cut at once); the demo's
+    # --retry-damping
+    retry_damping: float = setting(DEFAULT_RETRY_DAMPING, Range(0.0, 1.0))
     mu_c: float = setting(None, POSITIVE, "Cosserat modulus [N/m] (hybrid; default: the cell's initial shear modulus)")
     l_c: float = setting(None, NON_NEGATIVE, "internal length [m] (hybrid; default: --grain-diameter)")
     grain_diameter: float = setting(2.5e-4, POSITIVE, "mean grain diameter in the specimen's units [m] (W / 40)")
@@ -323,7 +331,8 @@ class FemDemBiaxial(PlatenTest):
                                    accept_rtol=s.accept_rtol,
                                    stagnation_its=s.stagnation_its if s.accept_rtol is not None else None,
                                    jacobian_refresh=value if rule == "refresh" else None)
-        self.fallback = FallbackSolver(self.newton, self.problem, self.material, hold=s.fallback_hold)
+        self.fallback = FallbackSolver(self.newton, self.problem, self.material, hold=s.fallback_hold,
+                                       damping=s.retry_damping or None)
         self.use_solver(self.fallback, t_end=1.0 + s.steps)
         cb = self.problem.gauss_points     # fluxes sigma = -p0 I before any solve (initial_fluxes)
         self.gradients_start = np.zeros_like(cb.gradients)       # phase 2 starts at u = 0
@@ -409,6 +418,7 @@ class FemDemBiaxial(PlatenTest):
                "mean_sigma11": self.mean(cb.flux_values[:, 0]), "mean_sigma22": self.mean(cb.flux_values[:, 1]),
                "newton_iterations": record.iterations, "force_ratio": info.force_ratios[-1] if info.force_ratios else np.nan,
                "accepted": int(info.accepted), "fallback": int(bool(info.fallback)),
+               "damped": int(info.damped),
                "dem_steps": comm.allreduce(float(cb.step_cost.sum())),
                "points_without_contacts": comm.allreduce(int(np.count_nonzero(status == 1))),
                "cuts": record.cuts, "wall_time": record.wall_time}

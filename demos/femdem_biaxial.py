@@ -75,8 +75,8 @@ ending at their best iterate: --accept-rtol), and a step can cost ten times as m
 Where the consistent operator (--tangent pstlo) of the sliding cells turns indefinite past the
 peak, a step it cannot solve is solved with --fallback-tangent (kruyt) and so are the
 --fallback-hold steps after it (history.csv column fallback; docs/reference/femdem.md, "Past
-the peak"); a step that fails with both is solved once more on the fallback with damped Newton
-updates (--retry-damping, history.csv column damped) before it is cut.
+the peak"); with --retry-damping > 0 a step that fails with both is solved once more on the fallback with
+damped Newton updates (history.csv column damped) before it is cut.
 """
 import sys, os  # noqa: E401
 sys.path.insert(0, os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
@@ -141,7 +141,7 @@ cli.add_settings(g, FemDemSettings, COUPLING)
 g.add_argument("--retry-damping", type=RetryDamping(), default=DEFAULT_RETRY_DAMPING,
                help="a step that failed with --tangent and --fallback-tangent is solved once more from the "
                     "committed state on the fallback with Newton updates x += this * dx before it is cut "
-                    "(history.csv column damped; default %(default)g; 0 or none: cut at once; "
+                    "(history.csv column damped; default %(default)g = none: cut at once; measured not to rescue a step so far; "
                     "docs/reference/femdem.md, 'Past the peak')")
 g.add_argument("--accept-rtol", type=number(NON_NEGATIVE), default=3e-2,
                help="a step whose Newton stagnates ends at its best iterate if FNORM/RNORM <= this, reported as "

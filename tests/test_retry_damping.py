@@ -160,9 +160,9 @@ def test_no_damped_retry_without_damping_or_without_a_fallback(has_fallback, dam
     assert not info.converged and "damped" not in newton.solves
 
 
-def test_the_scene_retries_damped_by_default():
+def test_the_scene_does_not_retry_damped_by_default():
     from cosserat_fenicsx.scenes.femdem_biaxial import FemDemSettings
-    assert FemDemSettings().retry_damping == 0.3
+    assert FemDemSettings().retry_damping == 0.0
 
 
 @pytest.mark.parametrize("bad", [0, -0.3, 1.2, True, "0.3"])
@@ -190,11 +190,11 @@ def test_a_bad_damping_is_refused_in_one_line_before_any_work(demo, tmp_path, ba
 def test_the_demo_reports_damped_steps_and_a_restart_may_change_the_damping(demo, tmp_path):
     part = tmp_path / "part"
     demo("femdem_biaxial", *SMALL, "--out", part, "--stop-after", 1)
-    proc = demo("femdem_biaxial", "--restart", part, "--retry-damping", "none")
-    assert "--retry-damping 0.3 -> 0" in proc.stdout
+    proc = demo("femdem_biaxial", "--restart", part, "--retry-damping", "0.3")
+    assert "--retry-damping 0.0 -> 0.3" in proc.stdout
     summary = json.loads((part / "summary.json").read_text())
     assert summary["completed"] and summary["steps_with_damped_retry"] == 0
-    assert summary["changed_at_restart"] == {"retry_damping": [0.3, 0.0]}
+    assert summary["changed_at_restart"] == {"retry_damping": [0.0, 0.3]}
     header = (part / "history.csv").read_text().splitlines()[0].split(",")
     assert "damped" in header and header.index("damped") == header.index("fallback") + 1
 
@@ -208,7 +208,7 @@ def test_in_the_scene_a_step_failed_with_both_operators_is_retried_damped_then_c
     from cosserat_fenicsx.materials.dem import CellOptions
     from cosserat_fenicsx.stepping import LoadSteppingError
 
-    settings = FemDemSettings(nx=1, ny=1, mode="classical", axial_strain=0.002, steps=2, force_rtol=1e-14,
+    settings = FemDemSettings(nx=1, ny=1, mode="classical", axial_strain=0.002, steps=2, force_rtol=1e-14, retry_damping=0.3,
                               accept_rtol=1e-14, dt_min_fraction=0.5, solver_options={"snes_max_it": 3},
                               cell=CellOptions(particles=20, seed=1))
     test = FemDemBiaxial(COMM, settings, verbose=False)

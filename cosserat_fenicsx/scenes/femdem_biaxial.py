@@ -35,8 +35,9 @@ as soon as that best has gained less than 10 % in stagnation_its (4) iterations.
 peak the consistent operators (pstlo, demqo, perturbation) of cells with sliding contacts turn
 indefinite and the Newton corrections explode: a step that fails with `tangent` is solved again
 with `fallback_tangent` (kruyt, positive definite while the contact network holds), and the
-`fallback_hold` (5) steps after it too (fallback.py); a step that fails with both is solved
-once more on the fallback with damped Newton updates (`retry_damping`, 0.3) before it is cut.
+`fallback_hold` (5) steps after it too (fallback.py); with `retry_damping` > 0 (off by
+default: it has not been seen to rescue a step) a step that fails with both is solved once more on
+the fallback with damped Newton updates before it is cut.
 """
 from dataclasses import dataclass, field
 import time
@@ -62,7 +63,7 @@ DEFAULT_SOLVER_OPTIONS = {"snes_linesearch_type": "basic"}   # full Newton steps
 DEFAULT_JACOBIAN_REFRESH = 0.7
 #: Newton updates of the damped retry of a step that failed with both operators (fallback.py), as a
 #: fraction of the full correction (docs/reference/femdem.md, "Past the peak: ending a stagnating step")
-DEFAULT_RETRY_DAMPING = 0.3
+DEFAULT_RETRY_DAMPING = 0.0
 
 
 #: Gauss points (one cell each) of one NXxNY rectangle: two triangles of 3 points

@@ -105,12 +105,13 @@ def check_optional(name, value, allowed=ANY):
 
 # --- settings declared with their ranges -----------------------------------------------
 
-def setting(default=None, allowed=None, help=None, *, choices=None, flag=None):
+def setting(default=None, allowed=None, help=None, *, choices=None, flag=None, optional=False):
     """A dataclass field that declares what it takes: a number in `allowed` (a Range), one
-    of `choices`, or a bool (a bool default); a None default makes the setting optional
-    (None passes). `help` (with the unit) and `flag` (default --name) are its command-line
+    of `choices`, or a bool (a bool default); a None default, or `optional`, makes None
+    pass (a setting that None turns off). `help` (with the unit) and `flag` (default --name) are its command-line
     option (cli.add_settings); a field without `help` is the Python API's only."""
-    return field(default=default, metadata={"allowed": allowed, "choices": choices, "help": help, "flag": flag})
+    return field(default=default, metadata={"allowed": allowed, "choices": choices, "help": help, "flag": flag,
+                                                   "optional": optional or default is None})
 
 
 def declared(cls):
@@ -124,7 +125,7 @@ def check_settings(settings, label):
     for name, f in declared(type(settings)).items():
         value = getattr(settings, name)
         meta = f.metadata
-        if value is None and f.default is None:
+        if value is None and meta.get("optional", f.default is None):
             continue
         if isinstance(f.default, bool):
             if not isinstance(value, bool):

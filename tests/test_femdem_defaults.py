@@ -68,3 +68,13 @@ def test_a_bad_operator_rule_is_refused_before_any_work(demo, tmp_path, bad):
     proc = demo("femdem_biaxial", *SMALL, *bad, "--out", tmp_path / "bad", check=False)
     assert proc.returncode != 0 and "--jacobian-" in proc.stderr + proc.stdout
     assert not (tmp_path / "bad" / "history.csv").exists()
+
+
+def test_accept_and_stagnation_take_none_as_never_and_refuse_negatives():
+    """--accept-rtol 0 and --stagnation-its 0 reach the settings as None ("never", "only at
+    the cap"), which the settings take; a negative value is still refused."""
+    from cosserat_fenicsx.scenes.femdem_biaxial import FemDemSettings
+    FemDemSettings(accept_rtol=None, stagnation_its=None).check()
+    for bad in ({"accept_rtol": -0.1}, {"stagnation_its": -1}):
+        with pytest.raises(ValueError, match=next(iter(bad))):
+            FemDemSettings(**bad).check()

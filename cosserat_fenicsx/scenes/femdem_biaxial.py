@@ -123,8 +123,8 @@ class FemDemSettings:
     # a stagnating step ends at its best iterate if below this (None: never), as soon as its
     # best gained < 10 % in stagnation_its iterations (None: at the cap); the demo's
     # --accept-rtol 0 and --stagnation-its 0 are the None
-    accept_rtol: float = setting(3e-2, NON_NEGATIVE)
-    stagnation_its: int = setting(4, COUNT)
+    accept_rtol: float = setting(3e-2, NON_NEGATIVE, optional=True)
+    stagnation_its: int = setting(4, COUNT, optional=True)
     dt_min_fraction: float = setting(2.0 ** -6, FRACTION)   # smallest step after cut-backs, in nominal steps
     solver_options: dict = field(default_factory=dict)
     cell: object = None                # materials.dem.CellOptions

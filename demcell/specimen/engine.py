@@ -704,9 +704,11 @@ class Specimen:
         except that the contact law of a step sees the held discs' velocity of the step
         before (as a free disc's), not that of the step ahead."""
         n = self.state.n_discs
-        if not self.held.any():
+        rows = np.flatnonzero(self.held)
+        if rows.size == 0:
             raise InputError("follow_held_path: no disc is held (Specimen.hold first)")
         path = self.path
+        source = self.order[rows]
         for c, (name, value) in enumerate((("start", start), ("velocity", velocity),
                                            ("acceleration", acceleration))):
             # the common case (a float array of finite numbers, once per coarse step of a
@@ -714,7 +716,7 @@ class Specimen:
             if not (isinstance(value, np.ndarray) and value.dtype == np.float64 and value.shape == (n, 3)
                     and np.isfinite(value).all()):
                 value = checks.array(name, value, (n, 3))
-            path[:, 3 * c:3 * c + 3] = value[self.order]
+            path[rows, 3 * c:3 * c + 3] = value[source]       # the kernel reads the held rows only
         self._held_target = None
         programme, ctrl = self._prepare(reuse=True)
         ctrl[C_PATH_STEP] = 0.0

@@ -268,6 +268,7 @@ class BridgingCoupler:
         self._real_rows = None
         # the virtual grains' path of a step (start, velocity, acceleration), filled by step()
         self._path = tuple(np.zeros((region.n_discs, 3)) for _ in range(3))
+        self._virtual_position = region.position[region.virtual].copy()
         # shape maps, projection, mass and stable step: once, apart from the loop's phases
         self.setup_seconds = time.perf_counter() - w0
 
@@ -487,7 +488,7 @@ class BridgingCoupler:
             # reads the held rows only); the forces at q^{n+1} after the m sub-steps
             start, velocity, acceleration = self._path      # the real grains' rows stay zero
             start[virtual] = interface[0]
-            start[virtual, :2] += region.position[virtual]
+            start[virtual, :2] += self._virtual_position
             velocity[virtual] = interface[1]
             acceleration[virtual] = interface[2]
             try:
@@ -496,8 +497,9 @@ class BridgingCoupler:
                 # the engine's own stop (lost discs, non-finite state) reaches every rank
                 cause = f"the DEM region stopped: {error}"
             grain_forces = self.coupling_forces()
-            forces = grain_forces.copy()
+            forces = grain_forces
             if self.coarse_force == "interface":
+                forces = grain_forces.copy()
                 forces[:region.n_real] = 0.0
             self.timings.add("dem", w0)
             w0 = time.perf_counter()

@@ -337,7 +337,9 @@ class ExplicitCosserat:
             f = coupling_force.array
             if not np.isfinite(f).all():
                 self._stop("the coupling force is not finite")
-            loose = self.comm.allreduce(int(np.count_nonzero(f[self._massless])))
+            loose = int(np.count_nonzero(f[self._massless]))
+            if self.comm.size > 1:
+                loose = self.comm.allreduce(loose)
             if loose:
                 self._stop(f"the coupling force acts on {loose} massless dof(s): add their mass first (add_mass)")
             force = force + f

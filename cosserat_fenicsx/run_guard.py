@@ -35,7 +35,7 @@ import sys
 import threading
 import time
 
-RUNNING = "running, or killed before it could record why (summary.json is rewritten after every step)"
+RUNNING = "running, or killed before it could record why (summary.json is rewritten as the run goes)"
 SIGNALS = (signal.SIGINT, signal.SIGTERM)
 RANK_GRACE = 0.5   # [s] a rank other than 0 keeps computing this long after the signal
 MAIN_GRACE = 0.3   # [s] rank 0's watchdog waits this long for the main thread's handler
@@ -76,11 +76,16 @@ class RunGuard:
     comm     an mpi4py communicator (or None: serial); rank 0 alone writes and prints
     path     summary.json
     entries  what the summary says before the first step (settings, ...)
+    min_interval  [s] progress() rewrites the file at most this often (0: at every call that
+             asks; a run of many cheap steps pays an open, a dump and an os.replace each
+             time); the start, finish, stop and an interruption always write
     """
 
-    def __init__(self, comm, path, entries=None, label="", write_now=True):
+    def __init__(self, comm, path, entries=None, label="", write_now=True, min_interval=0.0):
         self.rank = comm.rank if comm is not None else 0
         self.path, self.label = path, label
+        self.min_interval = float(min_interval)
+        self._written = -math.inf
         self.entries = dict(entries or {})
         self.steps = 0
         #: appended to the interruption's reason (e.g. where the checkpoint a run wrote on
@@ -96,11 +101,12 @@ class RunGuard:
     # --- progress ---------------------------------------------------------------------
     def progress(self, write=True, **entries):
         """After a converged step: count it, merge `entries` (e.g. the last step's strain)
-        and, with `write`, rewrite summary.json (still `completed: false`); a run of many
-        cheap steps writes it on the steps it records."""
+        and, with `write`, rewrite summary.json (still `completed: false`) unless it was
+        written less than min_interval seconds ago; a run of many cheap steps writes it on
+        the steps it records."""
         self.steps += 1
         self.entries.update(entries)
-        if write:
+        if write and (self.min_interval <= 0.0 or time.monotonic() - self._written >= self.min_interval):
             self._write(completed=False, reason=RUNNING)
 
     @contextmanager
@@ -194,6 +200,7 @@ class RunGuard:
         with open(tmp, "w") as f:
             json.dump(strict_json(data), f, indent=2, sort_keys=True, allow_nan=False)
         os.replace(tmp, self.path)
+        self._written = time.monotonic()
 
     def _handler(self, signum, frame):
         """Python's handler: runs in the main thread, between bytecodes."""

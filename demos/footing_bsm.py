@@ -140,7 +140,7 @@ elasticity = MicropolarElasticity(mu=G, lmbda=LAMBDA, mu_c=G_C, l_c=L_C * math.s
 guard = RunGuard(comm, os.path.join(args.out, "summary.json"), label="footing_bsm",
                  entries={"packing": args.packing, "element": args.element, "speed": args.speed,
                           "depth": args.depth, "mass_damping": args.mass_damping, "ranks": comm.size},
-                 write_now=resumed is None)
+                 write_now=resumed is None, min_interval=1.0)
 
 # %% the mesh, and the region checked against it before any work (whole elements)
 cell = dolfinx.mesh.CellType.quadrilateral if args.element == "Q1/Q1" else dolfinx.mesh.CellType.triangle

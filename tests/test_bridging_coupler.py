@@ -100,7 +100,7 @@ def test_one_engine_call_per_coarse_step_with_the_end_of_step_forces():
         engine.follow_held_path = lambda *a: (calls.append(a[0]), follow(*a))
         seen = []
         forces_now = engine.forces_now
-        engine.forces_now = lambda: seen.append(forces_now()) or seen[-1]
+        engine.forces_now = lambda **kw: seen.append(forces_now(**kw)) or seen[-1]
     for _ in range(3):
         coupler.step()
     if ROOT:

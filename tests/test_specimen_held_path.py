@@ -125,6 +125,39 @@ def test_forces_now_are_the_next_steps_forces_and_commit_nothing():
     assert np.array_equal(spec.disc_forces(), now)      # bit for bit: the same sums
 
 
+
+def test_forces_now_kept_for_the_next_step_change_nothing():
+    """forces_now(keep=True) (the coupler's end-of-step forces): the next call starts from
+    that contact pass instead of repeating it, and the run is the same bit for bit as with
+    forces_now() (every state array, the forces, the plate); the pass is dropped when the
+    engine changed in between (here a held disc's velocity), and the step then evaluates its
+    own forces (still the same run as without keep)."""
+    runs = []
+    for keep in (False, True):
+        spec, held = squeezed(LAW, mass_damping=50.0)
+        rng = np.random.default_rng(5)
+        taken = []
+        take = spec._take_pending_forces
+        spec._take_pending_forces = lambda: taken.append(take()) or taken[-1]
+        forces = []
+        for k in range(6):
+            start, velocity, acceleration = path_data(spec, rng)
+            spec.follow_held_path(3, start, velocity, acceleration)
+            forces.append(spec.forces_now(keep=keep))
+            if k == 3:         # a change between forces_now and the next step drops the kept pass
+                spec.state.velocity[0, 0] += 1e-3
+        st = spec.state
+        runs.append(({k: getattr(st, k).copy() for k in ("position", "velocity", "rotation", "spin", "touching",
+                                                            "sliding", "fn", "fs", "mr", "external_force")},
+                     forces, spec.disc_forces(), spec.plate_reaction()))
+        assert taken == ([False] * 6 if not keep else [False] + [True] * 3 + [False, True])
+    (a, fa, da, pa), (b, fb, db, pb) = runs
+    for k in a:
+        assert np.array_equal(a[k], b[k]), k
+    assert all(np.array_equal(x, y) for x, y in zip(fa, fb))
+    assert np.array_equal(da, db) and np.array_equal(pa, pb)
+
+
 def virtual_pair_forces(state, order, is_virtual):
     """(n, 3) forces and moments, original order, that the contacts BETWEEN two virtual discs
     put on them (demcell.specimen.state's pair convention: force fn n + fs t on j, its

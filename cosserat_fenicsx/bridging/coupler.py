@@ -101,9 +101,11 @@ class FineScale(abc.ABC):
         on x((s + 1) dt) after step s (003 eqs 25-26)."""
 
     @abc.abstractmethod
-    def forces_now(self):
+    def forces_now(self, keep=False):
         """(n, 3): net contact (and plate) force [N/m] and moment [N m/m] on every disc at the
-        current configuration, held ones included, the contact history not committed."""
+        current configuration, held ones included, the contact history not committed; keep:
+        the next step may start from this contact pass instead of repeating it (the same
+        numbers; the coupler asks for it, since its next call steps on from here)."""
 
     @abc.abstractmethod
     def disc_forces(self):
@@ -262,6 +264,11 @@ class BridgingCoupler:
         self.steps = 0
         self.max_mismatch = 0.0
         self.last_mismatch = 0.0
+        # (engine order, engine rows of the real grains): step()'s escape check
+        self._real_rows = None
+        # the virtual grains' path of a step (start, velocity, acceleration), filled by step()
+        self._path = tuple(np.zeros((region.n_discs, 3)) for _ in range(3))
+        self._virtual_position = region.position[region.virtual].copy()
         # shape maps, projection, mass and stable step: once, apart from the loop's phases
         self.setup_seconds = time.perf_counter() - w0
 
@@ -338,11 +345,10 @@ class BridgingCoupler:
         """(n, 3) displacements and rotations of all discs from the region's reference, on root."""
         st = self.fine.state
         order = self.fine.order
-        position = in_original_order(order, st.position)
-        rotation = in_original_order(order, st.rotation)
         q = np.empty((self.region.n_discs, 3))
-        q[:, :2] = position - self.region.position
-        q[:, 2] = rotation
+        q[order, :2] = st.position
+        q[:, :2] -= self.region.position
+        q[order, 2] = st.rotation
         return q
 
     def coupling_forces(self):
@@ -352,14 +358,15 @@ class BridgingCoupler:
         ("lagged": one fine step behind, kept to show the instability it causes). All rows:
         with coarse_force="interface" step() passes only the virtual rows to the nodes."""
         if self.force_time == "end":
-            forces = np.array(self.fine.forces_now(), dtype=float, copy=True)
+            # the first sub-step of the next coarse step needs the same contact pass: kept
+            forces = np.array(self.fine.forces_now(keep=True), dtype=float, copy=True)
         else:
             forces = np.array(self.fine.disc_forces(), dtype=float, copy=True)
         return forces
 
     def _stop(self, message):
         """Collective stop: any rank's cause is raised on all."""
-        messages = self.comm.allgather(message)
+        messages = self.comm.allgather(message) if self.comm.size > 1 else [message]
         causes = [m for m in messages if m]
         if causes:
             raise BridgingStopped(f"bridging-scale run stopped at t = {self.continuum.time:.6g} s "
@@ -479,11 +486,9 @@ class BridgingCoupler:
             w0 = time.perf_counter()
             # the virtual grains' path from t_n (full arrays in the region's order; the engine
             # reads the held rows only); the forces at q^{n+1} after the m sub-steps
-            start = np.zeros((region.n_discs, 3))
-            velocity = np.zeros((region.n_discs, 3))
-            acceleration = np.zeros((region.n_discs, 3))
+            start, velocity, acceleration = self._path      # the real grains' rows stay zero
             start[virtual] = interface[0]
-            start[virtual, :2] += region.position[virtual]
+            start[virtual, :2] += self._virtual_position
             velocity[virtual] = interface[1]
             acceleration[virtual] = interface[2]
             try:
@@ -492,8 +497,9 @@ class BridgingCoupler:
                 # the engine's own stop (lost discs, non-finite state) reaches every rank
                 cause = f"the DEM region stopped: {error}"
             grain_forces = self.coupling_forces()
-            forces = grain_forces.copy()
+            forces = grain_forces
             if self.coarse_force == "interface":
+                forces = grain_forces.copy()
                 forces[:region.n_real] = 0.0
             self.timings.add("dem", w0)
             w0 = time.perf_counter()
@@ -501,13 +507,20 @@ class BridgingCoupler:
                 cause = "a grain force is not finite"
             self.timings.add("interface", w0)
             w0 = time.perf_counter()
-            q = self.grain_motion()
-            escaped = region.escaped(region.position[region.real] + q[region.real, :2])
+            # the real grains where the engine keeps them (no reordering: the escape check
+            # needs no order, its message the original index)
+            order = self.fine.order
+            if self._real_rows is None or self._real_rows[0] is not order:
+                self._real_rows = (order, np.flatnonzero(order < region.n_real))
+            rows = self._real_rows[1]
+            position = self.fine.state.position[rows]
+            escaped = region.escaped(position)
             if escaped.size and cause is None:
+                first = int(np.argmin(order[rows[escaped]]))
                 cause = (f"{escaped.size} grain(s) left the DEM region by more than one diameter "
-                         f"(first: grain {int(escaped[0])} at "
-                         f"({region.position[escaped[0], 0] + q[escaped[0], 0]:.4g}, "
-                         f"{region.position[escaped[0], 1] + q[escaped[0], 1]:.4g}) m)")
+                         f"(first: grain {int(order[rows[escaped[first]]])} at "
+                         f"({position[escaped[first], 0]:.4g}, {position[escaped[first], 1]:.4g}) m)")
+            q = self.grain_motion() if diagnose or self._projected else None
             if diagnose:
                 self._coarse_q = self.projection.coarse(q[region.real])
             self.timings.add("projection", w0)

@@ -14,6 +14,8 @@ particle appears in exactly one rank's rows. From there:
 Shape-function values are basix tabulations at the reference point pulled back from the
 particle's position (Lagrange of degree 1 or 2: Q1, P1, P2).
 """
+import contextlib
+
 import numpy as np
 import scipy.sparse
 from mpi4py import MPI
@@ -176,11 +178,14 @@ class CosseratShapeMap:
         Vec over W whose ghosts are refreshed first. A list of Vecs gives a list of arrays
         (one reduction for all)."""
         vecs = vec if isinstance(vec, (list, tuple)) else [vec]
-        local = np.zeros((len(vecs), self.n_particles, 3))
-        for k, v in enumerate(vecs):
-            v.ghostUpdate(addv=PETSc.InsertMode.INSERT, mode=PETSc.ScatterMode.FORWARD)
-            with v.localForm() as loc:
-                local[k] = (self.local_matrix @ loc.array_r).reshape(-1, 3)
+        with contextlib.ExitStack() as stack:
+            values = []
+            for v in vecs:
+                v.ghostUpdate(addv=PETSc.InsertMode.INSERT, mode=PETSc.ScatterMode.FORWARD)
+                values.append(stack.enter_context(v.localForm()).array_r)
+            # one product for all the Vecs (the same sums, row by row, as one product each)
+            product = self.local_matrix @ (values[0] if len(values) == 1 else np.column_stack(values))
+        local = np.ascontiguousarray(product.reshape(self.n_particles, 3, -1).transpose(2, 0, 1))
         if self.comm.size == 1:
             out = local
         else:

@@ -307,9 +307,12 @@ class ExplicitCosserat:
 
     # --- time stepping --------------------------------------------------------------
     def _check_dt(self, dt):
-        dt = check("dt", dt, POSITIVE)
+        if not (type(dt) is float and 0.0 < dt < math.inf):        # (the common case, cheaply)
+            dt = check("dt", dt, POSITIVE)
         if self.refuse_unstable:
-            stable = self.stable_time_step()["power"]
+            if self._stable is None:
+                self.stable_time_step()
+            stable = self._stable["power"]
             if dt > stable:
                 raise InputError(f"dt = {dt:.6g} s is above the stable step {stable:.6g} s "
                                  f"(2/omega_max of M^-1 K by power iteration; rotational 2/omega_r = "
@@ -334,7 +337,9 @@ class ExplicitCosserat:
             f = coupling_force.array
             if not np.isfinite(f).all():
                 self._stop("the coupling force is not finite")
-            loose = self.comm.allreduce(int(np.count_nonzero(f[self._massless])))
+            loose = int(np.count_nonzero(f[self._massless]))
+            if self.comm.size > 1:
+                loose = self.comm.allreduce(loose)
             if loose:
                 self._stop(f"the coupling force acts on {loose} massless dof(s): add their mass first (add_mass)")
             force = force + f

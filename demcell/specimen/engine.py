@@ -41,7 +41,7 @@ DONE, REBUILD, NONFINITE = range(3)
 INERTIAL_LIMIT = 1.0e-3
 # slots of the control vector of the chunk kernel
 (C_GX, C_GY, C_DAMP, C_SKIN, C_PRESSURE, C_EM, C_WIDTH, C_LATERAL, C_WALL_MU, C_MASS_DAMP, C_PATH_STEP, C_SKIP_HELD,
- N_CTRL) = range(13)
+ C_FORCES_READY, N_CTRL) = range(14)
 
 
 def check_time_step(dt, mass, kn):
@@ -152,26 +152,29 @@ def advance_steps(n_steps, position, velocity, rotation, spin, radius, mass, ine
     cm = ctrl[C_MASS_DAMP]
     path_step0 = ctrl[C_PATH_STEP]
     skip_held = ctrl[C_SKIP_HELD] > 0.5
+    forces_ready = ctrl[C_FORCES_READY] > 0.5
     for s in range(n_steps):
         path_t = (path_step0 + s + 1) * dt if path_step0 >= 0.0 else -1.0
-        # 1. contact law per pair
-        if parallel:
-            for k in prange(n_pairs):
-                branch(k, position, pair_i, pair_j, period, geo)
-            for k in prange(n_pairs):
-                pair_law(k, skip_held, held, geo, velocity, spin, radius, mass, pair_i, pair_j, touching, sliding, fn,
-                         fs, mr, work, kn, ks, mu, kr, eta_r, xi_n, xi_t, meff, pair_mass, clip, total, rot, dt)
-        else:
-            for k in range(n_pairs):
-                branch(k, position, pair_i, pair_j, period, geo)
-            for k in range(n_pairs):
-                pair_law(k, skip_held, held, geo, velocity, spin, radius, mass, pair_i, pair_j, touching, sliding, fn,
-                         fs, mr, work, kn, ks, mu, kr, eta_r, xi_n, xi_t, meff, pair_mass, clip, total, rot, dt)
-        # 2. external loads: only the discs that may carry one are reset
-        external_loads(cand_disc, cand_wall, cand_fs, chain, chain_start, plate_cand, position, velocity, spin, radius,
-                       mass, wall_position, wall_velocity, wall_force, on_wall, plate, plate_fs, plate_force,
-                       external_force, external_moment, kn, ks, wall_dn, wall_ratio, clip, wall_mu, dt, membrane,
-                       pressure, stiffness)
+        # 1-2 done already for the first step when ctrl[C_FORCES_READY] (Specimen.forces_now(keep=True))
+        if s > 0 or not forces_ready:
+            # 1. contact law per pair
+            if parallel:
+                for k in prange(n_pairs):
+                    branch(k, position, pair_i, pair_j, period, geo)
+                for k in prange(n_pairs):
+                    pair_law(k, skip_held, held, geo, velocity, spin, radius, mass, pair_i, pair_j, touching, sliding,
+                             fn, fs, mr, work, kn, ks, mu, kr, eta_r, xi_n, xi_t, meff, pair_mass, clip, total, rot, dt)
+            else:
+                for k in range(n_pairs):
+                    branch(k, position, pair_i, pair_j, period, geo)
+                for k in range(n_pairs):
+                    pair_law(k, skip_held, held, geo, velocity, spin, radius, mass, pair_i, pair_j, touching, sliding,
+                             fn, fs, mr, work, kn, ks, mu, kr, eta_r, xi_n, xi_t, meff, pair_mass, clip, total, rot, dt)
+            # 2. external loads: only the discs that may carry one are reset
+            external_loads(cand_disc, cand_wall, cand_fs, chain, chain_start, plate_cand, position, velocity, spin,
+                           radius, mass, wall_position, wall_velocity, wall_force, on_wall, plate, plate_fs,
+                           plate_force, external_force, external_moment, kn, ks, wall_dn, wall_ratio, clip, wall_mu, dt,
+                           membrane, pressure, stiffness)
         # 3. gather and leapfrog, the staleness bound reduced over the blocks in order
         if parallel:
             for b in prange(nb):
@@ -320,6 +323,7 @@ class Specimen:
         self.path = np.zeros((state.n_discs, 9))
         self.skip_held_pairs = False
         self._held_target = None
+        self._pending_forces = None
         self._warned_inertial = False
         self._warned_sides = False
         self.history = []
@@ -543,6 +547,7 @@ class Specimen:
         n_steps = checks.number("n_steps", n_steps, Range(0, checks.MAX_BUDGET, integer=True))
         every = checks.number("every", every, Range(1, integer=True))
         programme, ctrl = self._prepare()
+        self._pending_forces = None       # run() evaluates its own forces (forces_now(keep=True))
         st = self.state
         interval = opt.boundary_interval
         if opt.lateral == "membrane" and self.chain.size == 0:
@@ -578,14 +583,25 @@ class Specimen:
         rebuild to the next without returning to Python. For a caller that steps the
         specimen itself (the bridging-scale coupler's sub-steps, 003 eqs. 25-30). The checks of
         ``measure`` (lost discs) are not made; a non-finite state still raises."""
-        n_steps = checks.number("n_steps", n_steps, Range(0, checks.MAX_BUDGET, integer=True))
+        if not (type(n_steps) is int and 0 <= n_steps <= checks.MAX_BUDGET):      # (the common case, cheaply)
+            n_steps = checks.number("n_steps", n_steps, Range(0, checks.MAX_BUDGET, integer=True))
         if self.options.lateral == "membrane":
             raise InputError("Specimen.advance has no free-side update: run a membrane specimen with run()")
         programme, ctrl = self._prepare(reuse=True)
         ctrl[C_WIDTH] = self.lateral_width()
         left = n_steps
-        while left > 0:
-            left -= self._chunk(left, programme, ctrl)
+        # one clock reading per call, not per chunk (process_time is a system call that costs
+        # more with every thread of the process); the neighbour rebuilds are counted in it
+        c0, w0 = _time.process_time(), _time.perf_counter()
+        ctrl[C_FORCES_READY] = 1.0 if n_steps > 0 and self._take_pending_forces() else 0.0
+        try:
+            while left > 0:
+                left -= self._chunk(left, programme, ctrl, clock=False)
+                ctrl[C_FORCES_READY] = 0.0
+        finally:
+            ctrl[C_FORCES_READY] = 0.0
+            self.cpu_seconds += _time.process_time() - c0
+            self.wall_seconds += _time.perf_counter() - w0
 
     def _prepare(self, reuse=False):
         """The wall programme arrays and the control vector of the kernel. reuse: those of the
@@ -615,16 +631,18 @@ class Specimen:
         self._prepared = (key, programme, ctrl)
         return programme, ctrl
 
-    def _chunk(self, k, programme, ctrl):
+    def _chunk(self, k, programme, ctrl, clock=True):
         """At most k steps of the kernel (one step if held targets are pending: the held discs
-        are then put exactly on them); the clock, the timers and a rebuild after it. Returns
-        the steps done; a non-finite state raises LostDiscsError."""
+        are then put exactly on them); the clock, the timers (clock False: the caller times
+        itself) and a rebuild after it. Returns the steps done; a non-finite state raises
+        LostDiscsError."""
         st = self.state
         opt = self.options
         mode, vel, target, gain, vmax = programme
         if self._held_target is not None:
             k = min(k, 1)
-        c0, w0 = _time.process_time(), _time.perf_counter()
+        if clock:
+            c0, w0 = _time.process_time(), _time.perf_counter()
         done, status = advance_steps(k, st.position, st.velocity, st.rotation, st.spin, st.radius, st.mass,
                                      st.inertia, st.external_force, self.external_moment, st.on_wall, self.held,
                                      st.pair_i, st.pair_j, st.touching, st.sliding, st.fn, st.fs, st.mr, self.work,
@@ -636,8 +654,9 @@ class Specimen:
                                      self.path)
         if ctrl[C_PATH_STEP] >= 0.0:
             ctrl[C_PATH_STEP] += done
-        self.cpu_seconds += _time.process_time() - c0
-        self.wall_seconds += _time.perf_counter() - w0
+        if clock:
+            self.cpu_seconds += _time.process_time() - c0
+            self.wall_seconds += _time.perf_counter() - w0
         self.pair_updates += done * st.n_pairs
         st.step += done
         st.time += done * opt.dt
@@ -685,13 +704,19 @@ class Specimen:
         except that the contact law of a step sees the held discs' velocity of the step
         before (as a free disc's), not that of the step ahead."""
         n = self.state.n_discs
-        idx = np.flatnonzero(self.held)
-        if idx.size == 0:
+        rows = np.flatnonzero(self.held)
+        if rows.size == 0:
             raise InputError("follow_held_path: no disc is held (Specimen.hold first)")
         path = self.path
+        source = self.order[rows]
         for c, (name, value) in enumerate((("start", start), ("velocity", velocity),
                                            ("acceleration", acceleration))):
-            path[:, 3 * c:3 * c + 3] = checks.array(name, value, (n, 3))[self.order]
+            # the common case (a float array of finite numbers, once per coarse step of a
+            # coupler) without checks.array's copies; anything else through it (its message)
+            if not (isinstance(value, np.ndarray) and value.dtype == np.float64 and value.shape == (n, 3)
+                    and np.isfinite(value).all()):
+                value = checks.array(name, value, (n, 3))
+            path[rows, 3 * c:3 * c + 3] = value[source]       # the kernel reads the held rows only
         self._held_target = None
         programme, ctrl = self._prepare(reuse=True)
         ctrl[C_PATH_STEP] = 0.0
@@ -706,24 +731,71 @@ class Specimen:
         subtract them). Default False (demcell.frame's held frame copies keep theirs)."""
         self.skip_held_pairs = bool(skip)
 
-    def forces_now(self):
+    #: the arrays of the contact pass that forces_now(keep=True) keeps for the next step
+    PASS_STATE = ("external_force", "on_wall", "touching", "sliding", "fn", "fs", "mr", "wall_force")
+    PASS_ENGINE = ("external_moment", "cand_fs", "plate_fs", "plate_force")
+
+    def forces_now(self, keep=False):
         """(n, 3), original order: the net force and moment on every disc at the current
         configuration (what ``disc_forces`` will report after the next step, the forces at the
         start of that step), the contact history not committed. For a caller that needs the
-        forces at the end of its steps (the bridging coupler's corrector, 003 eq. 33)."""
+        forces at the end of its steps (the bridging coupler's corrector, 003 eq. 33).
+
+        keep: the contact pass is also kept (the history as the next step will update it, the
+        pair forces, the wall and plate loads), and the next ``advance`` or
+        ``follow_held_path`` starts its first step from it instead of evaluating the same
+        forces again: one contact pass per call, not two, and the same numbers bit for bit
+        (the same kernels on the same arrays). It is used only if the engine is then still
+        as forces_now saw it (positions, velocities, rotations, spins, plate, walls, held
+        discs, neighbour list, law and options: compared at that step); otherwise it is
+        dropped and the step evaluates its forces. Either way the committed state (and
+        ``checkpoint_arrays``) is not changed by this call."""
         st = self.state
         programme, ctrl = self._prepare(reuse=True)
         net = np.empty_like(self.net)
-        current_forces(st.position, st.velocity, st.spin, st.radius, st.mass, st.external_force.copy(),
-                       self.external_moment.copy(), st.on_wall.copy(), self.held, st.pair_i, st.pair_j,
-                       st.touching.copy(), st.sliding.copy(), st.fn.copy(), st.fs.copy(), st.mr.copy(),
-                       np.empty_like(self.work), np.empty_like(self.geo), self.row, self.jstart, self.jcol,
-                       self.cand_disc, self.cand_wall, self.cand_fs.copy(), self.chain, self.chain_start,
-                       st.wall_position, st.wall_velocity, st.wall_force.copy(), self.par, ctrl, self.plate_vector,
-                       self.plate_cand, self.plate_fs.copy(), self.plate_force.copy(), net)
+        kept = {name: getattr(st, name).copy() for name in self.PASS_STATE}
+        kept.update({name: getattr(self, name).copy() for name in self.PASS_ENGINE})
+        work, geo = np.empty_like(self.work), np.empty_like(self.geo)
+        current_forces(st.position, st.velocity, st.spin, st.radius, st.mass, kept["external_force"],
+                       kept["external_moment"], kept["on_wall"], self.held, st.pair_i, st.pair_j, kept["touching"],
+                       kept["sliding"], kept["fn"], kept["fs"], kept["mr"], work, geo, self.row, self.jstart,
+                       self.jcol, self.cand_disc, self.cand_wall, kept["cand_fs"], self.chain, self.chain_start,
+                       st.wall_position, st.wall_velocity, kept["wall_force"], self.par, ctrl, self.plate_vector,
+                       self.plate_cand, kept["plate_fs"], kept["plate_force"], net)
+        self._pending_forces = (self._fingerprint(), kept, work, geo) if keep else None
         out = np.empty_like(net)
         out[self.order] = net
         return out
+
+    def _fingerprint(self, copy=True):
+        """What the forces of the next step depend on (forces_now(keep=True)): (scalars,
+        arrays), the arrays copied or (copy False) the engine's own."""
+        st = self.state
+        arrays = (st.position, st.velocity, st.rotation, st.spin, st.wall_position, st.wall_velocity,
+                  self.plate_vector, self.held, self.par)
+        scalars = (st.step, self.rebuilds, id(st.pair_i), self.skip_held_pairs, self._held_target is None,
+                   self._prepared[0])
+        return scalars, tuple(a.copy() for a in arrays) if copy else arrays
+
+    def _take_pending_forces(self):
+        """True after copying in the contact pass kept by forces_now(keep=True), if the engine
+        is still as it saw it (``_fingerprint``); the pass is dropped either way."""
+        pending, self._pending_forces = self._pending_forces, None
+        if pending is None:
+            return False
+        (scalars, arrays), kept, work, geo = pending
+        now_scalars, now_arrays = self._fingerprint(copy=False)
+        same = (scalars == now_scalars and scalars[4] and work.shape == self.work.shape
+                and all(a.shape == b.shape and np.array_equal(a, b) for a, b in zip(arrays, now_arrays)))
+        if not same:
+            return False
+        st = self.state
+        for name in self.PASS_STATE:
+            getattr(st, name)[...] = kept[name]
+        for name in self.PASS_ENGINE:
+            getattr(self, name)[...] = kept[name]
+        self.work, self.geo = work, geo
+        return True
 
     def disc_forces(self):
         """(n, 3) array, original disc order: the net force (f_x, f_y) [N/m] and moment [N m/m]

@@ -281,6 +281,21 @@ class CellStore:
         max_steps = checks.optional("max_steps", max_steps, checks.COUNT)
         return None if max_steps is None else min(max_steps, checks.MAX_BUDGET)
 
+    def solve_options(self, max_steps=None, method=None):
+        """The option rows of a solve: each cell's own, with the per-sub-step budget
+        `max_steps` and the relaxation `method` ('local' or 'fire') put in where given."""
+        max_steps = self.substep_limit(max_steps)
+        if method not in (None, "local", "fire"):
+            raise checks.InputError(f"method must be 'local' or 'fire', got {method!r}")
+        if max_steps is None and method is None:
+            return self.opts
+        opts = self.opts.copy()
+        if max_steps is not None:
+            opts[:, slots.Q_LIMIT] = max_steps
+        if method is not None:
+            opts[:, slots.Q_METHOD] = slots.FIRE if method == "fire" else slots.LOCAL_DAMPING
+        return opts
+
     def outcome(self, k, result_row):
         """(converged, no_contacts, message, error) of cell k's solve (DemCell.solve's words;
         error: the text of a broken-down solve)."""
@@ -438,20 +453,18 @@ class CellBatch(CellStore):
         """Touching contacts of the cells rows (current state)."""
         return self._scan(rows, False)[1]
 
-    def solve(self, rows, max_steps=None):
+    def solve(self, rows, max_steps=None, method=None):
         """Solve the cells rows from their current states to their targets (DemCell.solve
         without servo). Returns the result rows (len(rows), quasistatic.N_RESULT); read them
         with ``outcome``. max_steps: the budget per sub-step after the ramp (default: each
         cell's options), DemCell.solve's max_substep_steps; each cell's whole solve is bounded
-        by its options' solve_budget."""
+        by its options' solve_budget. method: 'local' or 'fire' for this solve (default:
+        each cell's options)."""
         rows = self.rows_of(rows)
-        max_steps = self.substep_limit(max_steps)
+        opts = self.solve_options(max_steps, method)
         result = np.zeros((self.n_cells, slots.N_RESULT))
         if not len(rows):
             return result[rows]
-        opts = self.opts if max_steps is None else self.opts.copy()
-        if max_steps is not None:
-            opts[:, slots.Q_LIMIT] = max_steps
         work = np.zeros((self.n_cells, slots.N_WORK))
         iwork = np.zeros((self.n_cells, slots.N_IWORK), dtype=np.int64)
         code = np.ones(self.n_cells, dtype=np.int64)

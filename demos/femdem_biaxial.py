@@ -278,6 +278,7 @@ summary = {
     "steps_with_damped_retry": int(sum(r.get("damped", 0) for r in test.history)),
     "dem_steps_total": float(sum(r["dem_steps"] for r in test.history)),
     "cell_tangents_total": comm.allreduce(test.point_tangents()),
+    "cell_solves_redone_with_local_damping": comm.allreduce(test.cell_solves_redone()),
     "operator_rule": list(settings.jacobian_rule()),
     "steps": len(test.history), "cut_backs": test.stepper.cuts,
     "cell_preparation_time": test.preparation_time, "ranks": comm.size,

@@ -446,6 +446,10 @@ class FemDemBiaxial(PlatenTest):
         the cells do not move between ranks."""
         return self.material.balance_report() if self.balanced else None
 
+    def cell_solves_redone(self):
+        """Cell solves on this rank that FIRE did not settle and local damping did again."""
+        return self.material.unjammed_retries
+
     def point_tangents(self):
         """Cell operators built on this rank so far (one per Gauss point and Jacobian)."""
         return self.gauss_points.counters["point_tangents"]

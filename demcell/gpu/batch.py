@@ -219,16 +219,13 @@ class DeviceCellBatch(CellStore):
         self._per_cell(kernels.touching_counts, rows, self._d_qoff, st["qb"], st["ci"], out)
         return out.copy_to_host()
 
-    def solve(self, rows, max_steps=None):
+    def solve(self, rows, max_steps=None, method=None):
         """Solve the cells rows from their current states to their targets (CellBatch.solve):
         the result rows (len(rows), quasistatic.N_RESULT)."""
         rows = self.rows_of(rows)
-        max_steps = self.substep_limit(max_steps)
+        opts = self.solve_options(max_steps, method)
         if not len(rows):
             return np.zeros((0, slots.N_RESULT))
-        opts = self.opts if max_steps is None else self.opts.copy()
-        if max_steps is not None:
-            opts[:, slots.Q_LIMIT] = max_steps
         n = len(rows)
         d_rows = cuda.to_device(rows)
         d_law, d_dt, d_opts, d_target = (cuda.to_device(np.ascontiguousarray(a)) for a in

@@ -235,6 +235,12 @@ class DemMaterial(Constitutive):
         return zip(points, zone, states)
 
     # --- diagnostics ---------------------------------------------------------------------
+    @property
+    def unjammed_retries(self):
+        """FIRE cell solves of this rank's store that did not settle and were solved again with
+        local damping (stores.PointCells.unjammed_retries)."""
+        return self.store.unjammed_retries
+
     def memory_bytes(self):
         """Bytes held by the cells of this rank (current and committed states)."""
         return self.store.nbytes()

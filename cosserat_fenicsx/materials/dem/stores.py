@@ -22,6 +22,7 @@ not relax within its step budget, -2 inadmissible F (det F <= 0, or a target fur
 `max_strain_increment` from the committed state), -3 the micro solve broke down.
 """
 import abc
+from dataclasses import replace
 import time
 
 import numpy as np
@@ -48,6 +49,9 @@ class PointCells(abc.ABC):
     def __init__(self, mode, max_strain_increment):
         self.mode = mode
         self.max_strain_increment = max_strain_increment
+        # FIRE solves that did not settle and were solved again with local damping (see
+        # BatchedCells._relax_unjammed)
+        self.unjammed_retries = 0
 
     @property
     @abc.abstractmethod
@@ -136,14 +140,31 @@ class CellList(PointCells):
             return STATUS_BAD_F, f"inadmissible deformation ({error}): the load step is too large", 0
         try:
             result = cell.solve()
+            if not result.converged and cell.options.method == "fire":
+                result = self._relax_unjammed(cell, gradients, result)
         except dc.SolveError as error:
             return STATUS_BROKEN, f"micro solve failed: {error}", 0
         if result.no_contacts:
             return STATUS_NO_CONTACTS, NO_CONTACTS, result.steps
         if not result.converged:
             return (STATUS_NOT_RELAXED, "the cell did not relax within its step budget "
-                    f"(max_steps = {cell.options.max_steps}): {result.message}", result.steps)
+                    f"(max_steps = {cell.options.max_steps}; strain increment {jump:.3g} from the committed "
+                    f"state): {result.message}", result.steps)
         return 0, "", result.steps
+
+    def _relax_unjammed(self, cell, gradients, first):
+        """The FIRE solve that did not settle, again from the committed state with local
+        damping (BatchedCells._relax_unjammed says why); its steps include the first's."""
+        fire = cell.options
+        cell.options = replace(fire, method="local")
+        try:
+            cell.rollback()
+            self.mode.drive(cell, gradients)
+            result = cell.solve()
+        finally:
+            cell.options = fire
+        self.unjammed_retries += 1
+        return replace(result, steps=result.steps + first.steps)
 
     def tangent(self, points, kind, tangent_out, cost, floor):
         for k, p in enumerate(points):
@@ -234,6 +255,8 @@ class BatchedCells(PointCells):
         rows = points[ok]
         batch.set_targets(rows, F[ok], None if phi is None else phi[ok], None if kappa is None else kappa[ok])
         result = batch.solve(rows)
+        self._relax_unjammed(rows, result, F[ok], None if phi is None else phi[ok],
+                             None if kappa is None else kappa[ok])
         timers["solve"] += time.perf_counter() - start
         start = time.perf_counter()
         steps = result[:, slots.R_STEPS].astype(int)
@@ -251,7 +274,8 @@ class BatchedCells(PointCells):
             elif not converged:
                 status[k] = STATUS_NOT_RELAXED
                 texts[k] = ("the cell did not relax within its step budget "
-                            f"(max_steps = {int(batch.max_steps[rows[j]])}): {message}")
+                            f"(max_steps = {int(batch.max_steps[rows[j]])}; strain increment {jump[k]:.3g} "
+                            f"from the committed state): {message}")
         good = status[ok] >= 0
         sel, out_rows = ok[good], rows[good]
         fluxes = np.zeros((len(sel), 6))
@@ -261,6 +285,29 @@ class BatchedCells(PointCells):
                                                hom["sliding_fraction"][good], hom["stress_ratio"][good],
                                                hom["n_contacts"][good], steps[good], status[sel]])
         timers["homogenize"] += time.perf_counter() - start
+
+
+    def _relax_unjammed(self, rows, result, F, phi, kappa):
+        """FIRE cells that did not settle are solved again from the committed state with local
+        damping; their result rows are replaced, their DEM steps added. Two ways FIRE fails
+        to settle a cell that local damping settles, both seen past the peak: a cell strained
+        just past its jamming point, whose grains fly apart and keep colliding (FIRE damps
+        only against the forces; local damping takes energy out at every collision until no
+        contact is left: zero stress), and a cell whose FIRE iteration cycles at an
+        unbalanced-force ratio of order 1 with little kinetic energy (docs/reference/femdem.md,
+        "Past the peak: cells that FIRE does not settle")."""
+        from demcell import slots
+        unsettled = ((result[:, slots.R_CONVERGED] < 0.5) & (self.batch.opts[rows, slots.Q_METHOD] == slots.FIRE))
+        if not unsettled.any():
+            return
+        sel = np.flatnonzero(unsettled)
+        again = rows[sel]
+        self.batch.rollback(again)
+        self.batch.set_targets(again, F[sel], None if phi is None else phi[sel], None if kappa is None else kappa[sel])
+        retry = self.batch.solve(again, method="local")
+        retry[:, slots.R_STEPS] += result[sel, slots.R_STEPS]
+        result[sel] = retry
+        self.unjammed_retries += len(sel)
 
     def tangent(self, points, kind, tangent_out, cost, floor):
         batch = self.batch

@@ -18,6 +18,7 @@ from mpi4py import MPI
 from cosserat_fenicsx import CosseratProblem, LinearElasticMaterial, MicropolarElasticity, NewtonSolver, meshes
 from cosserat_fenicsx.fallback import FallbackSolver
 from cosserat_fenicsx.snes import SolveInfo
+from tests.test_femdem_fallback import Problem
 
 COMM = MPI.COMM_WORLD
 ELASTIC = MicropolarElasticity(mu=1.0e8, lmbda=1.2e8, mu_c=0.4e8, l_c=0.02)
@@ -90,18 +91,6 @@ class Material:
         changed = self.has_fallback and bool(on) != self.on
         self.on = bool(on) and self.has_fallback
         return changed
-
-
-class Problem:
-    def __init__(self):
-        self.rollbacks, self.invalidated = 0, 0
-        self.gauss_points = self
-
-    def rollback(self):
-        self.rollbacks += 1
-
-    def invalidate_tangents(self):
-        self.invalidated += 1
 
 
 class Newton:

@@ -495,8 +495,8 @@ def main(argv=None):
     p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     p.add_argument("--increments", type=int, default=5, help="load increments of 1e-3 axial strain (default 5)")
     p.add_argument("--np", type=int, default=2, help="YADE pool workers and our MPI ranks (default 2)")
-    p.add_argument("--tangents", nargs="+", default=["kruyt"], choices=("kruyt", "pstlo", "demqo", "perturbation"),
-                   help="our tangent(s), one run each (default kruyt, closest to YADE's)")
+    p.add_argument("--tangents", nargs="+", default=["pstlo"], choices=("kruyt", "pstlo", "demqo", "perturbation"),
+                   help="our tangent(s), one run each (default pstlo, the demo's; kruyt is the closest to YADE's)")
     p.add_argument("--force-rtol", type=float, default=None,
                    help="our Newton tolerance FNORM/RNORM (default: the equivalent of YADE's |du|/|u| < 1e-2 "
                         "from YADE's curve in this run, module docstring)")

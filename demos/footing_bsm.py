@@ -96,6 +96,9 @@ parser.add_argument("--record-every", type=number(Range(1, integer=True)), defau
                     help="coarse steps between two history rows (default %(default)s)")
 parser.add_argument("--output-every", type=number(Range(1, integer=True)), default=10,
                     help="history rows between two XDMF/VTK outputs (default %(default)s)")
+parser.add_argument("--summary-interval", type=number(NON_NEGATIVE), default=1.0,
+                    help="summary.json is rewritten at most this often [s] (default %(default)g; 0: after every "
+                         "recorded step); always at the start, the end and a stop")
 parser.add_argument("--seed", type=number(Range(0, integer=True)), default=0, help="packing C's seed")
 parser.add_argument("--region-nodes", choices=("integrated", "projected"), default="integrated",
                     help="BridgingCoupler(region_nodes=...): the region's nodes under 003 eq 16 (default), or "
@@ -140,7 +143,7 @@ elasticity = MicropolarElasticity(mu=G, lmbda=LAMBDA, mu_c=G_C, l_c=L_C * math.s
 guard = RunGuard(comm, os.path.join(args.out, "summary.json"), label="footing_bsm",
                  entries={"packing": args.packing, "element": args.element, "speed": args.speed,
                           "depth": args.depth, "mass_damping": args.mass_damping, "ranks": comm.size},
-                 write_now=resumed is None, min_interval=1.0)
+                 write_now=resumed is None, min_interval=args.summary_interval)
 
 # %% the mesh, and the region checked against it before any work (whole elements)
 cell = dolfinx.mesh.CellType.quadrilateral if args.element == "Q1/Q1" else dolfinx.mesh.CellType.triangle

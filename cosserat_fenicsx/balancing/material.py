@@ -55,6 +55,7 @@ class BalancedMaterial(Constitutive):
         self.worker = np.zeros(0, dtype=np.int64)     # worker rank of each home point
         self.zone = None                              # home zones (set_zones), None: none given
         self._timers_done = {}                        # timers of the inner materials replaced
+        self._retries_done = 0                        # and their cell solves redone
         self._own = {"exchange": 0.0, "migration": 0.0}
         self._commits = 0
         self._moved = False
@@ -314,6 +315,7 @@ class BalancedMaterial(Constitutive):
         comm, old = self.comm, self.inner
         for name, value in old.timers.items():
             self._timers_done[name] = self._timers_done.get(name, 0.0) + value
+        self._retries_done += old.unjammed_retries
         self.inner, self.slots = migrate(comm, old, self.make_material, self.slots, new_worker[self.slot_global])
         self.inner.use_fallback_operator(self.fallback_on)
         self._slots_changed()
@@ -368,6 +370,12 @@ class BalancedMaterial(Constitutive):
             out[name] = out.get(name, 0.0) + value
         out.update(self._own)
         return out
+
+    @property
+    def unjammed_retries(self):
+        """The inner materials' cell solves redone with local damping (DemMaterial's),
+        those of the materials replaced by migrations included."""
+        return self._retries_done + self.inner.unjammed_retries
 
     def memory_bytes(self):
         return self.inner.memory_bytes()

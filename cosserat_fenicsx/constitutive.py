@@ -187,6 +187,12 @@ class Constitutive(abc.ABC):
         """What the run's summary records about the material (a dict of plain values)."""
         return {}
 
+    @property
+    def counters(self):
+        """Counts of the material's own events on this rank so far ({name: int}; none by
+        default)."""
+        return {}
+
 
 class LinearElasticMaterial(Constitutive):
     """Linear isotropic micropolar elasticity as a Gauss-point material: the trivial

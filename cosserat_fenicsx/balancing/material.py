@@ -55,7 +55,7 @@ class BalancedMaterial(Constitutive):
         self.worker = np.zeros(0, dtype=np.int64)     # worker rank of each home point
         self.zone = None                              # home zones (set_zones), None: none given
         self._timers_done = {}                        # timers of the inner materials replaced
-        self._retries_done = 0                        # and their cell solves redone
+        self._counters_done = {}                      # and their counters
         self._own = {"exchange": 0.0, "migration": 0.0}
         self._commits = 0
         self._moved = False
@@ -315,7 +315,8 @@ class BalancedMaterial(Constitutive):
         comm, old = self.comm, self.inner
         for name, value in old.timers.items():
             self._timers_done[name] = self._timers_done.get(name, 0.0) + value
-        self._retries_done += old.unjammed_retries
+        for name, value in old.counters.items():
+            self._counters_done[name] = self._counters_done.get(name, 0) + value
         self.inner, self.slots = migrate(comm, old, self.make_material, self.slots, new_worker[self.slot_global])
         self.inner.use_fallback_operator(self.fallback_on)
         self._slots_changed()
@@ -372,10 +373,13 @@ class BalancedMaterial(Constitutive):
         return out
 
     @property
-    def unjammed_retries(self):
-        """The inner materials' cell solves redone with local damping (DemMaterial's),
-        those of the materials replaced by migrations included."""
-        return self._retries_done + self.inner.unjammed_retries
+    def counters(self):
+        """The inner materials' counters, those of the materials replaced by migrations
+        included."""
+        out = dict(self._counters_done)
+        for name, value in self.inner.counters.items():
+            out[name] = out.get(name, 0) + value
+        return out
 
     def memory_bytes(self):
         return self.inner.memory_bytes()

@@ -236,10 +236,10 @@ class DemMaterial(Constitutive):
 
     # --- diagnostics ---------------------------------------------------------------------
     @property
-    def unjammed_retries(self):
-        """FIRE cell solves of this rank's store that did not settle and were solved again with
-        local damping (stores.PointCells.unjammed_retries)."""
-        return self.store.unjammed_retries
+    def counters(self):
+        """cell_solves_redone: FIRE cell solves of this rank that did not settle and were
+        solved again with local damping (stores.PointCells.unjammed_retries)."""
+        return {"cell_solves_redone": self.store.unjammed_retries}
 
     def memory_bytes(self):
         """Bytes held by the cells of this rank (current and committed states)."""

@@ -35,6 +35,8 @@ one Newton solve more per step that is then cut anyway.
 """
 import dataclasses
 
+from .validation import FRACTION, check_optional
+
 
 class FallbackSolver:
     """`solver` (a NewtonSolver) whose failed solves are tried again with the fallback operator
@@ -46,9 +48,7 @@ class FallbackSolver:
     def __init__(self, solver, problem, material, hold=HOLD, damping=None):
         if not (isinstance(hold, int) and hold >= 0):
             raise ValueError(f"fallback: hold must be an integer >= 0, got {hold!r}")
-        if damping is not None and not (isinstance(damping, (int, float)) and not isinstance(damping, bool)
-                                        and 0 < damping <= 1):
-            raise ValueError(f"fallback: damping must be a number in (0, 1] or None, got {damping!r}")
+        damping = check_optional("fallback: damping", damping, FRACTION)
         self.solver, self.problem, self.material = solver, problem, material
         self.hold = hold
         self.damping = damping

@@ -50,6 +50,7 @@ from petsc4py import PETSc
 
 from . import compat
 from .constitutive import ConstitutiveError
+from .validation import FRACTION, check_optional
 
 DEFAULT_OPTIONS = {
     "snes_type": "newtonls",
@@ -205,10 +206,8 @@ class NewtonSolver:
     def set_step_damping(self, alpha):
         """Newton updates of the free dofs x += alpha dx from the next iteration on (alpha in
         (0, 1]; None: full steps, the default). Collective in effect: give every rank the same."""
-        if alpha is not None and not (isinstance(alpha, (int, float, np.floating)) and not isinstance(alpha, bool)
-                                      and 0 < alpha <= 1):
-            raise ValueError(f"step damping must be a number in (0, 1] or None, got {alpha!r}")
-        self.step_damping = None if alpha is None or alpha == 1 else float(alpha)
+        alpha = check_optional("step damping", alpha, FRACTION)
+        self.step_damping = None if alpha is None or alpha == 1 else alpha
         if self.step_damping is not None and not self._precheck_installed:
             # the line search's pre-check may change the search direction y (x_new = x - lambda y):
             # with the basic line search (the FEM x DEM scene's) the update is alpha dx exactly

@@ -108,8 +108,9 @@ def check_optional(name, value, allowed=ANY):
 def setting(default=None, allowed=None, help=None, *, choices=None, flag=None, optional=False):
     """A dataclass field that declares what it takes: a number in `allowed` (a Range), one
     of `choices`, or a bool (a bool default); a None default, or `optional`, makes None
-    pass (a setting that None turns off). `help` (with the unit) and `flag` (default --name) are its command-line
-    option (cli.add_settings); a field without `help` is the Python API's only."""
+    pass (a setting that None turns off). `help` (with the unit) and `flag` (default
+    --name) are its command-line option (cli.add_settings); a field without `help` is the
+    Python API's only."""
     return field(default=default, metadata={"allowed": allowed, "choices": choices, "help": help, "flag": flag,
                                                    "optional": optional or default is None})
 
@@ -125,7 +126,7 @@ def check_settings(settings, label):
     for name, f in declared(type(settings)).items():
         value = getattr(settings, name)
         meta = f.metadata
-        if value is None and meta.get("optional", f.default is None):
+        if value is None and meta["optional"]:
             continue
         if isinstance(f.default, bool):
             if not isinstance(value, bool):

@@ -1,5 +1,5 @@
 """FIRE cells that do not settle are solved again from the committed state with local damping
-(materials/dem/stores.py, PointCells.unjammed_retries; docs/reference/femdem.md, "Past the
+(materials/dem/stores.py, PointCells.solves_redone; docs/reference/femdem.md, "Past the
 peak: cells that FIRE does not settle")."""
 import numpy as np
 import pytest
@@ -58,7 +58,7 @@ def test_the_store_solves_an_unsettled_cell_again_with_local_damping(unsettled, 
     status, cost, texts = np.zeros(1, dtype=np.int64), np.zeros(1), {}
     timers = {"solve": 0.0, "homogenize": 0.0}
     cells.solve(np.array([0]), gradients, flux, state_new, status, cost, texts, timers)
-    assert status[0] == 0 and not texts and cells.unjammed_retries == 1
+    assert status[0] == 0 and not texts and cells.solves_redone == 1
     assert cost[0] > 200_000                 # the failed FIRE solve's steps are counted
     # the stress is the local-damping cell's, solved on its own from the committed state
     reference = unsettled.copy()

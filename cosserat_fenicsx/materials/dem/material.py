@@ -238,8 +238,8 @@ class DemMaterial(Constitutive):
     @property
     def counters(self):
         """cell_solves_redone: FIRE cell solves of this rank that did not settle and were
-        solved again with local damping (stores.PointCells.unjammed_retries)."""
-        return {"cell_solves_redone": self.store.unjammed_retries}
+        solved again with local damping (stores.PointCells.solves_redone)."""
+        return {"cell_solves_redone": self.store.solves_redone}
 
     def memory_bytes(self):
         """Bytes held by the cells of this rank (current and committed states)."""

@@ -49,9 +49,9 @@ class PointCells(abc.ABC):
     def __init__(self, mode, max_strain_increment):
         self.mode = mode
         self.max_strain_increment = max_strain_increment
-        # FIRE solves that did not settle and were solved again with local damping (see
+        # FIRE cell solves that did not settle and were done again with local damping (see
         # BatchedCells._relax_unjammed)
-        self.unjammed_retries = 0
+        self.solves_redone = 0
 
     @property
     @abc.abstractmethod
@@ -163,7 +163,7 @@ class CellList(PointCells):
             result = cell.solve()
         finally:
             cell.options = fire
-        self.unjammed_retries += 1
+        self.solves_redone += 1
         return replace(result, steps=result.steps + first.steps)
 
     def tangent(self, points, kind, tangent_out, cost, floor):
@@ -253,10 +253,10 @@ class BatchedCells(PointCells):
                         "images by more than 1 rad across the cell): the load step is too large")
         ok = np.flatnonzero(~too_far & ~bad)
         rows = points[ok]
-        batch.set_targets(rows, F[ok], None if phi is None else phi[ok], None if kappa is None else kappa[ok])
+        targets = (F[ok], None if phi is None else phi[ok], None if kappa is None else kappa[ok])
+        batch.set_targets(rows, *targets)
         result = batch.solve(rows)
-        self._relax_unjammed(rows, result, F[ok], None if phi is None else phi[ok],
-                             None if kappa is None else kappa[ok])
+        self._relax_unjammed(rows, result, *targets)
         timers["solve"] += time.perf_counter() - start
         start = time.perf_counter()
         steps = result[:, slots.R_STEPS].astype(int)
@@ -286,7 +286,6 @@ class BatchedCells(PointCells):
                                                hom["n_contacts"][good], steps[good], status[sel]])
         timers["homogenize"] += time.perf_counter() - start
 
-
     def _relax_unjammed(self, rows, result, F, phi, kappa):
         """FIRE cells that did not settle are solved again from the committed state with local
         damping; their result rows are replaced, their DEM steps added. Two ways FIRE fails
@@ -307,7 +306,7 @@ class BatchedCells(PointCells):
         retry = self.batch.solve(again, method="local")
         retry[:, slots.R_STEPS] += result[sel, slots.R_STEPS]
         result[sel] = retry
-        self.unjammed_retries += len(sel)
+        self.solves_redone += len(sel)
 
     def tangent(self, points, kind, tangent_out, cost, floor):
         batch = self.batch

@@ -116,6 +116,12 @@ benchmark-dns: benchmark-deps
 	$(PYTHON) benchmarks/dns/footing_dem.py --packing A --out $(BENCH)/footing_dem_A
 	$(PYTHON) benchmarks/dns/footing_dem.py --packing C --out $(BENCH)/footing_dem_C
 	$(PYTHON) benchmarks/dns/dns_vs_femdem.py --out $(BENCH)/dns_vs_femdem
+	$(PYTHON) benchmarks/dns/dns_band.py --cases dns-2x4 --out $(BENCH)/dns_band
+	@if [ ! -f $(BENCH)/dem_calibration/identify/identified_parameters.json ]; then $(MAKE) benchmark-dem; fi
+	$(MPIRUN) -n $(NP) $(PYTHON) benchmarks/dns/continuum_bands.py --dns $(BENCH)/dns_band \
+		--parameters $(BENCH)/dem_calibration/identify/identified_parameters.json --out $(BENCH)/continuum_bands
+	$(PYTHON) benchmarks/dns/band_couple_stress.py --dns $(BENCH)/dns_band --continua $(BENCH)/continuum_bands \
+		--out $(BENCH)/band_couple_stress
 
 # the bridging-scale method (paper 003): ghost forces, a pulse across the interface, the
 # elastic FE footing, and the footing against the full DEM of the same grains

@@ -77,8 +77,13 @@ def stored_record(out, label, s):
     return None
 
 
-def run_case(comm, out, label, s, log=print):
-    """Run one case (or read its record); returns the record (every rank)."""
+def run_case(comm, out, label, s, log=print, window_from=None):
+    """Run one case (or read its record); returns the record (every rank).
+
+    window_from: an axial strain (its magnitude) from which the record also keeps the
+    symmetric strain increment (e_xx, e_yy, e_xy) of the window to the run's end at every
+    Gauss point, `window_strain_increment` (the DNS's band is measured on such an increment:
+    benchmarks/dns/dns_band.py)."""
     path, shared = record_paths(out, label, s)
     record = stored_record(out, label, s)
     if record is not None:
@@ -94,8 +99,13 @@ def run_case(comm, out, label, s, log=print):
 
     band_history = []   # the band fit after every step of phase 2: runs stopped at different
                         # strains are compared at a strain they all reached
+    window = {}
 
     def after_step(row):
+        if (row["phase"] == 2 and window_from is not None and "start" not in window
+                and abs(row["axial_strain"]) >= window_from - 1e-12):
+            window["start"] = test.gauss_points.gradients.copy()
+            window["axial_strain"] = row["axial_strain"]
         if row["phase"] == 2:
             try:
                 fit = test.band().as_dict()
@@ -126,6 +136,12 @@ def run_case(comm, out, label, s, log=print):
             verdict = str(error)
     iterations = [r["newton_iterations"] for r in rows]
     points, strain = test.global_order(test.equivalent_strain(test.gradients_start))
+    window_strain = (test.global_order(symmetric_increment(test.gauss_points.gradients, window["start"]))[1]
+                     if comm.allreduce("start" in window, op=MPI.LAND) else None)
+    couple = curvature = None
+    if test.gauss_points.gradients.shape[1] >= 6:     # a rotation field: m3j and kappa3j at the end
+        couple = test.global_order(test.gauss_points.flux_values[:, 4:6])[1]
+        curvature = test.global_order(test.gauss_points.gradients[:, 4:6])[1]
     record = {
         "label": label, "mode": s.mode, "tangent": s.tangent, "mesh": [s.nx, s.ny],
         "particles": s.cell.particles, "criterion": s.cell.criterion, "relaxation_tol": s.cell.relaxation_tol,
@@ -152,6 +168,11 @@ def run_case(comm, out, label, s, log=print):
         # the final equivalent strain since the start of phase 2 at every Gauss point (rank 0)
         "points": points.tolist() if points is not None else None,
         "equivalent_strain": strain.tolist() if strain is not None else None,
+        "window_from": window.get("axial_strain"),
+        "window_strain_increment": window_strain.tolist() if window_strain is not None else None,
+        # the couple stress m31, m32 [N] and curvature kappa31, kappa32 [1/m] at the end (rank 0)
+        "couple_stress": couple.tolist() if couple is not None else None,
+        "curvature": curvature.tolist() if curvature is not None else None,
     }
     if comm.rank == 0:
         os.makedirs(out, exist_ok=True)
@@ -167,6 +188,14 @@ def run_case(comm, out, label, s, log=print):
             f"{sum(iterations)} Newton iterations, {wall:.0f} s wall, {cpu:.0f} s CPU"
             + (f"; stopped: {stopped}" if stopped else ""))
     return record
+
+
+def symmetric_increment(gradients, since):
+    """(e_xx, e_yy, e_xy) (n, 3) of the symmetric strain from the Gauss-point gradients
+    `since` to `gradients` (columns eps11, eps22, eps12, eps21: kinematics.GRADIENT_NAMES;
+    the rotation cancels in the symmetric part)."""
+    d = np.asarray(gradients)[:, :4] - np.asarray(since)[:, :4]
+    return np.column_stack([d[:, 0], d[:, 1], 0.5 * (d[:, 2] + d[:, 3])])
 
 
 def homogeneous_path(cell, axial_strains, pressure):

@@ -78,11 +78,29 @@ class Range:
                 ok &= (a < self.high) if self.high_open else (a <= self.high)
         return ok
 
+    def admits(self, v):
+        """Scalar form of ``allows`` for a Python int or float, without numpy (the checks of
+        calls made once per step stay cheap); an int is compared exactly, not as a float."""
+        if type(v) is float:
+            if v != v or (v in (math.inf, -math.inf) and not (v > 0 and self.infinite and not self.integer)):
+                return False
+            if self.integer and v != math.inf and v != math.floor(v):
+                return False
+        if self.low is not None and (v < self.low or (self.low_open and v == self.low)):
+            return False
+        if self.high is not None and (v > self.high or (self.high_open and v == self.high)):
+            return False
+        return True
+
     def check(self, name, value):
         """`value` (int when the range is of integers, else float) if it lies in the range,
         else InputError naming `name`."""
-        v = real(value)
-        if v is None or not bool(self.allows(v)):
+        if type(value) in (int, float):
+            v, ok = value, self.admits(value)
+        else:
+            v = real(value)
+            ok = v is not None and bool(self.allows(v))
+        if not ok:
             raise InputError(f"{name} must be {self.describe()}, got {one_line(repr(value))[:80]}")
         return int(v) if self.integer else float(v)
 
@@ -94,6 +112,8 @@ COUNT = Range(1, integer=True)
 #: a step budget above this is no budget (weeks of one cell) and stays clear of int64 overflow
 #: in the kernels' counters: larger budgets are cut to it
 MAX_BUDGET = 10 ** 15
+#: a number of steps to run: none up to the budget
+STEP_BUDGET = Range(0, MAX_BUDGET, integer=True)
 SEED = Range(0, 2 ** 63 - 1, integer=True)
 
 
@@ -111,10 +131,11 @@ def _shape_text(shape):
     return "(" + ", ".join("n" if d is None else str(d) for d in shape) + ("," if len(shape) == 1 else "") + ")"
 
 
-def array(name, value, shape, allowed=ANY, dtype=np.float64):
+def array(name, value, shape, allowed=ANY, dtype=np.float64, copy=True):
     """`value` as a new array of `dtype` whose shape is `shape` (None: any length on that
     axis) and whose values lie in `allowed`, else InputError naming `name`, the expected
-    shape and the first value out of range."""
+    shape and the first value out of range. copy=False: `value` itself when it is already
+    an array of `dtype` (for a caller that only reads it)."""
     what = "a boolean array" if dtype is bool else "an array of numbers"
     try:
         raw = np.asarray(value)
@@ -126,7 +147,7 @@ def array(name, value, shape, allowed=ANY, dtype=np.float64):
         raise InputError(f"{name} must be {what} of shape {_shape_text(shape)}, got {one_line(repr(value))[:80]}")
     if raw.ndim != len(shape) or any(d is not None and d != s for d, s in zip(shape, raw.shape)):
         raise InputError(f"{name} must be {what} of shape {_shape_text(shape)}, got shape {raw.shape}")
-    a = np.array(raw, dtype=dtype)
+    a = np.array(raw, dtype=dtype, copy=copy or raw.dtype != dtype)
     if dtype is not bool:
         ok = allowed.allows(a)
         if not ok.all():

@@ -307,8 +307,7 @@ class ExplicitCosserat:
 
     # --- time stepping --------------------------------------------------------------
     def _check_dt(self, dt):
-        if not (type(dt) is float and 0.0 < dt < math.inf):        # (the common case, cheaply)
-            dt = check("dt", dt, POSITIVE)
+        dt = check("dt", dt, POSITIVE)
         if self.refuse_unstable:
             if self._stable is None:
                 self.stable_time_step()

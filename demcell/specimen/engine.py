@@ -544,7 +544,7 @@ class Specimen:
         if n_steps is None:
             duration = checks.number("duration", duration, NON_NEGATIVE)
             n_steps = int(round(duration / opt.dt))
-        n_steps = checks.number("n_steps", n_steps, Range(0, checks.MAX_BUDGET, integer=True))
+        n_steps = checks.number("n_steps", n_steps, checks.STEP_BUDGET)
         every = checks.number("every", every, Range(1, integer=True))
         programme, ctrl = self._prepare()
         self._pending_forces = None       # run() evaluates its own forces (forces_now(keep=True))
@@ -583,8 +583,7 @@ class Specimen:
         rebuild to the next without returning to Python. For a caller that steps the
         specimen itself (the bridging-scale coupler's sub-steps, 003 eqs. 25-30). The checks of
         ``measure`` (lost discs) are not made; a non-finite state still raises."""
-        if not (type(n_steps) is int and 0 <= n_steps <= checks.MAX_BUDGET):      # (the common case, cheaply)
-            n_steps = checks.number("n_steps", n_steps, Range(0, checks.MAX_BUDGET, integer=True))
+        n_steps = checks.number("n_steps", n_steps, checks.STEP_BUDGET)
         if self.options.lateral == "membrane":
             raise InputError("Specimen.advance has no free-side update: run a membrane specimen with run()")
         programme, ctrl = self._prepare(reuse=True)
@@ -711,11 +710,7 @@ class Specimen:
         source = self.order[rows]
         for c, (name, value) in enumerate((("start", start), ("velocity", velocity),
                                            ("acceleration", acceleration))):
-            # the common case (a float array of finite numbers, once per coarse step of a
-            # coupler) without checks.array's copies; anything else through it (its message)
-            if not (isinstance(value, np.ndarray) and value.dtype == np.float64 and value.shape == (n, 3)
-                    and np.isfinite(value).all()):
-                value = checks.array(name, value, (n, 3))
+            value = checks.array(name, value, (n, 3), copy=False)
             path[rows, 3 * c:3 * c + 3] = value[source]       # the kernel reads the held rows only
         self._held_target = None
         programme, ctrl = self._prepare(reuse=True)

@@ -76,6 +76,7 @@ WEAK_SIZE = 5e-3                     # [m]: whole elements on every mesh of the 
 FEMDEM_WEAK_FRICTION = 0.5
 EHLERS_WEAK_FACTOR = 0.8             # matches friction x 0.5 (femdem_vs_ehlers.py)
 EHLERS_CONFINING = 1e5               # [Pa]: the calibration's units (kn x 1e4, p0 x 1e4)
+EHLERS_ETA = 0.1                     # [s]: the biaxial scene's default viscosity
 
 
 # %% The grains in the continuum's units
@@ -138,7 +139,7 @@ def run_ehlers(comm, out, label, mesh, l_c, a, log):
     nx, ny = mesh
     s = BiaxialSettings(width=WIDTH, height=HEIGHT, confining=EHLERS_CONFINING, axial_strain=a.axial_strain,
                         steps=a.steps, cell_size=WIDTH / nx, cell_type="triangle", weak_size=WEAK_SIZE,
-                        weak_beta_factor=EHLERS_WEAK_FACTOR, micropolar=True, material=values)
+                        weak_beta_factor=EHLERS_WEAK_FACTOR, micropolar=True, material=values, eta=a.ehlers_eta)
     s.check()
     load_before, start, cpu0 = os.getloadavg()[0], time.perf_counter(), cpu_seconds()
     log(f"{label}: running (Ehlers, {nx}x{ny}, l_c = {l_c * 1e3:.4f} mm)")
@@ -170,7 +171,7 @@ def run_ehlers(comm, out, label, mesh, l_c, a, log):
     stress = np.array([r["vertical_stress"] for r in rows])
     i_peak = int(np.argmin(stress)) if len(stress) else 0
     record = {
-        "label": label, "model": "ehlers", "mesh": [nx, ny], "l_c": l_c, "mu_c": values["mu"],
+        "label": label, "model": "ehlers", "mesh": [nx, ny], "l_c": l_c, "mu_c": values["mu"], "eta": a.ehlers_eta,
         "completed": not stopped,
         "stopped": stopped, "axial_strain": [r["axial_strain"] for r in rows], "vertical_stress": stress.tolist(),
         "peak_vertical_stress": float(stress[i_peak]) if rows else None,
@@ -244,7 +245,8 @@ def row(record, d50):
             if record.get("window_strain_increment") else {"band": False, "why": "the run did not reach the window"})
     strains = record["axial_strain"]
     reached = -100 * strains[-1] if strains else 0.0
-    return {"label": record["label"], "model": record["model"], "mesh": f"{nx}x{ny}", "h_over_d50": h / d50,
+    model = record["model"] + (f" (eta {record['eta']:g} s)" if record.get("eta", EHLERS_ETA) != EHLERS_ETA else "")
+    return {"label": record["label"], "model": model, "mesh": f"{nx}x{ny}", "h_over_d50": h / d50,
             "l_c_over_d50": (record["l_c"] / d50 if record.get("l_c") and record["model"] in ("hybrid", "ehlers")
                              else None),
             "reached": reached, "window_from": (None if record.get("window_from") is None
@@ -281,8 +283,9 @@ def report(rows, dns, d50, a):
               "|" + "---|" * 13]
     for r in rows:
         h, incl, contrast = band_cell(r["band"])
+        window = "-" if r["window_from"] is None else f"{r['window_from']:.1f}-{r['reached']:.1f}"
         lines.append(f"| {r['model']} | {r['mesh']} | {r['h_over_d50']:.1f} | {fmt(r['l_c_over_d50'])} | "
-                     f"{r['reached']:.2f} | {fmt(r['window_from'], '.1f')}-{r['reached']:.1f} | {h} | {incl} | "
+                     f"{r['reached']:.2f} | {window} | {h} | {incl} | "
                      f"{contrast} | {fmt(r['cuts'], 'd')} | {r['wall']:.0f} / {r['cpu']:.0f} | {r['load']:.2f} | "
                      f"{r['stopped'][:90]} |")
     lines += ["", "The mesh change of each model and internal length (H / d50 on its finest mesh with a band "
@@ -396,6 +399,8 @@ def main(argv=None):
     p.add_argument("--parameters", default=os.path.join(ROOT, "out", "dem_calibration", "identify",
                                                         "identified_parameters.json"),
                    help="the Ehlers parameters identified from the cell (benchmarks/dem/dem_calibration.py)")
+    p.add_argument("--ehlers-eta", type=float, default=EHLERS_ETA,
+                   help="Perzyna time of the Ehlers runs [s per 1 s step] (0: rate-independent)")
     p.add_argument("--axial-strain", type=float, default=0.04)
     p.add_argument("--steps", type=int, default=20)
     p.add_argument("--window-from", type=float, default=0.02, help="the band's window starts at this axial strain")
@@ -434,7 +439,8 @@ def main(argv=None):
         for l_c_d50, mesh in ((v, m) for v in lengths.get(model, [None])
                               for m in (ehlers_meshes if model == "ehlers" else femdem_meshes)):
             lc = "" if l_c_d50 is None else f"_lc{l_c_d50:g}"
-            label = f"{model}{lc}_{mesh[0]}x{mesh[1]}"
+            eta = f"_eta{a.ehlers_eta:g}" if model == "ehlers" and a.ehlers_eta != EHLERS_ETA else ""
+            label = f"{model}{lc}{eta}_{mesh[0]}x{mesh[1]}"
             l_c = None if l_c_d50 is None else l_c_d50 * d50
             path = os.path.join(a.out, f"{label}.json")
             if a.report_only:

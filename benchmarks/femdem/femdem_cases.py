@@ -12,6 +12,7 @@ times within one run of a study only).
 """
 import hashlib
 import json
+import math
 import os
 import resource
 import signal
@@ -83,7 +84,9 @@ def run_case(comm, out, label, s, log=print, window_from=None):
     window_from: an axial strain (its magnitude) from which the record also keeps the
     symmetric strain increment (e_xx, e_yy, e_xy) of the window to the run's end at every
     Gauss point, `window_strain_increment` (the DNS's band is measured on such an increment:
-    benchmarks/dns/dns_band.py)."""
+    benchmarks/dns/dns_band.py). A run that stops before it keeps the window from its peak
+    stress ratio instead, if it went past it (`window_from` in the record says where the
+    window starts)."""
     path, shared = record_paths(out, label, s)
     record = stored_record(out, label, s)
     if record is not None:
@@ -102,6 +105,10 @@ def run_case(comm, out, label, s, log=print, window_from=None):
     window = {}
 
     def after_step(row):
+        if (row["phase"] == 2 and window_from is not None
+                and row["stress_ratio"] > window.get("peak_ratio", -math.inf)):
+            window.update(peak=test.gauss_points.gradients.copy(), peak_ratio=row["stress_ratio"],
+                          peak_strain=row["axial_strain"], peak_step=row["step"])
         if (row["phase"] == 2 and window_from is not None and "start" not in window
                 and abs(row["axial_strain"]) >= window_from - 1e-12):
             window["start"] = test.gauss_points.gradients.copy()
@@ -136,6 +143,9 @@ def run_case(comm, out, label, s, log=print, window_from=None):
             verdict = str(error)
     iterations = [r["newton_iterations"] for r in rows]
     points, strain = test.global_order(test.equivalent_strain(test.gradients_start))
+    if (window_from is not None and "start" not in window and "peak" in window
+            and rows and rows[-1]["step"] > window["peak_step"]):
+        window.update(start=window["peak"], axial_strain=window["peak_strain"])
     window_strain = (test.global_order(symmetric_increment(test.gauss_points.gradients, window["start"]))[1]
                      if comm.allreduce("start" in window, op=MPI.LAND) else None)
     couple = curvature = None

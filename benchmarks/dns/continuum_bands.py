@@ -108,8 +108,12 @@ def measure(points, increment, element_size, d50):
         rec["why"] = str(error)
         return rec
     ok, why = band_verdict(fit, element_size, WIDTH)
+    share = dns_band.top_decile_share(points[keep], gamma, fit) if fit.converged else None
+    if ok and share < dns_band.SINGLE_BAND_SHARE:       # the DNS's test of a single band
+        ok, why = False, (f"no single band: {100 * share:.0f} % of the top decile within 2H of the axis "
+                          f"(below {100 * dns_band.SINGLE_BAND_SHARE:.0f} %)")
     rec.update(band=bool(ok), why="" if ok else why, thickness_over_d50=fit.thickness / d50,
-               inclination_deg=fit.inclination_deg,
+               inclination_deg=fit.inclination_deg, top_decile_share=share,
                contrast=fit.amplitude / fit.offset if fit.offset > 0 else None, fit=fit.as_dict())
     return rec
 
@@ -308,21 +312,24 @@ def figure(rows, dns, path):
     from cosserat_fenicsx.figures import pyplot
     plt = pyplot()
     fig, ax = plt.subplots(figsize=(6, 4.5))
-    for model, marker in zip(MODELS, "osD^"):
-        rs = [r for r in rows if r["model"] == model and r["band"].get("thickness_over_d50") is not None]
+    groups = dict.fromkeys((r["model"], r["l_c_over_d50"]) for r in rows)
+    for i, (model, l_c) in enumerate(groups):
+        rs = sorted((r for r in rows if (r["model"], r["l_c_over_d50"]) == (model, l_c)
+                     and r["band"].get("thickness_over_d50") is not None
+                     and r["band"]["thickness_over_d50"] < 100), key=lambda r: r["h_over_d50"])
         if not rs:
             continue
-        rs.sort(key=lambda r: r["h_over_d50"])
+        name = model + ("" if l_c is None else f", l_c {l_c:g} d50")
+        marker = "osD^v<>p"[i % 8]
         ax.plot([r["h_over_d50"] for r in rs], [r["band"]["thickness_over_d50"] for r in rs], "-", lw=0.8,
-                color="0.6")
+                color=f"C{i}")
         for r in rs:
             ax.plot(r["h_over_d50"], r["band"]["thickness_over_d50"], marker,
-                    mfc=None if r["band"]["band"] else "none", color=f"C{MODELS.index(model)}",
-                    label=model if r is rs[0] else None)
+                    mfc=None if r["band"]["band"] else "none", color=f"C{i}", label=name if r is rs[0] else None)
     for i, (key, (mean, sd, n, _)) in enumerate(sorted(dns.items())):
         if mean is not None:
-            ax.axhspan(mean - (sd or 0), mean + (sd or 0), color=f"C{5 + i}", alpha=0.2)
-            ax.axhline(mean, color=f"C{5 + i}", label=f"DNS 2x4, {key} ({n} bands)")
+            ax.axhspan(mean - (sd or 0), mean + (sd or 0), color="k", alpha=0.08)
+            ax.axhline(mean, color="k", ls=("-", "--", ":", "-.")[i % 4], lw=0.8, label=f"DNS 2x4, {key} ({n} bands)")
     ax.set_xlabel("element size h / d50"); ax.set_ylabel("band H / d50 (open: not a band by the verdict)")
     ax.set_xscale("log"); ax.set_yscale("log"); ax.legend(fontsize=7)
     fig.tight_layout(); fig.savefig(path, dpi=120)

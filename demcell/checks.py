@@ -86,11 +86,9 @@ class Range:
                 return False
             if self.integer and v != math.inf and v != math.floor(v):
                 return False
-        if self.low is not None and (v < self.low or (self.low_open and v == self.low)):
-            return False
-        if self.high is not None and (v > self.high or (self.high_open and v == self.high)):
-            return False
-        return True
+        above = self.low is None or (v > self.low if self.low_open else v >= self.low)
+        below = self.high is None or (v < self.high if self.high_open else v <= self.high)
+        return above and below
 
     def check(self, name, value):
         """`value` (int when the range is of integers, else float) if it lies in the range,

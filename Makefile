@@ -117,7 +117,9 @@ benchmark-dns: benchmark-deps
 	$(PYTHON) benchmarks/dns/footing_dem.py --packing C --out $(BENCH)/footing_dem_C
 	$(PYTHON) benchmarks/dns/dns_vs_femdem.py --out $(BENCH)/dns_vs_femdem
 	$(PYTHON) benchmarks/dns/dns_band.py --cases dns-2x4 --out $(BENCH)/dns_band
-	@if [ ! -f $(BENCH)/dem_calibration/identify/identified_parameters.json ]; then $(MAKE) benchmark-dem; fi
+	@if [ ! -f $(BENCH)/dem_calibration/identify/identified_parameters.json ]; then \
+		$(PYTHON) benchmarks/dem/dem_virtual_tests.py --out $(BENCH)/dem_virtual_tests && \
+		$(PYTHON) benchmarks/dem/dem_calibration.py --dem $(BENCH)/dem_virtual_tests --out $(BENCH)/dem_calibration; fi
 	$(MPIRUN) -n $(NP) $(PYTHON) benchmarks/dns/continuum_bands.py --dns $(BENCH)/dns_band \
 		--parameters $(BENCH)/dem_calibration/identify/identified_parameters.json --out $(BENCH)/continuum_bands
 	$(PYTHON) benchmarks/dns/band_couple_stress.py --dns $(BENCH)/dns_band --continua $(BENCH)/continuum_bands \

@@ -133,8 +133,8 @@ def test_sigterm_ends_after_the_step_with_a_checkpoint(demo, tmp_path, straight)
     env = dict(os.environ, OMP_NUM_THREADS="1")
     # summary.json after every recorded step, so that the test sees the run's progress
     proc = subprocess.Popen([sys.executable, os.path.join(ROOT, "demos", "footing_bsm.py"), *map(str, TINY),
-                             "--summary-interval", "0", "--out", str(out)], cwd=ROOT, env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE,
-                            text=True)
+                             "--summary-interval", "0", "--out", str(out)],
+                            cwd=ROOT, env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     deadline = time.monotonic() + 120
     while time.monotonic() < deadline and proc.poll() is None:
         try:

@@ -52,7 +52,6 @@ table) and continuum_bands.png (H / d50 against h / d50 per model, the DNS band 
 import argparse
 import json
 import os
-import resource
 import signal
 import sys
 import threading
@@ -64,7 +63,7 @@ from mpi4py import MPI
 sys.path.insert(0, os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__)))))
 
 from benchmarks.dns import dns_band  # noqa: E402
-from benchmarks.femdem.femdem_cases import parse_mesh, run_case, settings, symmetric_increment  # noqa: E402
+from benchmarks.femdem.femdem_cases import StrainWindow, cpu_seconds, parse_mesh, run_case, settings  # noqa: E402
 from cosserat_fenicsx.shear_band import band_verdict, fit_band  # noqa: E402
 
 ROOT = os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
@@ -119,11 +118,6 @@ def measure(points, increment, element_size, d50):
 
 
 # %% The Ehlers runs (in this process)
-def cpu_seconds():
-    r = resource.getrusage(resource.RUSAGE_SELF)
-    return r.ru_utime + r.ru_stime
-
-
 class OverBudget(Exception):
     """An Ehlers run past its wall budget: its record keeps what it reached."""
 
@@ -148,16 +142,15 @@ def run_ehlers(comm, out, label, mesh, l_c, a, log):
     load_before, start, cpu0 = os.getloadavg()[0], time.perf_counter(), cpu_seconds()
     log(f"{label}: running (Ehlers, {nx}x{ny}, l_c = {l_c * 1e3:.4f} mm)")
     test = BiaxialTest(comm, s)
-    window = {}
+    window = StrainWindow(a.window_from)
     budget = time.perf_counter() + 60.0 * a.case_minutes
 
     def on_step(row):
         # the wall budget, decided on rank 0 so that every rank stops after the same step
         if comm.bcast(time.perf_counter() > budget if comm.rank == 0 else None, root=0):
             raise OverBudget(f"stopped after step {row['step']}: past --case-minutes {a.case_minutes:g}")
-        if row["phase"] == 2 and "start" not in window and abs(row["axial_strain"]) >= a.window_from - 1e-12:
-            window["start"] = test.gauss_points.evaluate_gradients().copy()
-            window["axial_strain"] = row["axial_strain"]
+        if row["phase"] == 2:
+            window.after_step(row, -row["vertical_stress"], test.gauss_points.evaluate_gradients())
 
     stopped = ""
     try:
@@ -165,9 +158,8 @@ def run_ehlers(comm, out, label, mesh, l_c, a, log):
     except (LoadSteppingError, OverBudget) as error:
         stopped = str(error)
     rows = [r for r in test.history if r["phase"] == 2]
-    has_window = comm.allreduce("start" in window, op=MPI.LAND)
     gradients = test.gauss_points.evaluate_gradients()
-    increment = symmetric_increment(gradients, window["start"]) if has_window else None
+    increment = window.increment(comm, gradients)
     points = comm.gather(test.points, root=0)
     increments = comm.gather(increment, root=0)
     couple = comm.gather(test.gauss_points.flux_values[:, 4:6], root=0)
@@ -181,12 +173,12 @@ def run_ehlers(comm, out, label, mesh, l_c, a, log):
         "peak_vertical_stress": float(stress[i_peak]) if rows else None,
         "axial_strain_at_peak": float(rows[i_peak]["axial_strain"]) if rows else None,
         "plastic_fraction_final": rows[-1]["plastic_fraction"] if rows else None,
-        "window_from": window.get("axial_strain"), "cuts": test.stepper.cuts,
+        "window_from": window.axial_strain, "cuts": test.stepper.cuts,
         "wall_time": time.perf_counter() - start, "cpu_time": comm.allreduce(cpu_seconds() - cpu0),
         "load_average_before": load_before, "load_average_after": os.getloadavg()[0], "ranks": comm.size}
     if comm.rank == 0:
         record["points"] = np.concatenate(points).tolist()
-        record["window_strain_increment"] = np.concatenate(increments).tolist() if has_window else None
+        record["window_strain_increment"] = np.concatenate(increments).tolist() if increment is not None else None
         record["couple_stress"] = np.concatenate(couple).tolist()
         record["curvature"] = np.concatenate(curvature).tolist()
         os.makedirs(out, exist_ok=True)
@@ -237,7 +229,7 @@ def dns_reference(directory):
                 g["H"].append(dns_band.corrected(w["thickness_over_d50"], dns_band.PATCH_RADIUS))
     out = {}
     for key, g in groups.items():
-        mean, sd, n = dns_band._mean_sd(g["H"])
+        mean, sd, n = dns_band.mean_sd(g["H"])
         out[key] = (mean, sd, n, g["runs"])
     return out
 
@@ -259,17 +251,13 @@ def row(record, d50):
             "stopped": record.get("stopped", ""), "load": record["load_average_after"]}
 
 
-def fmt(x, spec=".2f"):
-    return "-" if x is None else format(x, spec)
-
-
 def band_cell(b):
     if b["band"]:
-        return f"**{fmt(b['thickness_over_d50'])}**", fmt(b["inclination_deg"], "+.0f"), fmt(b["contrast"], ".1f")
+        return f"**{dns_band.fmt(b['thickness_over_d50'])}**", dns_band.fmt(b["inclination_deg"], "+.0f"), dns_band.fmt(b["contrast"], ".1f")
     if b.get("thickness_over_d50") is None:
         return f"no fit ({b['why']})", "-", "-"
-    return (f"({fmt(b['thickness_over_d50'])}; {b['why']})", f"({fmt(b['inclination_deg'], '+.0f')})",
-            fmt(b["contrast"], ".1f"))
+    return (f"({dns_band.fmt(b['thickness_over_d50'])}; {b['why']})", f"({dns_band.fmt(b['inclination_deg'], '+.0f')})",
+            dns_band.fmt(b["contrast"], ".1f"))
 
 
 def report(rows, dns, d50, a):
@@ -279,7 +267,7 @@ def report(rows, dns, d50, a):
     lines += ["DNS 2x4 (dns_band.py, patch-corrected H, seeds with a single band):", ""]
     if dns:
         lines += ["| window | single bands / runs | H / d50 (mean +- std) |", "|---|---|---|"]
-        lines += [f"| {k} | {v[2]} / {v[3]} | {fmt(v[0])} +- {fmt(v[1])} |" for k, v in sorted(dns.items())]
+        lines += [f"| {k} | {v[2]} / {v[3]} | {dns_band.fmt(v[0])} +- {dns_band.fmt(v[1])} |" for k, v in sorted(dns.items())]
     else:
         lines += ["no DNS record (run benchmarks/dns/dns_band.py --cases dns-2x4 and give its --out as --dns)"]
     lines += ["", "| model | mesh | h / d50 | l_c / d50 | reached [%] | window [%] | H / d50 (verdict) | "
@@ -288,9 +276,9 @@ def report(rows, dns, d50, a):
     for r in rows:
         h, incl, contrast = band_cell(r["band"])
         window = "-" if r["window_from"] is None else f"{r['window_from']:.1f}-{r['reached']:.1f}"
-        lines.append(f"| {r['model']} | {r['mesh']} | {r['h_over_d50']:.1f} | {fmt(r['l_c_over_d50'])} | "
+        lines.append(f"| {r['model']} | {r['mesh']} | {r['h_over_d50']:.1f} | {dns_band.fmt(r['l_c_over_d50'])} | "
                      f"{r['reached']:.2f} | {window} | {h} | {incl} | "
-                     f"{contrast} | {fmt(r['cuts'], 'd')} | {r['wall']:.0f} / {r['cpu']:.0f} | {r['load']:.2f} | "
+                     f"{contrast} | {dns_band.fmt(r['cuts'], 'd')} | {r['wall']:.0f} / {r['cpu']:.0f} | {r['load']:.2f} | "
                      f"{r['stopped'][:90]} |")
     lines += ["", "The mesh change of each model and internal length (H / d50 on its finest mesh with a band "
               "over that on its coarsest with a band):", ""]

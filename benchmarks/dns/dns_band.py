@@ -162,7 +162,9 @@ def run_bands(directory, patch_radius_d=PATCH_RADIUS):
 
 
 # %% The table
-def _mean_sd(values):
+def mean_sd(values):
+    """(mean, sample standard deviation, count) of the values that are not None; None where
+    there are too few."""
     v = [x for x in values if x is not None]
     if not v:
         return None, None, 0
@@ -230,7 +232,7 @@ def table(results, shown=2):
     for (study, window), t in sorted(groups.items(), key=lambda kv: (kv[0][0] == "all tilings", kv[0])):
         cells = []
         for hk, ak in (("H", "a"), ("H5", "a5")):
-            (h, hs, n), (a, as_, _) = _mean_sd(t[hk]), _mean_sd(t[ak])
+            (h, hs, n), (a, as_, _) = mean_sd(t[hk]), mean_sd(t[ak])
             cells.append(f"{n} | {fmt(h)} +- {fmt(hs)} | {fmt(a, '.1f')} +- {fmt(as_, '.1f')}")
         lines.append(f"| {study} | {window} | {t['runs']} | " + " | ".join(cells) + " |")
     return lines

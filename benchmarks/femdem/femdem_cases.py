@@ -12,7 +12,6 @@ times within one run of a study only).
 """
 import hashlib
 import json
-import math
 import os
 import resource
 import signal
@@ -102,17 +101,11 @@ def run_case(comm, out, label, s, log=print, window_from=None):
 
     band_history = []   # the band fit after every step of phase 2: runs stopped at different
                         # strains are compared at a strain they all reached
-    window = {}
+    window = StrainWindow(window_from) if window_from is not None else None
 
     def after_step(row):
-        if (row["phase"] == 2 and window_from is not None
-                and row["stress_ratio"] > window.get("peak_ratio", -math.inf)):
-            window.update(peak=test.gauss_points.gradients.copy(), peak_ratio=row["stress_ratio"],
-                          peak_strain=row["axial_strain"], peak_step=row["step"])
-        if (row["phase"] == 2 and window_from is not None and "start" not in window
-                and abs(row["axial_strain"]) >= window_from - 1e-12):
-            window["start"] = test.gauss_points.gradients.copy()
-            window["axial_strain"] = row["axial_strain"]
+        if row["phase"] == 2 and window is not None:
+            window.after_step(row, row["stress_ratio"], test.gauss_points.gradients)
         if row["phase"] == 2:
             try:
                 fit = test.band().as_dict()
@@ -143,11 +136,8 @@ def run_case(comm, out, label, s, log=print, window_from=None):
             verdict = str(error)
     iterations = [r["newton_iterations"] for r in rows]
     points, strain = test.global_order(test.equivalent_strain(test.gradients_start))
-    if (window_from is not None and "start" not in window and "peak" in window
-            and rows and rows[-1]["step"] > window["peak_step"]):
-        window.update(start=window["peak"], axial_strain=window["peak_strain"])
-    window_strain = (test.global_order(symmetric_increment(test.gauss_points.gradients, window["start"]))[1]
-                     if comm.allreduce("start" in window, op=MPI.LAND) else None)
+    increment = window.increment(comm, test.gauss_points.gradients) if window is not None else None
+    window_strain = test.global_order(increment)[1] if increment is not None else None
     couple = curvature = None
     if test.gauss_points.gradients.shape[1] >= 6:     # a rotation field: m3j and kappa3j at the end
         couple = test.global_order(test.gauss_points.flux_values[:, 4:6])[1]
@@ -178,7 +168,7 @@ def run_case(comm, out, label, s, log=print, window_from=None):
         # the final equivalent strain since the start of phase 2 at every Gauss point (rank 0)
         "points": points.tolist() if points is not None else None,
         "equivalent_strain": strain.tolist() if strain is not None else None,
-        "window_from": window.get("axial_strain"),
+        "window_from": window.axial_strain if window is not None else None,
         "window_strain_increment": window_strain.tolist() if window_strain is not None else None,
         # the couple stress m31, m32 [N] and curvature kappa31, kappa32 [1/m] at the end (rank 0)
         "couple_stress": couple.tolist() if couple is not None else None,
@@ -198,6 +188,37 @@ def run_case(comm, out, label, s, log=print, window_from=None):
             f"{sum(iterations)} Newton iterations, {wall:.0f} s wall, {cpu:.0f} s CPU"
             + (f"; stopped: {stopped}" if stopped else ""))
     return record
+
+
+class StrainWindow:
+    """Where a run's strain window starts: the Gauss-point gradients at the first step of
+    phase 2 whose axial strain reaches `window_from` (its magnitude); for a run that stops
+    before it, at its peak (the step of phase 2 with the largest `strength`), if the run went
+    past it."""
+
+    def __init__(self, window_from):
+        self.window_from = window_from
+        self.start = self.axial_strain = None
+        self._peak = None           # (strength, gradients, axial strain, step) of the peak so far
+        self._last_step = None
+
+    def after_step(self, row, strength, gradients):
+        """A converged step of phase 2 (its history row), the specimen's `strength` there
+        (larger is stronger) and its Gauss-point gradients (copied where kept)."""
+        self._last_step = row["step"]
+        if self._peak is None or strength > self._peak[0]:
+            self._peak = (strength, gradients.copy(), row["axial_strain"], row["step"])
+        if self.start is None and abs(row["axial_strain"]) >= self.window_from - 1e-12:
+            self.start, self.axial_strain = gradients.copy(), row["axial_strain"]
+
+    def increment(self, comm, gradients):
+        """(e_xx, e_yy, e_xy) from the window's start to `gradients` at this rank's points, or
+        None on every rank when the run has no window (collective)."""
+        if self.start is None and self._peak is not None and self._last_step > self._peak[3]:
+            _, self.start, self.axial_strain, _ = self._peak
+        if not comm.allreduce(self.start is not None, op=MPI.LAND):
+            return None
+        return symmetric_increment(gradients, self.start)
 
 
 def symmetric_increment(gradients, since):

@@ -124,6 +124,9 @@ benchmark-dns: benchmark-deps
 		--parameters $(BENCH)/dem_calibration/identify/identified_parameters.json --out $(BENCH)/continuum_bands
 	$(PYTHON) benchmarks/dns/band_couple_stress.py --dns $(BENCH)/dns_band --continua $(BENCH)/continuum_bands \
 		--out $(BENCH)/band_couple_stress
+	$(PYTHON) benchmarks/dns/band_trends.py --models dns --out $(BENCH)/band_trends
+	$(MPIRUN) -n $(NP) $(PYTHON) benchmarks/dns/band_trends.py --models hybrid,micropolar --out $(BENCH)/band_trends
+	$(PYTHON) benchmarks/dns/band_trends.py --report-only --out $(BENCH)/band_trends
 
 # the bridging-scale method (paper 003): ghost forces, a pulse across the interface, the
 # elastic FE footing, and the footing against the full DEM of the same grains

@@ -196,16 +196,21 @@ def run_femdem(comm, out, label, model, mesh, scale, l_c, a, log):
     s = settings(mesh=mesh, particles=a.particles, mode=model, axial_strain=a.axial_strain, steps=a.steps,
                  weak_size=WEAK_SIZE, weak_friction_factor=FEMDEM_WEAK_FRICTION, grain_diameter=d_mean,
                  cell={"seed": a.seed}, **extra)
-    # the end of the wall budget: SIGTERM to this process on every rank, which run_case turns
-    # into the end of the run after the step under way (all ranks together)
-    timer = threading.Timer(60.0 * a.case_minutes, os.kill, (os.getpid(), signal.SIGTERM))
+    return dict(run_with_budget(comm, out, label, s, a.case_minutes, a.window_from, log), model=model)
+
+
+def run_with_budget(comm, out, label, s, minutes, window_from, log):
+    """femdem_cases.run_case ended after the step under way once `minutes` of wall time have
+    passed (its record keeps what the run reached)."""
+    # SIGTERM to this process on every rank, which run_case turns into the end of the run
+    # after the step under way (all ranks together)
+    timer = threading.Timer(60.0 * minutes, os.kill, (os.getpid(), signal.SIGTERM))
     timer.daemon = True
     timer.start()
     try:
-        record = run_case(comm, out, label, s, log=log, window_from=a.window_from)
+        return run_case(comm, out, label, s, log=log, window_from=window_from)
     finally:
         timer.cancel()
-    return dict(record, model=model)
 
 
 # %% The report

@@ -125,6 +125,16 @@ def plan(cases, seeds):
     return runs
 
 
+def law_flags(run):
+    """The contact law of a run where it departs from the demos' defaults: the run's "ks"
+    (tangential stiffness [N/m]) and "friction" (Coulomb mu), the same flags in every demo."""
+    flags = []
+    for key, flag in (("ks", "--ks"), ("friction", "--friction")):
+        if run.get(key) is not None:
+            flags += [flag, repr(float(run[key]))]
+    return flags
+
+
 def command(run, out, strain, step=0.002, ranks=2, threads=None, python=sys.executable, restart=False):
     """The demo's command line of a run (a list) and its environment additions."""
     directory = os.path.join(out, run["label"])
@@ -138,7 +148,7 @@ def command(run, out, strain, step=0.002, ranks=2, threads=None, python=sys.exec
             cmd.append("--no-rotation")
         if run.get("anisotropy") is not None:
             cmd += ["--anisotropy", repr(run["anisotropy"])]
-        return cmd, {}
+        return cmd + law_flags(run), {}
     if run["kind"] == "cell":
         cmd = [python, CELL_DEMO, "--seed", str(run["seed"]), "--axial-strain", repr(strain), "--increment",
                repr(step), "--axial-direction", "2", "--lateral-control", "strain", "--relaxation", "fire",
@@ -147,7 +157,7 @@ def command(run, out, strain, step=0.002, ranks=2, threads=None, python=sys.exec
             cmd.append("--no-rotation")
         if run.get("anisotropy") is not None:
             cmd += ["--anisotropy", repr(run["anisotropy"])]
-        return cmd, {}
+        return cmd + law_flags(run), {}
     if restart:
         args = ["--restart", directory, "--checkpoint-every", "5"]
     else:
@@ -158,6 +168,7 @@ def command(run, out, strain, step=0.002, ranks=2, threads=None, python=sys.exec
             args.append("--no-rotation")
         if run.get("anisotropy") is not None:
             args += ["--anisotropy", repr(run["anisotropy"])]
+        args += law_flags(run)
     cmd = [python, FEMDEM_DEMO] + args
     if ranks > 1:
         cmd = ["mpirun", "-n", str(ranks)] + cmd

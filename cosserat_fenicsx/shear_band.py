@@ -166,8 +166,11 @@ def _fit_from(points, values, r, max_iter, tol):
             step = -np.linalg.solve(JTJ + lam * np.diag(np.diag(JTJ) + 1e-300), g) * scale
             trial = r + step
             trial[2] = abs(trial[2]) if trial[2] != 0 else r[2] * 0.5   # H enters as H^2
-            res_t = bell(points, trial) - values
-            f_t = float(res_t @ res_t)
+            # a trial far off may overflow (inf or nan): it is refused below like any step
+            # that does not descend
+            with np.errstate(over="ignore", invalid="ignore"):
+                res_t = bell(points, trial) - values
+                f_t = float(res_t @ res_t)
             if f_t <= f:
                 improved = True
                 break

@@ -56,6 +56,7 @@ sys.path.insert(0, os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspa
 from benchmarks.dns import continuum_bands as cb  # noqa: E402
 from benchmarks.dns import dns_band  # noqa: E402
 from benchmarks.dns import dns_vs_femdem as dvf  # noqa: E402
+from benchmarks.dns.dns_band import fmt  # noqa: E402
 from benchmarks.femdem.femdem_cases import parse_mesh, settings  # noqa: E402
 
 BASE_KS, BASE_FRICTION = 2.0e3, 0.4      # the cell's law [N/m], [-] (demos' defaults, 000 Table 3)
@@ -167,10 +168,6 @@ def sign_agreement(path_change, dns_change, dns_sd):
 
 
 # %% The report
-def fmt(x, spec=".2f"):
-    return dns_band.fmt(x, spec)
-
-
 def report(dns, femdem, d50, a):
     lines = [f"d50 = {d50 * 1e3:.4f} mm (the FEM x DEM specimen 10 x 20 mm = the DNS 2x4, "
              f"{cb.WIDTH / d50:.1f} x {cb.HEIGHT / d50:.1f} d50); DNS seeds {a.seeds}, to {100 * DNS_STRAIN:g} %; "
@@ -235,7 +232,8 @@ def report(dns, femdem, d50, a):
         for r in dns.get(law, {}).get("runs", []):
             for w in r["windows"]:
                 if w["window"] in DNS_WINDOWS:
-                    lines.append(f"| {r['label']} | {law} | {w['window']} | {'yes' if w['band'] else 'no: ' + w['why'][:60]} "
+                    verdict = "yes" if w["band"] else "no: " + w["why"][:60]
+                    lines.append(f"| {r['label']} | {law} | {w['window']} | {verdict} "
                                  f"| {fmt(w['H'])} | {fmt(w['inclination_deg'], '+.0f')} | "
                                  f"{fmt(r['peak_stress_ratio'], '.3f')} | {r['cpu_s']:.0f} | |")
         for model in PATHS[1:]:
@@ -244,7 +242,8 @@ def report(dns, femdem, d50, a):
                 continue
             b = m["band"]
             window = "-" if m["window_from"] is None else f"{m['window_from']:.1f}-{m['reached']:.1f} %"
-            lines.append(f"| {m['label']} | {law} | {window} | {'yes' if b['band'] else 'no: ' + b.get('why', '')[:60]} | "
+            verdict = "yes" if b["band"] else "no: " + b.get("why", "")[:60]
+            lines.append(f"| {m['label']} | {law} | {window} | {verdict} | "
                          f"{fmt(b.get('thickness_over_d50'))} | {fmt(b.get('inclination_deg'), '+.0f')} | "
                          f"{fmt(m['peak_stress_ratio'], '.3f')} | {m['cpu_s']:.0f} | {m['stopped'][:60]} |")
     return lines
@@ -268,7 +267,8 @@ def figure(dns, femdem, path):
                 continue
             ax.plot([f for f, _ in pts], [m["band"]["thickness_over_d50"] for _, m in pts], "-", color=f"C{j}", lw=0.8)
             for f, m in pts:
-                ax.plot(f, m["band"]["thickness_over_d50"], "D", color=f"C{j}", mfc=None if m["band"]["band"] else "none",
+                ax.plot(f, m["band"]["thickness_over_d50"], "D", color=f"C{j}",
+                        mfc=None if m["band"]["band"] else "none",
                         label=(f"FEM x DEM {model}, {m['mesh']} (h = {m['h_over_d50']:.1f} d50)"
                                if (f, m) == pts[0] else None))
         ax.set_xlabel(f"{'ks' if name == 'ks' else 'mu'} / its base value ({'2e3 N/m' if name == 'ks' else '0.4'})")
@@ -311,7 +311,8 @@ def main(argv=None):
         seeds = [int(s) for s in a.seeds.split(",") if s.strip()]
     except ValueError as error:
         p.error(str(error))
-    if mesh[1] != 2 * mesh[0] or abs(cb.WEAK_SIZE * mesh[0] / cb.WIDTH - round(cb.WEAK_SIZE * mesh[0] / cb.WIDTH)) > 1e-9:
+    weak_elements = cb.WEAK_SIZE * mesh[0] / cb.WIDTH
+    if mesh[1] != 2 * mesh[0] or abs(weak_elements - round(weak_elements)) > 1e-9:
         p.error(f"mesh {a.mesh}: NXx2NX with whole elements in the 5 mm weak corner (2x4, 4x8, 6x12, ...)")
     if not a.l_c_d50 > 0:
         p.error("--l-c-d50 must be > 0")

@@ -39,7 +39,7 @@ def test_sign_agreement():
     assert bt.sign_agreement(None, 2.0, 0.5) == "-"
 
 
-def test_law_flags_reach_every_demo(tmp_path):
+def test_law_flags_are_on_every_demo_command_line(tmp_path):
     run = {"label": "x", "kind": "dns", "size": [2, 4], "seed": 0, "ks": 1000.0, "friction": 0.2}
     for kind in ("dns", "cell", "hybrid"):
         cmd, _ = dvf.command(dict(run, kind=kind, size=[1, 1]), str(tmp_path), 0.04)

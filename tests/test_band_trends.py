@@ -53,3 +53,10 @@ def test_dns_runs_carry_their_law():
     runs = bt.dns_runs([0, 1], ["base", "mu0.5"])
     assert [r["label"] for r in runs] == ["dns-2x4-base-s0", "dns-2x4-base-s1", "dns-2x4-mu0.5-s0", "dns-2x4-mu0.5-s1"]
     assert runs[2]["friction"] == 0.2 and runs[2]["ks"] == bt.BASE_KS
+
+
+def test_change_scatter_is_the_root_sum_of_squares():
+    sd = {"base": 1.2, "ks0.5": 0.5, "ks1.25": None}
+    assert bt.change_scatter(sd, "ks0.5") == pytest.approx(1.3)
+    assert bt.change_scatter(sd, "ks1.25") is None
+    assert bt.change_scatter({"base": None, "mu0.5": 0.7}, "mu0.5") == pytest.approx(0.7)

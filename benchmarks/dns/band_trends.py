@@ -75,6 +75,7 @@ DNS_WINDOWS = ("4-6 %", "6-8 %")
 #: both windows together: the DNS's H of the trend test (a single band in either window counts;
 #: with one window alone a law has too few single bands to compare over seeds)
 BOTH_WINDOWS = "4-8 %"
+DNS_COLUMNS = DNS_WINDOWS + (BOTH_WINDOWS,)
 #: the DNS's own internal length (band_couple_stress.py, seed 0: 0.041 d50) [d50]
 GRAINS_L_C_D50 = 0.04
 
@@ -158,6 +159,12 @@ def changes(h):
     return out
 
 
+def change_scatter(sd, law):
+    """The scatter of H(law) - H(base) from {law: standard deviation}: the root sum of squares
+    of the two laws' deviations; None where `law` has none (a single band)."""
+    return None if sd.get(law) is None else float(np.hypot(sd[law], sd["base"] or 0.0))
+
+
 def sign_agreement(path_change, dns_change, dns_sd):
     """'same', 'opposite' or 'DNS within its scatter' for one change of H."""
     if path_change is None or dns_change is None:
@@ -174,15 +181,15 @@ def report(dns, femdem, d50, a):
              f"FEM x DEM seed {a.femdem_seed}, mesh {a.mesh}, to {100 * a.axial_strain:g} % in {a.steps} steps, "
              f"the window from {100 * a.window_from:g} %; hybrid l_c = {a.l_c_d50:g} d50", ""]
     head = "| law | ks [N/m] | mu | DNS peak stress ratio (seeds) | " + " | ".join(
-        f"DNS H / d50, {w} (single bands / windows)" for w in DNS_WINDOWS + (BOTH_WINDOWS,)) + " | " + " | ".join(
+        f"DNS H / d50, {w} (single bands / windows)" for w in DNS_COLUMNS) + " | " + " | ".join(
         f"{m} H / d50 (verdict) | {m} peak, reached [%]" for m in PATHS[1:]) + " |"
-    lines += [head, "|" + "---|" * (5 + len(DNS_WINDOWS) + 2 * (len(PATHS) - 1))]
+    lines += [head, "|" + "---|" * (4 + len(DNS_COLUMNS) + 2 * (len(PATHS) - 1))]
     for law, (ks, mu) in LAWS.items():
         d = dns.get(law, {})
         peaks = [r["peak_stress_ratio"] for r in d.get("runs", []) if r["peak_stress_ratio"] is not None]
         pm, ps, pn = dns_band.mean_sd(peaks)
         cells = [f"{fmt(pm, '.3f')} +- {fmt(ps, '.3f')} ({pn})"]
-        for w in DNS_WINDOWS + (BOTH_WINDOWS,):
+        for w in DNS_COLUMNS:
             mean, sd, n, runs = d.get(w, (None, None, 0, 0))
             cells.append(f"{fmt(mean)} +- {fmt(sd)} ({n} / {runs})")
         for model in PATHS[1:]:
@@ -201,25 +208,18 @@ def report(dns, femdem, d50, a):
               "each has the DNS's sign (a FEM x DEM H counts whatever the verdict, as a reading of its field):", "",
               "| path | range over ks | range over mu | ks: H(x0.5) - H, H(x1.25) - H | mu: H(x0.5) - H, H(x1.25) - H "
               "| signs against the DNS (ks low, ks high, mu low, mu high) |", "|---|---|---|---|---|---|"]
-    trends = {}
-    for w in DNS_WINDOWS + (BOTH_WINDOWS,):
-        h = {law: dns.get(law, {}).get(w, (None,))[0] for law in LAWS}
-        sd = {law: dns.get(law, {}).get(w, (None, None))[1] for law in LAWS}
-        trends[f"DNS {w}"] = (h, sd)
-    for model in PATHS[1:]:
-        h = {law: m["band"].get("thickness_over_d50") for law, m in femdem.get(model, {}).items()}
-        trends[model] = (h, None)
-    reference = trends[f"DNS {BOTH_WINDOWS}"]
-    for name, (h, _) in trends.items():
+    def dns_column(w, i):     # {law: mean H (i = 0) or its standard deviation (i = 1)} of a DNS column
+        return {law: dns.get(law, {}).get(w, (None, None))[i] for law in LAWS}
+    paths = {f"DNS {w}": dns_column(w, 0) for w in DNS_COLUMNS}
+    paths.update({model: {law: m["band"].get("thickness_over_d50") for law, m in femdem.get(model, {}).items()}
+                  for model in PATHS[1:]})
+    ref_changes, ref_sd = changes(paths[f"DNS {BOTH_WINDOWS}"]), dns_column(BOTH_WINDOWS, 1)
+    for name, h in paths.items():
         rr, ch = relative_ranges(h), changes(h)
         signs = "-"
         if not name.startswith("DNS"):
-            ref_ch = changes(reference[0])
-            signs = ", ".join(
-                sign_agreement(ch[p][i], ref_ch[p][i],
-                               None if reference[1].get(SERIES[p][2 * i]) is None else
-                               float(np.hypot(reference[1][SERIES[p][2 * i]], reference[1]["base"] or 0.0)))
-                for p in SERIES for i in (0, 1))
+            signs = ", ".join(sign_agreement(ch[p][i], ref_changes[p][i], change_scatter(ref_sd, SERIES[p][2 * i]))
+                              for p in SERIES for i in (0, 1))
         lines.append(f"| {name} | {fmt(rr['ks'])} | {fmt(rr['mu'])} | "
                      f"{', '.join(fmt(v, '+.2f') for v in ch['ks'])} | {', '.join(fmt(v, '+.2f') for v in ch['mu'])} | "
                      f"{signs} |")
@@ -330,7 +330,7 @@ def main(argv=None):
             dvf.execute(run, a.out, DNS_STRAIN, 0.002, 1, 1, log=log)
     scale = cb.grain_scale(a.femdem_seed, a.particles)
     d50 = scale[0]
-    femdem = {}
+    records = []
     for model in (m for m in PATHS[1:] if m in models):
         for law in laws:
             label = femdem_label(model, law, mesh, a.l_c_d50)
@@ -339,12 +339,14 @@ def main(argv=None):
                 if not os.path.isfile(path):
                     continue
                 with open(path) as f:
-                    record = dict(json.load(f), model=model, law=law)
+                    records.append(dict(json.load(f), model=model, law=law))
             else:
-                record = run_femdem(comm, a, model, law, mesh, scale, log)
-            femdem.setdefault(model, {})[law] = femdem_measure(record, d50)
+                records.append(run_femdem(comm, a, model, law, mesh, scale, log))
     if comm.rank != 0:
         return
+    femdem = {}
+    for record in records:
+        femdem.setdefault(record["model"], {})[record["law"]] = femdem_measure(record, d50)
     dns = dns_measures(a.out, runs) if "dns" in models else {}
     dvf.write_json(os.path.join(a.out, "band_trends.json"), {"dns": dns, "femdem": femdem, "d50": d50})
     lines = [f"Run: `benchmarks/dns/band_trends.py {' '.join(argv if argv is not None else sys.argv[1:])}` · "

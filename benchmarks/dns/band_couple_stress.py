@@ -46,6 +46,7 @@ sys.path.insert(0, os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspa
 
 from benchmarks.dns import continuum_bands as cb  # noqa: E402
 from benchmarks.dns import dns_band  # noqa: E402
+from benchmarks.dns.dns_band import fmt  # noqa: E402
 from benchmarks.dns.dns_004 import band_distance  # noqa: E402
 
 #: models of continuum_bands.py that carry a rotation field
@@ -204,15 +205,15 @@ def main(argv=None):
              "|---|---|---|---|---|---|---|---|"]
 
     def tail(e):
-        return (f" | {dns_band.fmt(e.get('m_ratio'))} | {dns_band.fmt(e.get('kappa_ratio'))} | {dns_band.fmt(e.get('pearson_in_band'))} |")
+        return (f" | {fmt(e.get('m_ratio'))} | {fmt(e.get('kappa_ratio'))} | {fmt(e.get('pearson_in_band'))} |")
     for e in dns:
-        lines.append(f"| DNS 2x4 seed {e['seed']} | " + (f"{e['window']} | {dns_band.fmt(e['H_over_d50'])} | "
-                                                      f"**{dns_band.fmt(e['l_c_over_d50'], '.3f')}** | -" + tail(e)
+        lines.append(f"| DNS 2x4 seed {e['seed']} | " + (f"{e['window']} | {fmt(e['H_over_d50'])} | "
+                                                      f"**{fmt(e['l_c_over_d50'], '.3f')}** | -" + tail(e)
                                                       if e["band"] else "no single band | - | - | - | - | - | - |"))
     for e in continua:
         where = e["mesh"] if e["band"] else f"{e['mesh']}, not a band: {e['why'][:50]}"
-        lines.append(f"| {e['label']} | {where} | {dns_band.fmt(e.get('H_over_d50'))} | {dns_band.fmt(e.get('l_c_over_d50'), '.3f')} | "
-                     f"{dns_band.fmt(e['imposed_l_c_over_d50'], '.3f')}" + tail(e))
+        lines.append(f"| {e['label']} | {where} | {fmt(e.get('H_over_d50'))} | {fmt(e.get('l_c_over_d50'), '.3f')} | "
+                     f"{fmt(e['imposed_l_c_over_d50'], '.3f')}" + tail(e))
     estimates = [e["l_c_over_d50"] for e in dns if e.get("l_c_over_d50") is not None]
     if estimates:
         lines += ["", f"DNS l_c / d50 over the seeds with a band: {np.mean(estimates):.3f} "

@@ -63,6 +63,7 @@ from mpi4py import MPI
 sys.path.insert(0, os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__)))))
 
 from benchmarks.dns import dns_band  # noqa: E402
+from benchmarks.dns.dns_band import fmt  # noqa: E402
 from benchmarks.femdem.femdem_cases import StrainWindow, cpu_seconds, parse_mesh, run_case, settings  # noqa: E402
 from cosserat_fenicsx.shear_band import band_verdict, fit_band  # noqa: E402
 
@@ -258,11 +259,11 @@ def row(record, d50):
 
 def band_cell(b):
     if b["band"]:
-        return f"**{dns_band.fmt(b['thickness_over_d50'])}**", dns_band.fmt(b["inclination_deg"], "+.0f"), dns_band.fmt(b["contrast"], ".1f")
+        return f"**{fmt(b['thickness_over_d50'])}**", fmt(b["inclination_deg"], "+.0f"), fmt(b["contrast"], ".1f")
     if b.get("thickness_over_d50") is None:
         return f"no fit ({b['why']})", "-", "-"
-    return (f"({dns_band.fmt(b['thickness_over_d50'])}; {b['why']})", f"({dns_band.fmt(b['inclination_deg'], '+.0f')})",
-            dns_band.fmt(b["contrast"], ".1f"))
+    return (f"({fmt(b['thickness_over_d50'])}; {b['why']})", f"({fmt(b['inclination_deg'], '+.0f')})",
+            fmt(b["contrast"], ".1f"))
 
 
 def report(rows, dns, d50, a):
@@ -272,7 +273,7 @@ def report(rows, dns, d50, a):
     lines += ["DNS 2x4 (dns_band.py, patch-corrected H, seeds with a single band):", ""]
     if dns:
         lines += ["| window | single bands / runs | H / d50 (mean +- std) |", "|---|---|---|"]
-        lines += [f"| {k} | {v[2]} / {v[3]} | {dns_band.fmt(v[0])} +- {dns_band.fmt(v[1])} |" for k, v in sorted(dns.items())]
+        lines += [f"| {k} | {v[2]} / {v[3]} | {fmt(v[0])} +- {fmt(v[1])} |" for k, v in sorted(dns.items())]
     else:
         lines += ["no DNS record (run benchmarks/dns/dns_band.py --cases dns-2x4 and give its --out as --dns)"]
     lines += ["", "| model | mesh | h / d50 | l_c / d50 | reached [%] | window [%] | H / d50 (verdict) | "
@@ -281,9 +282,9 @@ def report(rows, dns, d50, a):
     for r in rows:
         h, incl, contrast = band_cell(r["band"])
         window = "-" if r["window_from"] is None else f"{r['window_from']:.1f}-{r['reached']:.1f}"
-        lines.append(f"| {r['model']} | {r['mesh']} | {r['h_over_d50']:.1f} | {dns_band.fmt(r['l_c_over_d50'])} | "
+        lines.append(f"| {r['model']} | {r['mesh']} | {r['h_over_d50']:.1f} | {fmt(r['l_c_over_d50'])} | "
                      f"{r['reached']:.2f} | {window} | {h} | {incl} | "
-                     f"{contrast} | {dns_band.fmt(r['cuts'], 'd')} | {r['wall']:.0f} / {r['cpu']:.0f} | {r['load']:.2f} | "
+                     f"{contrast} | {fmt(r['cuts'], 'd')} | {r['wall']:.0f} / {r['cpu']:.0f} | {r['load']:.2f} | "
                      f"{r['stopped'][:90]} |")
     lines += ["", "The mesh change of each model and internal length (H / d50 on its finest mesh with a band "
               "over that on its coarsest with a band):", ""]

@@ -60,3 +60,18 @@ def test_change_scatter_is_the_root_sum_of_squares():
     assert bt.change_scatter(sd, "ks0.5") == pytest.approx(1.3)
     assert bt.change_scatter(sd, "ks1.25") is None
     assert bt.change_scatter({"base": None, "mu0.5": 0.7}, "mu0.5") == pytest.approx(0.7)
+
+
+@pytest.mark.parametrize("argv, words", [
+    (["--particles", "3"], "particles must be an integer >= 10"),
+    (["--femdem-seed", "-2"], "seed must be an integer >= 0"),
+    (["--steps", "0"], "steps must be an integer"),
+    (["--case-minutes", "0"], "--case-minutes must be > 0"),
+    (["--mesh", "3x8"], "whole elements in the 5 mm weak corner"),
+])
+def test_bad_options_are_refused_in_one_line_before_any_work(argv, words, tmp_path, capsys):
+    with pytest.raises(SystemExit) as stop:
+        bt.main(argv + ["--models", "hybrid", "--out", str(tmp_path / "out")])
+    assert stop.value.code == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert words in err[-1] and not (tmp_path / "out").exists()

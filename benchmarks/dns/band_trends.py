@@ -318,6 +318,10 @@ def main(argv=None):
         p.error("--l-c-d50 must be > 0")
     if not 0.0 < a.window_from < a.axial_strain < 0.5:
         p.error("need 0 < --window-from < --axial-strain < 0.5")
+    try:
+        cb.check_cell_options(mesh, a.particles, a.femdem_seed, a.axial_strain, a.steps, a.case_minutes)
+    except ValueError as error:
+        p.error(str(error))
     from mpi4py import MPI
     comm = MPI.COMM_WORLD
     if "dns" in models and not a.report_only and comm.size > 1:

@@ -90,6 +90,15 @@ def grain_scale(seed, particles):
     return float(np.median(diameter)) * metres, float(np.mean(diameter)) * metres, metres
 
 
+def check_cell_options(mesh, particles, seed, axial_strain, steps, case_minutes):
+    """Refuse before any work what the runs of these options would refuse later: a ValueError
+    naming the option (the cells' and the FEM x DEM settings' own checks, and the budget)."""
+    if not case_minutes > 0:
+        raise ValueError(f"--case-minutes must be > 0, got {case_minutes}")
+    settings(mesh=mesh, particles=particles, axial_strain=axial_strain, steps=steps, weak_size=WEAK_SIZE,
+             cell={"seed": seed}).check()
+
+
 # %% One band measure for every model
 def outside_weak(points):
     return ~((points[:, 0] < WEAK_SIZE) & (points[:, 1] < WEAK_SIZE))
@@ -430,6 +439,11 @@ def main(argv=None):
         p.error("need 0 < --window-from < --axial-strain < 0.5")
     if "ehlers" in models and not a.report_only and not os.path.isfile(a.parameters):
         p.error(f"no Ehlers parameters at {a.parameters}: run benchmarks/dem/dem_calibration.py first")
+    try:
+        check_cell_options((femdem_meshes or ehlers_meshes or [(2, 4)])[0], a.particles, a.seed, a.axial_strain,
+                           a.steps, a.case_minutes)
+    except ValueError as error:
+        p.error(str(error))
     comm = MPI.COMM_WORLD
     log = lambda t: comm.rank == 0 and print(t, flush=True)  # noqa: E731
     scale = grain_scale(a.seed, a.particles)

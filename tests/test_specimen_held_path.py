@@ -5,6 +5,7 @@ import numpy as np
 import pytest
 
 from demcell import ContactLaw
+from demcell.errors import InputError
 from demcell.specimen import Specimen, SpecimenOptions, SpecimenState
 
 from tests.test_specimen_coupling import LAW, R, lattice_block
@@ -208,3 +209,26 @@ def test_skip_held_pairs_drops_exactly_their_forces():
     # (virtual_pair_forces takes the branch at the end of the step, the forces its start: 1e-5)
     np.testing.assert_allclose(b.disc_forces(), a.disc_forces() - pairs, rtol=0, atol=1e-5 * f)
     assert np.abs(virtual_pair_forces(b.state, b.order, held)).max() == 0.0
+
+
+def test_bad_path_refused_before_any_step():
+    """A path of the wrong shape, or a non-finite value in a held disc's row, is refused naming
+    the array (and the disc), before any step; a non-finite value in a free disc's row is not
+    read (free discs follow their forces) and runs."""
+    spec, held = squeezed(LAW)
+    rng = np.random.default_rng(6)
+    start, velocity, acceleration = path_data(spec, rng)
+    step = spec.state.step
+    with pytest.raises(InputError, match=r"velocity must be an array of numbers of shape"):
+        spec.follow_held_path(2, start, velocity[:-1], acceleration)
+    bad = acceleration.copy()
+    disc = int(np.flatnonzero(held)[3])
+    bad[disc, 1] = np.nan
+    with pytest.raises(InputError, match=rf"acceleration\[{disc}\] \(a held disc\) must be finite"):
+        spec.follow_held_path(2, start, velocity, bad)
+    assert spec.state.step == step
+    free = int(np.flatnonzero(~held)[0])
+    bad = start.copy()
+    bad[free, 0] = np.inf
+    spec.follow_held_path(2, bad, velocity, acceleration)
+    assert spec.state.step == step + 2 and np.isfinite(spec.state.position).all()

@@ -31,7 +31,8 @@ from .boundary import boundary_loop, escaped_discs, membrane_forces, pressure_fo
 from .contacts import (P_PARALLEL_MIN, P_WALL_DN, P_WALL_RATIO, branch, build_pairs, clear_pair, contact_geometry,
                        elastic_energy, gather_disc, law_scalars, law_vector, merge_history, one_pair, pairs_of_j,
                        spatial_order)
-from .integrate import block, n_blocks
+from .integrate import block, n_blocks, set_held_path
+from .kept_pass import KeptPass
 from .plate import PL_ACTIVE, PL_VX, PL_VY, PL_X0, PL_Y, Plate, move_plate, no_plate, plate_candidates, plate_forces
 from .state import SpecimenOptions, SpecimenState
 from .walls import WALL_AXIS, WALL_SIGN, WallControl, move_walls, programme_arrays, wall_candidates, wall_forces
@@ -323,7 +324,8 @@ class Specimen:
         self.path = np.zeros((state.n_discs, 9))
         self.skip_held_pairs = False
         self._held_target = None
-        self._pending_forces = None
+        self._kept = KeptPass(self.PASS_STATE, self.PASS_ENGINE, self.PASS_SCRATCH, self.PASS_INPUTS_STATE,
+                              self.PASS_INPUTS_ENGINE)
         self._warned_inertial = False
         self._warned_sides = False
         self.history = []
@@ -547,7 +549,7 @@ class Specimen:
         n_steps = checks.number("n_steps", n_steps, checks.STEP_BUDGET)
         every = checks.number("every", every, Range(1, integer=True))
         programme, ctrl = self._prepare()
-        self._pending_forces = None       # run() evaluates its own forces (forces_now(keep=True))
+        self._kept.drop()       # run() evaluates its own forces (forces_now(keep=True))
         st = self.state
         interval = opt.boundary_interval
         if opt.lateral == "membrane" and self.chain.size == 0:
@@ -706,12 +708,17 @@ class Specimen:
         rows = np.flatnonzero(self.held)
         if rows.size == 0:
             raise InputError("follow_held_path: no disc is held (Specimen.hold first)")
-        path = self.path
         source = self.order[rows]
-        for c, (name, value) in enumerate((("start", start), ("velocity", velocity),
-                                           ("acceleration", acceleration))):
-            value = checks.array(name, value, (n, 3), copy=False)
-            path[rows, 3 * c:3 * c + 3] = value[source]       # the kernel reads the held rows only
+        names = ("start", "velocity", "acceleration")
+        arrays = [np.asarray(value) for value in (start, velocity, acceleration)]
+        for name, value in zip(names, arrays):
+            if value.shape != (n, 3) or value.dtype.kind not in "biuf":
+                checks.array(name, value, (n, 3))          # the refusal names the shape or type
+        bad = set_held_path(self.path, rows, source, *(np.ascontiguousarray(a, dtype=np.float64) for a in arrays))
+        if bad >= 0:
+            k, a = divmod(bad, 3)
+            row = arrays[a][source[k]]
+            raise InputError(f"{names[a]}[{int(source[k])}] (a held disc) must be finite, got {row.tolist()}")
         self._held_target = None
         programme, ctrl = self._prepare(reuse=True)
         ctrl[C_PATH_STEP] = 0.0
@@ -729,6 +736,10 @@ class Specimen:
     #: the arrays of the contact pass that forces_now(keep=True) keeps for the next step
     PASS_STATE = ("external_force", "on_wall", "touching", "sliding", "fn", "fs", "mr", "wall_force")
     PASS_ENGINE = ("external_moment", "cand_fs", "plate_fs", "plate_force")
+    #: the per-pair scratch arrays the pass fills, and the arrays whose values it reads
+    PASS_SCRATCH = ("work", "geo")
+    PASS_INPUTS_STATE = ("position", "velocity", "rotation", "spin", "wall_position", "wall_velocity")
+    PASS_INPUTS_ENGINE = ("plate_vector", "held", "par")
 
     def forces_now(self, keep=False):
         """(n, 3), original order: the net force and moment on every disc at the current
@@ -748,49 +759,30 @@ class Specimen:
         st = self.state
         programme, ctrl = self._prepare(reuse=True)
         net = np.empty_like(self.net)
-        kept = {name: getattr(st, name).copy() for name in self.PASS_STATE}
-        kept.update({name: getattr(self, name).copy() for name in self.PASS_ENGINE})
-        work, geo = np.empty_like(self.work), np.empty_like(self.geo)
+        kept = self._kept.prepare(self)
         current_forces(st.position, st.velocity, st.spin, st.radius, st.mass, kept["external_force"],
                        kept["external_moment"], kept["on_wall"], self.held, st.pair_i, st.pair_j, kept["touching"],
-                       kept["sliding"], kept["fn"], kept["fs"], kept["mr"], work, geo, self.row, self.jstart,
-                       self.jcol, self.cand_disc, self.cand_wall, kept["cand_fs"], self.chain, self.chain_start,
-                       st.wall_position, st.wall_velocity, kept["wall_force"], self.par, ctrl, self.plate_vector,
-                       self.plate_cand, kept["plate_fs"], kept["plate_force"], net)
-        self._pending_forces = (self._fingerprint(), kept, work, geo) if keep else None
+                       kept["sliding"], kept["fn"], kept["fs"], kept["mr"], kept["work"], kept["geo"], self.row,
+                       self.jstart, self.jcol, self.cand_disc, self.cand_wall, kept["cand_fs"], self.chain,
+                       self.chain_start, st.wall_position, st.wall_velocity, kept["wall_force"], self.par, ctrl,
+                       self.plate_vector, self.plate_cand, kept["plate_fs"], kept["plate_force"], net)
+        if keep and self._held_target is None:
+            self._kept.keep(self, self._pass_scalars())
         out = np.empty_like(net)
         out[self.order] = net
         return out
 
-    def _fingerprint(self, copy=True):
-        """What the forces of the next step depend on (forces_now(keep=True)): (scalars,
-        arrays), the arrays copied or (copy False) the engine's own."""
+    def _pass_scalars(self):
+        """The scalars a kept pass depends on besides its input arrays: the step, the
+        neighbour list, the skipped held pairs, no pending held target (a pass is kept only
+        then), the prepared programme."""
         st = self.state
-        arrays = (st.position, st.velocity, st.rotation, st.spin, st.wall_position, st.wall_velocity,
-                  self.plate_vector, self.held, self.par)
-        scalars = (st.step, self.rebuilds, id(st.pair_i), self.skip_held_pairs, self._held_target is None,
-                   self._prepared[0])
-        return scalars, tuple(a.copy() for a in arrays) if copy else arrays
+        return st.step, self.rebuilds, id(st.pair_i), self.skip_held_pairs, self._held_target is None, self._prepared[0]
 
     def _take_pending_forces(self):
         """True after copying in the contact pass kept by forces_now(keep=True), if the engine
-        is still as it saw it (``_fingerprint``); the pass is dropped either way."""
-        pending, self._pending_forces = self._pending_forces, None
-        if pending is None:
-            return False
-        (scalars, arrays), kept, work, geo = pending
-        now_scalars, now_arrays = self._fingerprint(copy=False)
-        same = (scalars == now_scalars and scalars[4] and work.shape == self.work.shape
-                and all(a.shape == b.shape and np.array_equal(a, b) for a, b in zip(arrays, now_arrays)))
-        if not same:
-            return False
-        st = self.state
-        for name in self.PASS_STATE:
-            getattr(st, name)[...] = kept[name]
-        for name in self.PASS_ENGINE:
-            getattr(self, name)[...] = kept[name]
-        self.work, self.geo = work, geo
-        return True
+        is still as it saw it (``KeptPass.take``); the pass is dropped either way."""
+        return self._kept.take(self, self._pass_scalars())
 
     def disc_forces(self):
         """(n, 3) array, original disc order: the net force (f_x, f_y) [N/m] and moment [N m/m]

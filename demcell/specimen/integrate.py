@@ -110,6 +110,26 @@ def follow_path(p, position, velocity, rotation, spin, dt, rot, build_position, 
 
 
 @njit(cache=True)
+def set_held_path(path, rows, source, start, velocity, acceleration):
+    """path[rows[k]] = (start, velocity, acceleration)[source[k]] for every held disc k (the
+    engine's row rows[k] of the disc whose original index is source[k]; the (n, 3) arrays in
+    the original order, only those rows read). Returns -1, or 3 k' + a of the first
+    non-finite value, k' its index in `source` and a the array (0 start, 1 velocity, 2
+    acceleration); the rows before it are written."""
+    for k in range(rows.shape[0]):
+        r = rows[k]
+        s = source[k]
+        for a in range(3):
+            values = start if a == 0 else velocity if a == 1 else acceleration
+            for c in range(3):
+                v = values[s, c]
+                if not (abs(v) < math.inf):
+                    return 3 * k + a
+                path[r, 3 * a + c] = v
+    return -1
+
+
+@njit(cache=True)
 def displacement2(p, position, build_position):
     """|x_p - x_p^build|^2 [m^2], inf if not finite."""
     ux = position[p, 0] - build_position[p, 0]

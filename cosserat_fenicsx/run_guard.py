@@ -126,7 +126,7 @@ class RunGuard:
         so that a run inside `deferred` can end its step its own way (e.g. write a checkpoint)
         before the block ends and the guard exits."""
         mine = self._pending is not None
-        return bool(comm.allreduce(mine, op=_lor())) if comm is not None else mine
+        return bool(comm.allreduce(mine, op=_lor())) if comm is not None and comm.size > 1 else mine
 
     def interrupt_now(self, comm=None):
         """End the run as the signal asks, on every rank of `comm` together (a run that

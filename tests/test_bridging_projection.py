@@ -54,6 +54,7 @@ def test_projector_algebra(grains):
     proj = ScaleProjection(shape, mass, inertia, element_of_particle=element)
     q = rng.normal(size=(len(mass), 3))
     pq = proj.coarse(q)
+    assert np.array_equal(proj.coarse_translation(q), pq[:, :2])
     # P^2 = P
     assert np.abs(proj.coarse(pq) - pq).max() < 1e-12 * np.abs(pq).max()
     # P N = N: any nodal field is reproduced

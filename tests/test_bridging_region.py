@@ -50,6 +50,15 @@ def test_escaped_grains_are_named():
     assert region.escaped(moved).size == 0
     moved[7, 1] += 1.5
     assert region.escaped(moved).tolist() == [7]
+    # the safe box: a centre on its edge is within one margin (a diameter) of Omega_D, and
+    # one just beyond its corner is not yet counted (the full test decides there)
+    margin = region.escape_margin()
+    assert margin == 2 * r
+    x0, x1, y0, y1 = region.safe_box()
+    moved[7] = (x1, y1)
+    assert np.hypot(x1 - 2.0, y1 - 2.0) < margin and region.escaped(moved).size == 0
+    moved[7] = (x1 + 0.31 * margin, 1.5)
+    assert region.escaped(moved).tolist() == [7]
 
 
 def test_region_must_be_whole_elements():

@@ -78,8 +78,9 @@ import numpy as np
 from mpi4py import MPI
 from petsc4py import PETSc
 
+from cosserat_fenicsx.bridging.kernels import all_finite, any_outside, set_path_rows
 from cosserat_fenicsx.bridging.projection import ScaleProjection
-from cosserat_fenicsx.bridging.shape_map import CosseratShapeMap
+from cosserat_fenicsx.bridging.shape_map import CosseratShapeMap, sum_over_ranks
 from cosserat_fenicsx.dynamics.explicit import STATE_KEYS
 from cosserat_fenicsx.validation import InputError
 
@@ -268,9 +269,30 @@ class BridgingCoupler:
         self._real_rows = None
         # the virtual grains' path of a step (start, velocity, acceleration), filled by step()
         self._path = tuple(np.zeros((region.n_discs, 3)) for _ in range(3))
-        self._virtual_position = region.position[region.virtual].copy()
+        self._virtual_rows = np.arange(region.n_real, region.n_discs)
+        self._virtual_position = np.zeros((region.n_virtual, 3))
+        self._virtual_position[:, :2] = region.position[region.virtual]
+        self._safe_box = region.safe_box()
+        self._load_kernels()
         # shape maps, projection, mass and stable step: once, apart from the loop's phases
         self.setup_seconds = time.perf_counter() - w0
+
+    def _load_kernels(self):
+        """Every compiled function of a coarse step called once on the current state without
+        changing it: Numba loads them from its cache here, in the set-up, rather than in the
+        first steps a run times."""
+        c = self.continuum
+        interface = self.shape_virtual.local_values([c.displacement, c.velocity, c.acceleration])
+        self.shape.interpolate_translation(c.displacement, self.root)
+        work = self.coupling_force.duplicate()
+        self.shape.add_transpose(np.zeros((self.region.n_discs, 3)), work)
+        work.destroy()
+        if self.is_root:
+            none = np.zeros(0, dtype=np.int64)
+            set_path_rows(none, interface, self._virtual_position, *self._path)
+            forces = self.fine.forces_now()
+            all_finite(forces)
+            any_outside(self.fine.state.position, none, *self._safe_box)
 
     def _own_maps(self, spaces, refuse):
         """Per component (u1, u2, phi): (owned W dofs of own_dofs, their rows in the
@@ -473,9 +495,10 @@ class BridgingCoupler:
             diagnose = (self.steps + 1) % self.diagnose_every == 0
         c = self.continuum
         region = self.region
-        virtual = region.virtual
         w0 = time.perf_counter()
-        interface = self.shape_virtual.interpolate([c.displacement, c.velocity, c.acceleration], self.root)
+        # (d, v, a) at the virtual grains at t_n: row 3 p + c of grain p, component c
+        interface = sum_over_ranks(self.comm, self.shape_virtual.local_values(
+            [c.displacement, c.velocity, c.acceleration]), self.root)
         self.timings.add("interface", w0)
         w0 = time.perf_counter()
         c.predict(self.dt)
@@ -487,10 +510,7 @@ class BridgingCoupler:
             # the virtual grains' path from t_n (full arrays in the region's order; the engine
             # reads the held rows only); the forces at q^{n+1} after the m sub-steps
             start, velocity, acceleration = self._path      # the real grains' rows stay zero
-            start[virtual] = interface[0]
-            start[virtual, :2] += self._virtual_position
-            velocity[virtual] = interface[1]
-            acceleration[virtual] = interface[2]
+            set_path_rows(self._virtual_rows, interface, self._virtual_position, start, velocity, acceleration)
             try:
                 self.fine.follow_held_path(self.substeps, start, velocity, acceleration)
             except (RuntimeError, ValueError, FloatingPointError) as error:
@@ -503,26 +523,28 @@ class BridgingCoupler:
                 forces[:region.n_real] = 0.0
             self.timings.add("dem", w0)
             w0 = time.perf_counter()
-            if cause is None and not np.all(np.isfinite(forces)):
+            if cause is None and not all_finite(forces):
                 cause = "a grain force is not finite"
             self.timings.add("interface", w0)
             w0 = time.perf_counter()
             # the real grains where the engine keeps them (no reordering: the escape check
-            # needs no order, its message the original index)
+            # needs no order, its message the original index); the full check only when a
+            # centre is outside the safe box
             order = self.fine.order
             if self._real_rows is None or self._real_rows[0] is not order:
                 self._real_rows = (order, np.flatnonzero(order < region.n_real))
             rows = self._real_rows[1]
-            position = self.fine.state.position[rows]
-            escaped = region.escaped(position)
-            if escaped.size and cause is None:
-                first = int(np.argmin(order[rows[escaped]]))
-                cause = (f"{escaped.size} grain(s) left the DEM region by more than one diameter "
-                         f"(first: grain {int(order[rows[escaped[first]]])} at "
-                         f"({position[escaped[first], 0]:.4g}, {position[escaped[first], 1]:.4g}) m)")
+            if any_outside(self.fine.state.position, rows, *self._safe_box):
+                position = self.fine.state.position[rows]
+                escaped = region.escaped(position)
+                if escaped.size and cause is None:
+                    first = int(np.argmin(order[rows[escaped]]))
+                    cause = (f"{escaped.size} grain(s) left the DEM region by more than one diameter "
+                             f"(first: grain {int(order[rows[escaped[first]]])} at "
+                             f"({position[escaped[first], 0]:.4g}, {position[escaped[first], 1]:.4g}) m)")
             q = self.grain_motion() if diagnose or self._projected else None
             if diagnose:
-                self._coarse_q = self.projection.coarse(q[region.real])
+                self._coarse_q = self.projection.coarse_translation(q[region.real])
             self.timings.add("projection", w0)
         else:
             q = grain_forces = None
@@ -544,7 +566,7 @@ class BridgingCoupler:
             self.timings.add("projection", w0)
         if diagnose:
             w0 = time.perf_counter()
-            nd = self.shape.interpolate(c.displacement, self.root)
+            nd = self.shape.interpolate_translation(c.displacement, self.root)
             if self.is_root:
                 mismatch = np.abs(nd[region.real] - self._coarse_q)
                 self.last_mismatch = float(np.max(np.hypot(mismatch[:, 0], mismatch[:, 1]))) / self.r_min

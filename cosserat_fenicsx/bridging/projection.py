@@ -168,6 +168,12 @@ class ScaleProjection:
         """P q = N d_hat(q) (eq 3)."""
         return self.interpolate(self.project(q))
 
+    def coarse_translation(self, q):
+        """(n, 2): the translations of P q (eq 3), coarse(q)[:, :2] without the rotation's
+        projection."""
+        q = self._check(q)
+        return self._u.interpolate(self._u.coefficients(q[:, :2]))
+
     def fine(self, q):
         """Q q = q - N d_hat(q) (eqs 6-7)."""
         q = self._check(q)

@@ -81,16 +81,24 @@ class DemRegion:
         """Indices of real grains whose centre (current `position` of the real grains,
         (n_real, 2)) is more than `margin` (default one maximum diameter) outside Omega_D:
         grains that have left the region, where the projection no longer holds."""
-        margin = 2.0 * float(self.radius.max()) if margin is None else margin
+        margin = self.escape_margin() if margin is None else margin
         position = np.asarray(position)
-        # first a bound (once a step in the coupler): no point inside the box grown by
-        # 0.7 margin (< margin / sqrt(2)) on each side lies more than margin from it
-        grow = 0.7 * margin
-        box = self.box
-        if position.size and (position[:, 0].min() >= box[0] - grow and position[:, 0].max() <= box[1] + grow
-                              and position[:, 1].min() >= box[2] - grow and position[:, 1].max() <= box[3] + grow):
+        x0, x1, y0, y1 = self.safe_box(margin)
+        if position.size and (position[:, 0].min() >= x0 and position[:, 0].max() <= x1
+                              and position[:, 1].min() >= y0 and position[:, 1].max() <= y1):
             return np.zeros(0, dtype=np.int64)
         return np.flatnonzero(distance_outside(position, self.box) > margin)
+
+    def escape_margin(self):
+        """The distance outside Omega_D [m] beyond which a grain has left it: one maximum diameter."""
+        return 2.0 * float(self.radius.max())
+
+    def safe_box(self, margin=None):
+        """(x0, x1, y0, y1) [m]: Omega_D grown by 0.7 margin (< margin / sqrt(2)) on each side;
+        no centre inside it lies more than margin outside Omega_D (the cheap test of a step)."""
+        grow = 0.7 * (self.escape_margin() if margin is None else margin)
+        box = self.box
+        return box[0] - grow, box[1] + grow, box[2] - grow, box[3] + grow
 
     def summary(self):
         return {"box": [float(v) for v in self.box], "real": int(self.n_real),

@@ -7,6 +7,7 @@ cell boundary shared by several ranks is counted by the lowest of them only, so 
 particle appears in exactly one rank's rows. From there:
 
 - `interpolate`: values N d of a field at the particles, summed over ranks to rank 0 (or to all);
+  `local_values` this rank's part of them (compiled products, kernels.py);
 - `add_transpose`: N^T F added into a ghosted PETSc Vec (ADD of the ghost contributions to
   their owners, then the ghosts refreshed);
 - `matrix`: the sparse N (particles x global dofs) gathered on rank 0, for the projection.
@@ -22,6 +23,7 @@ from mpi4py import MPI
 from petsc4py import PETSc
 
 from cosserat_fenicsx import compat
+from cosserat_fenicsx.bridging.kernels import rows_times, rows_times3, transpose_times
 from cosserat_fenicsx.validation import InputError
 
 
@@ -34,6 +36,19 @@ def _as_points3(points):
     out = np.zeros((len(points), 3))
     out[:, :points.shape[1]] = points
     return out
+
+
+def sum_over_ranks(comm, local, root):
+    """The array `local` summed over the ranks of comm: on `root` (None elsewhere), or on all
+    ranks (root None); on one rank, local itself."""
+    if comm.size == 1:
+        return local
+    out = np.zeros_like(local)
+    if root is None:
+        comm.Allreduce(local, out, op=MPI.SUM)
+        return out
+    comm.Reduce(local, out, op=MPI.SUM, root=root)
+    return out if comm.rank == root else None
 
 
 class ScalarShapeMap:
@@ -93,14 +108,6 @@ class ScalarShapeMap:
             np.arange(index_map.size_local + index_map.num_ghosts, dtype=np.int32)))
         self.global_dofs = local_to_global[self.dofs]
 
-    def _reduce(self, local, root):
-        out = np.zeros_like(local)
-        if root is None:
-            self.comm.Allreduce(local, out, op=MPI.SUM)
-            return out
-        self.comm.Reduce(local, out, op=MPI.SUM, root=root)
-        return out if self.comm.rank == root else None
-
     def interpolate_local(self, parent_values):
         """N d for this rank's counted particles, from the local (owned + ghost) array of
         the parent (W, or V if to_parent was None): (k,)."""
@@ -110,7 +117,7 @@ class ScalarShapeMap:
         """N d at all particles (n,), on `root` (None elsewhere) or on all ranks (root=None)."""
         local = np.zeros(self.n_particles)
         local[self.particles] = self.interpolate_local(parent_values)
-        return self._reduce(local, root)
+        return sum_over_ranks(self.comm, local, root)
 
     def add_transpose_local(self, forces, parent_values):
         """parent_values[local dofs] += N^T F over this rank's counted particles;
@@ -170,43 +177,64 @@ class CosseratShapeMap:
         self.local_matrix = scipy.sparse.csr_matrix(
             (np.concatenate(vals), (np.concatenate(rows), np.concatenate(cols))),
             shape=(3 * self.n_particles, n_local))
-        self.local_transpose = self.local_matrix.T.tocsr()
+        self._translation_rows = np.flatnonzero(np.arange(3 * self.n_particles) % 3 != 2)
         self._work = None
+
+    def local_values(self, vecs):
+        """(3 n, len(vecs)): this rank's N x of each Vec over W (row 3 p + c: component c at
+        particle p; zero for the particles counted elsewhere), the Vecs' ghosts refreshed
+        first. Sum the rows over ranks for the values."""
+        m = self.local_matrix
+        out = np.empty((m.shape[0], len(vecs)))
+        with contextlib.ExitStack() as stack:
+            arrays = []
+            for v in vecs:
+                if self.comm.size > 1:
+                    v.ghostUpdate(addv=PETSc.InsertMode.INSERT, mode=PETSc.ScatterMode.FORWARD)
+                arrays.append(stack.enter_context(v.localForm()).array_r)
+            if len(arrays) == 3:
+                rows_times3(m.indptr, m.indices, m.data, *arrays, out)
+            else:
+                every_row = np.arange(m.shape[0])
+                for f, x in enumerate(arrays):
+                    column = np.empty(m.shape[0])
+                    rows_times(m.indptr, m.indices, m.data, every_row, x, column)
+                    out[:, f] = column
+        return out
 
     def interpolate(self, vec, root=0):
         """(n, 3) values of (u1, u2, phi) at the particles on root (None elsewhere), from a
         Vec over W whose ghosts are refreshed first. A list of Vecs gives a list of arrays
         (one reduction for all)."""
         vecs = vec if isinstance(vec, (list, tuple)) else [vec]
-        with contextlib.ExitStack() as stack:
-            values = []
-            for v in vecs:
-                v.ghostUpdate(addv=PETSc.InsertMode.INSERT, mode=PETSc.ScatterMode.FORWARD)
-                values.append(stack.enter_context(v.localForm()).array_r)
-            # one product for all the Vecs (the same sums, row by row, as one product each)
-            product = self.local_matrix @ (values[0] if len(values) == 1 else np.column_stack(values))
-        local = np.ascontiguousarray(product.reshape(self.n_particles, 3, -1).transpose(2, 0, 1))
-        if self.comm.size == 1:
-            out = local
-        else:
-            out = np.zeros_like(local)
-            if root is None:
-                self.comm.Allreduce(local, out, op=MPI.SUM)
-            else:
-                self.comm.Reduce(local, out, op=MPI.SUM, root=root)
-                if self.comm.rank != root:
-                    return None
+        local = self.local_values(vecs)
+        local = np.ascontiguousarray(local.reshape(self.n_particles, 3, -1).transpose(2, 0, 1))
+        out = sum_over_ranks(self.comm, local, root)
+        if out is None:
+            return None
         return list(out) if isinstance(vec, (list, tuple)) else out[0]
+
+    def interpolate_translation(self, vec, root=0):
+        """(n, 2) values of (u1, u2) at the particles on root (None elsewhere): the first two
+        columns of interpolate(vec), without the rotation's products."""
+        if self.comm.size > 1:
+            vec.ghostUpdate(addv=PETSc.InsertMode.INSERT, mode=PETSc.ScatterMode.FORWARD)
+        m = self.local_matrix
+        local = np.empty(self._translation_rows.size)
+        with vec.localForm() as loc:
+            rows_times(m.indptr, m.indices, m.data, self._translation_rows, loc.array_r, local)
+        return sum_over_ranks(self.comm, local.reshape(self.n_particles, 2), root)
 
     def add_transpose(self, forces, vec):
         """vec += N^T F (forces (n, 3): f1 [N/m], f2 [N/m], moment [N m/m] per particle,
         the same array on every rank), assembled over ranks (ghost ADD, then ghosts refreshed)."""
-        forces = np.asarray(forces, dtype=float).reshape(-1)
+        forces = np.ascontiguousarray(forces, dtype=float).reshape(-1)
         if self._work is None or self._work.getSize() != vec.getSize():
             self._work = vec.duplicate()
         work = self._work
+        m = self.local_matrix
         with work.localForm() as loc:
-            loc.array[:] = self.local_transpose @ forces
+            transpose_times(m.indptr, m.indices, m.data, forces, loc.array)
         # this rank's contributions to ghost dofs go to their owners
         work.ghostUpdate(addv=PETSc.InsertMode.ADD, mode=PETSc.ScatterMode.REVERSE)
         vec.axpy(1.0, work)

@@ -96,12 +96,13 @@ def test_compiled_products_equal_scipys_bit_for_bit(case):
     points = particles()
     shape = CosseratShapeMap(space, points)
     rng = np.random.default_rng(11)
-    vecs = []
-    for _ in range(3):
-        _, vec = fill(space, {})
+    # the Functions are kept: a Vec only wraps its Function's memory
+    functions = [fill(space, {}) for _ in range(3)]
+    vecs = [vec for _, vec in functions]
+    for vec in vecs:
         with vec.localForm() as loc:
             loc.array[:] = rng.normal(size=loc.array.size)
-        vecs.append(vec)
+        vec.ghostUpdate(addv=PETSc.InsertMode.INSERT, mode=PETSc.ScatterMode.FORWARD)
     m = shape.local_matrix
     with vecs[0].localForm() as a, vecs[1].localForm() as b, vecs[2].localForm() as c:
         stacked = np.column_stack([a.array_r, b.array_r, c.array_r])
@@ -112,7 +113,7 @@ def test_compiled_products_equal_scipys_bit_for_bit(case):
         three = shape.interpolate(vecs[0], root=0)
         assert np.array_equal(shape.interpolate_translation(vecs[0], root=0), three[:, :2])
     forces = rng.normal(size=(len(points), 3))
-    _, out = fill(space, {})
+    target, out = fill(space, {})
     out.set(0.0)
     shape.add_transpose(forces, out)
     if MPI.COMM_WORLD.size == 1:
@@ -133,10 +134,10 @@ def report(path):
     space = cosserat_space(cell, du, dphi)
     points = particles()
     shape = CosseratShapeMap(space, points)
-    _, vec = fill(space, {"u1": f1, "u2": f2, "phi": lambda x, y: np.sin(x) * np.cos(y)})
+    source, vec = fill(space, {"u1": f1, "u2": f2, "phi": lambda x, y: np.sin(x) * np.cos(y)})
     values = shape.interpolate(vec, root=0)
     forces = np.random.default_rng(5).normal(size=(len(points), 3))
-    _, out = fill(space, {})
+    target, out = fill(space, {})
     out.set(0.0)
     shape.add_transpose(forces, out)
     spaces = component_spaces(space)

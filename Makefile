@@ -136,6 +136,7 @@ benchmark-bsm: benchmark-deps
 	$(PYTHON) benchmarks/bsm/wave.py --out $(BENCH)/bsm_wave
 	$(PYTHON) benchmarks/bsm/footing_fe.py --out $(BENCH)/bsm_footing_fe
 	$(PYTHON) benchmarks/bsm/footing_compare.py --out $(BENCH)/bsm_footing_compare
+	OMP_NUM_THREADS=1 NUMBA_NUM_THREADS=1 $(PYTHON) benchmarks/bsm/footing_compare.py --cases A:003:10 B:003:10 C:003:10 A:003:10:1.0:54 --repeat 4 --out $(BENCH)/bsm_cost
 
 benchmark-identification: benchmark-deps
 	$(PYTHON) benchmarks/identification/identification_sensitivity.py --out $(BENCH)/identification_sensitivity

@@ -232,3 +232,26 @@ def test_bad_path_refused_before_any_step():
     bad[free, 0] = np.inf
     spec.follow_held_path(2, bad, velocity, acceleration)
     assert spec.state.step == step + 2 and np.isfinite(spec.state.position).all()
+
+
+def test_kept_pass_dropped_after_a_neighbour_rebuild():
+    """A neighbour rebuild between forces_now(keep=True) and the next step (here set_plate,
+    which rebuilds the list) replaces the pair arrays: the kept pass is dropped, not copied
+    into arrays of another length, and the run is the one without keep bit for bit."""
+    runs = []
+    for keep in (False, True):
+        spec, held = squeezed(LAW, mass_damping=50.0)
+        rng = np.random.default_rng(7)
+        taken = []
+        take = spec._take_pending_forces
+        spec._take_pending_forces = lambda: taken.append(take()) or taken[-1]
+        for k in range(4):
+            start, velocity, acceleration = path_data(spec, rng)
+            spec.follow_held_path(3, start, velocity, acceleration)
+            spec.forces_now(keep=keep)
+            if k == 1:
+                spec.set_plate(None)
+        runs.append({k: getattr(spec.state, k).copy() for k in ("position", "velocity", "touching", "fs", "fn")})
+        assert taken == ([False] * 4 if not keep else [False, True, False, True])
+    for name in runs[0]:
+        assert np.array_equal(runs[0][name], runs[1][name]), name

@@ -66,7 +66,7 @@ MPI: the DEM lives on rank `root` (0); the continuum is distributed. Grain force
 broadcast, interpolated values reduced to the root (shape_map.py).
 
 The DEM engine is used through the `FineScale` interface (demcell.specimen.Specimen with the
-bridging extensions: follow_held_path, forces_now, disc_forces, set_skip_held_pairs); its state is read through
+bridging extensions: follow_held_path, forces_now, disc_forces, set_skip_held_pairs, load_kernels); its state is read through
 `state.position`, `state.rotation` and `order` (original index of each engine disc).
 """
 import abc
@@ -111,6 +111,10 @@ class FineScale(abc.ABC):
     @abc.abstractmethod
     def disc_forces(self):
         """(n, 3): the same as forces_now, at the start of the last step."""
+
+    @abc.abstractmethod
+    def load_kernels(self):
+        """Load (compile or read from Numba's cache) the step's kernels now, changing nothing."""
 
     @abc.abstractmethod
     def set_skip_held_pairs(self, skip):
@@ -187,7 +191,7 @@ class BridgingCoupler:
             _declare_specimen()
         if self.is_root and not isinstance(fine, FineScale):
             raise InputError("the DEM region's engine must implement bridging.coupler.FineScale "
-                             "(follow_held_path, forces_now, disc_forces, set_skip_held_pairs)")
+                             "(follow_held_path, forces_now, disc_forces, set_skip_held_pairs, load_kernels)")
         if force_time not in ("end", "lagged"):
             raise InputError(f"force_time must be 'end' or 'lagged', got {force_time!r}")
         self.force_time = force_time
@@ -288,6 +292,7 @@ class BridgingCoupler:
         self.shape.add_transpose(np.zeros((self.region.n_discs, 3)), work)
         work.destroy()
         if self.is_root:
+            self.fine.load_kernels()
             none = np.zeros(0, dtype=np.int64)
             set_path_rows(none, interface, self._virtual_position, *self._path)
             forces = self.fine.forces_now()

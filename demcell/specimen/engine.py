@@ -334,7 +334,6 @@ class Specimen:
         self.pair_updates = 0
         self._prepared = None
         self._rebuild()
-        self._load_kernels()
 
     # ------------------------------------------------------------------ neighbours
     def _check_finite(self):
@@ -634,10 +633,11 @@ class Specimen:
         self._prepared = (key, programme, ctrl)
         return programme, ctrl
 
-    def _load_kernels(self):
+    def load_kernels(self):
         """The step kernel called for zero steps and the kept pass's comparisons on equal
-        arrays (nothing changes): Numba loads them from its cache here, in the set-up, rather
-        than inside the first steps a caller times."""
+        arrays (nothing changes): Numba loads them from its cache now. For a caller that times
+        its steps (the footing's loop, the bridging coupler): the loading is then part of its
+        set-up, not of the first steps."""
         prepared = self._prepared
         self._chunk(0, *self._prepare(), clock=False)
         self._prepared = prepared

@@ -180,6 +180,16 @@ class CosseratShapeMap:
         self._translation_rows = np.flatnonzero(np.arange(3 * self.n_particles) % 3 != 2)
         self._work = None
 
+    def _local_arrays(self, vecs, stack):
+        """The local (owned + ghost) values of each Vec over W, read-only, valid inside
+        `stack`; the ghosts refreshed first (on one rank there are none)."""
+        arrays = []
+        for v in vecs:
+            if self.comm.size > 1:
+                v.ghostUpdate(addv=PETSc.InsertMode.INSERT, mode=PETSc.ScatterMode.FORWARD)
+            arrays.append(stack.enter_context(v.localForm()).array_r)
+        return arrays
+
     def local_values(self, vecs):
         """(3 n, len(vecs)): this rank's N x of each Vec over W (row 3 p + c: component c at
         particle p; zero for the particles counted elsewhere), the Vecs' ghosts refreshed
@@ -187,11 +197,7 @@ class CosseratShapeMap:
         m = self.local_matrix
         out = np.empty((m.shape[0], len(vecs)))
         with contextlib.ExitStack() as stack:
-            arrays = []
-            for v in vecs:
-                if self.comm.size > 1:
-                    v.ghostUpdate(addv=PETSc.InsertMode.INSERT, mode=PETSc.ScatterMode.FORWARD)
-                arrays.append(stack.enter_context(v.localForm()).array_r)
+            arrays = self._local_arrays(vecs, stack)
             if len(arrays) == 3:
                 rows_times3(m.indptr, m.indices, m.data, *arrays, out)
             else:
@@ -217,12 +223,11 @@ class CosseratShapeMap:
     def interpolate_translation(self, vec, root=0):
         """(n, 2) values of (u1, u2) at the particles on root (None elsewhere): the first two
         columns of interpolate(vec), without the rotation's products."""
-        if self.comm.size > 1:
-            vec.ghostUpdate(addv=PETSc.InsertMode.INSERT, mode=PETSc.ScatterMode.FORWARD)
         m = self.local_matrix
         local = np.empty(self._translation_rows.size)
-        with vec.localForm() as loc:
-            rows_times(m.indptr, m.indices, m.data, self._translation_rows, loc.array_r, local)
+        with contextlib.ExitStack() as stack:
+            x, = self._local_arrays([vec], stack)
+            rows_times(m.indptr, m.indices, m.data, self._translation_rows, x, local)
         return sum_over_ranks(self.comm, local.reshape(self.n_particles, 2), root)
 
     def add_transpose(self, forces, vec):

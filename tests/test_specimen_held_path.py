@@ -127,36 +127,50 @@ def test_forces_now_are_the_next_steps_forces_and_commit_nothing():
 
 
 
+STATE_ARRAYS = ("position", "velocity", "rotation", "spin", "touching", "sliding", "fn", "fs", "mr",
+                "external_force")
+
+
+def coupled_steps(keep, seed, n_steps, change_at, change):
+    """n_steps coarse steps as the coupler takes them (3 held-path steps, then forces_now(keep))
+    with change(spec) after the step change_at; returns (state arrays, forces of each step,
+    disc_forces, plate reaction, whether each step took a kept pass)."""
+    spec, held = squeezed(LAW, mass_damping=50.0)
+    rng = np.random.default_rng(seed)
+    taken = []
+    take = spec._take_pending_forces
+    spec._take_pending_forces = lambda: taken.append(take()) or taken[-1]
+    forces = []
+    for k in range(n_steps):
+        start, velocity, acceleration = path_data(spec, rng)
+        spec.follow_held_path(3, start, velocity, acceleration)
+        forces.append(spec.forces_now(keep=keep))
+        if k == change_at:
+            change(spec)
+    arrays = {k: getattr(spec.state, k).copy() for k in STATE_ARRAYS}
+    return arrays, forces, spec.disc_forces(), spec.plate_reaction(), taken
+
+
+def assert_same_runs(a, b):
+    for k in a[0]:
+        assert np.array_equal(a[0][k], b[0][k]), k
+    assert all(np.array_equal(x, y) for x, y in zip(a[1], b[1]))
+    assert np.array_equal(a[2], b[2]) and np.array_equal(a[3], b[3])
+
+
 def test_forces_now_kept_for_the_next_step_change_nothing():
     """forces_now(keep=True) (the coupler's end-of-step forces): the next call starts from
     that contact pass instead of repeating it, and the run is the same bit for bit as with
     forces_now() (every state array, the forces, the plate); the pass is dropped when the
     engine changed in between (here a held disc's velocity), and the step then evaluates its
     own forces (still the same run as without keep)."""
-    runs = []
-    for keep in (False, True):
-        spec, held = squeezed(LAW, mass_damping=50.0)
-        rng = np.random.default_rng(5)
-        taken = []
-        take = spec._take_pending_forces
-        spec._take_pending_forces = lambda: taken.append(take()) or taken[-1]
-        forces = []
-        for k in range(6):
-            start, velocity, acceleration = path_data(spec, rng)
-            spec.follow_held_path(3, start, velocity, acceleration)
-            forces.append(spec.forces_now(keep=keep))
-            if k == 3:         # a change between forces_now and the next step drops the kept pass
-                spec.state.velocity[0, 0] += 1e-3
-        st = spec.state
-        runs.append(({k: getattr(st, k).copy() for k in ("position", "velocity", "rotation", "spin", "touching",
-                                                            "sliding", "fn", "fs", "mr", "external_force")},
-                     forces, spec.disc_forces(), spec.plate_reaction()))
-        assert taken == ([False] * 6 if not keep else [False] + [True] * 3 + [False, True])
-    (a, fa, da, pa), (b, fb, db, pb) = runs
-    for k in a:
-        assert np.array_equal(a[k], b[k]), k
-    assert all(np.array_equal(x, y) for x, y in zip(fa, fb))
-    assert np.array_equal(da, db) and np.array_equal(pa, pb)
+    def nudge(spec):
+        spec.state.velocity[0, 0] += 1e-3
+    plain = coupled_steps(False, 5, 6, 3, nudge)
+    kept = coupled_steps(True, 5, 6, 3, nudge)
+    assert plain[4] == [False] * 6
+    assert kept[4] == [False] + [True] * 3 + [False, True]
+    assert_same_runs(plain, kept)
 
 
 def virtual_pair_forces(state, order, is_virtual):
@@ -238,20 +252,10 @@ def test_kept_pass_dropped_after_a_neighbour_rebuild():
     """A neighbour rebuild between forces_now(keep=True) and the next step (here set_plate,
     which rebuilds the list) replaces the pair arrays: the kept pass is dropped, not copied
     into arrays of another length, and the run is the one without keep bit for bit."""
-    runs = []
-    for keep in (False, True):
-        spec, held = squeezed(LAW, mass_damping=50.0)
-        rng = np.random.default_rng(7)
-        taken = []
-        take = spec._take_pending_forces
-        spec._take_pending_forces = lambda: taken.append(take()) or taken[-1]
-        for k in range(4):
-            start, velocity, acceleration = path_data(spec, rng)
-            spec.follow_held_path(3, start, velocity, acceleration)
-            spec.forces_now(keep=keep)
-            if k == 1:
-                spec.set_plate(None)
-        runs.append({k: getattr(spec.state, k).copy() for k in ("position", "velocity", "touching", "fs", "fn")})
-        assert taken == ([False] * 4 if not keep else [False, True, False, True])
-    for name in runs[0]:
-        assert np.array_equal(runs[0][name], runs[1][name]), name
+    def rebuild(spec):
+        spec.set_plate(None)
+    plain = coupled_steps(False, 7, 4, 1, rebuild)
+    kept = coupled_steps(True, 7, 4, 1, rebuild)
+    assert plain[4] == [False] * 4
+    assert kept[4] == [False, True, False, True]
+    assert_same_runs(plain, kept)

@@ -105,6 +105,8 @@ benchmark-femdem: benchmark-deps
 	$(PYTHON) benchmarks/femdem/femdem_batched.py --out $(BENCH)/femdem_batched
 	$(MPIRUN) -n $(NP) $(PYTHON) benchmarks/femdem/femdem_cell_relaxation.py --out $(BENCH)/femdem_cell_relaxation
 	$(PYTHON) benchmarks/femdem/femdem_yade.py --np $(NP) --out $(BENCH)/femdem_yade
+	$(MPIRUN) -n $(NP) $(PYTHON) benchmarks/femdem/femdem_residual_floor.py --out $(BENCH)/femdem_residual_floor
+	$(MPIRUN) -n $(NP) $(PYTHON) benchmarks/femdem/femdem_residual_noise.py --out $(BENCH)/femdem_residual_noise
 
 # particle specimens: throughput, the 004 test and its study, LAMMPS on the same specimen, the
 # full-DEM footing of 003, the tiled-cell DNS against FEM x DEM (000)

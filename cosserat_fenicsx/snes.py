@@ -228,8 +228,9 @@ class NewtonSolver:
             local.array[self._damp_rows] *= self.step_damping
         return True
 
-    def _record_force_ratio(self, b):
-        """FNORM / RNORM of the assembled residual b (before the Dirichlet rows are set)."""
+    def _force_ratio(self, b):
+        """(FNORM / RNORM, RNORM) of the assembled residual b (before the Dirichlet rows are
+        set): the norm at the free dofs over the norm of the reactions. Collective."""
         local = b.array_r
         reactions = float(np.sum(local[self._bc_rows] ** 2))
         free = float(np.sum(local[self._free_rows] ** 2))
@@ -237,9 +238,36 @@ class NewtonSolver:
         free, reactions = comm.allreduce(free), comm.allreduce(reactions)
         # no reaction yet (a step from rest): nothing to compare with, unless nothing is left
         ratio = np.sqrt(free / reactions) if reactions > 0 else (0.0 if free == 0 else np.inf)
-        self._force_ratios.append(float(ratio) if np.isfinite(free) else np.nan)
+        return (float(ratio) if np.isfinite(free) else np.nan), float(np.sqrt(reactions))
+
+    def _record_force_ratio(self, b):
+        ratio = self._force_ratio(b)[0]
+        self._force_ratios.append(ratio)
         if self.accept_rtol is not None and self._residual_calls > 1 and ratio < self._best[0]:
             self._best = (float(ratio), self._x_now.array_r.copy())
+
+    def probe_residual(self, x):
+        """The residual at x without a Newton solve, for measuring it (needs force_rtol):
+        the material is brought to x's state from its committed one, as a Newton iterate's
+        would be, and left there. Returns (r, FNORM/RNORM, RNORM): r the residual at this
+        rank's owned free dofs (a copy), RNORM the norm of the reactions. Collective; a
+        material failure is a RuntimeError on every rank."""
+        if self.force_rtol is None:
+            raise ValueError("probe_residual measures FNORM/RNORM: the solver needs force_rtol")
+        self._failure = ""
+        x.copy(compat.petsc_vector(self.problem.w))
+        self.problem.w.x.scatter_forward()
+        if self._material_step(self.problem.before_residual):
+            raise RuntimeError(f"material update failed: {self._failure}")
+        b = self.b.duplicate()
+        with b.localForm() as local:
+            local.set(0.0)
+        dolfinx.fem.petsc.assemble_vector(b, self.residual_form)
+        b.ghostUpdate(addv=PETSc.InsertMode.ADD, mode=PETSc.ScatterMode.REVERSE)
+        ratio, reactions = self._force_ratio(b)
+        free = b.array_r[self._free_rows].copy()
+        b.destroy()
+        return free, ratio, reactions
 
     def residual(self, snes, x, b):
         """The SNES function callback: b = F(x), the material updated first."""

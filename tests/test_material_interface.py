@@ -805,6 +805,35 @@ def test_force_rtol_displacement_driven_from_rest():
     assert info.iterations >= 1 and info.force_ratios[-1] <= 1e-6
 
 
+def test_probe_residual_repeats_the_solve_and_leaves_the_state():
+    """The residual probed at the converged displacement gives the solve's last FNORM/RNORM
+    bit for bit and the residual of the independent evaluation (force_ratio); probed at a
+    perturbed displacement it moves by about the stiffness times the perturbation (a smooth
+    material), and probing at x again restores x. Without force_rtol it is refused."""
+    problem = scene(QuasiNewton(ELASTIC), plate())
+    solver = NewtonSolver(problem, options=BASIC, force_rtol=1e-4)
+    problem.set_time(1.0)
+    info = solver.solve()
+    assert info.converged
+    x = solver.x.copy()
+    r, ratio, reactions = solver.probe_residual(x)
+    assert ratio == info.force_ratios[-1]
+    assert ratio == pytest.approx(force_ratio(problem, solver), rel=1e-6)
+    assert reactions > 0.0
+    changes = []
+    for delta in (1e-9, 1e-6):
+        xp = x.copy()
+        xp.array[:] *= 1.0 + delta * np.linspace(-1.0, 1.0, xp.array.size)
+        rp = solver.probe_residual(xp)[0]
+        changes.append(np.sqrt(COMM.allreduce(float(np.sum((rp - r) ** 2)))) / reactions)
+    assert 0.0 < changes[0] < 1e-6 and changes[1] == pytest.approx(1e3 * changes[0], rel=1e-2)   # linear in delta
+    r_again, ratio_again, _ = solver.probe_residual(x)
+    assert ratio_again == ratio and np.array_equal(r_again, r)
+    assert np.array_equal(solver.x.array, x.array)
+    with pytest.raises(ValueError, match="force_rtol"):
+        NewtonSolver(problem, options=BASIC).probe_residual(x)
+
+
 @pytest.mark.parametrize("force_rtol", [0.0, -1e-3, float("nan"), float("inf")])
 def test_invalid_force_rtol(force_rtol):
     problem = scene(LinearElasticMaterial(ELASTIC), plate())

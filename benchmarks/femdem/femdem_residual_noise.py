@@ -39,6 +39,7 @@ import time
 import numpy as np
 from mpi4py import MPI
 
+from cosserat_fenicsx.cli import key_value
 from cosserat_fenicsx.scenes.femdem_biaxial import FemDemBiaxial, FemDemSettings, parse_mesh
 from cosserat_fenicsx.stepping import LoadSteppingError
 
@@ -107,16 +108,19 @@ def main():
     p.add_argument("--deltas", type=float, nargs="+", default=[1e-12, 1e-9, 1e-6],
                    help="relative perturbations of the displacement (default %(default)s)")
     p.add_argument("--seed", type=int, default=0, help="seed of the perturbations")
+    p.add_argument("--cell-option", type=key_value, action="append", default=[], metavar="KEY=VALUE",
+                   help="a demcell.RelaxationOptions of the cells, as the demo's (e.g. fixed_steps=1000)")
     a = p.parse_args()
     os.makedirs(a.out, exist_ok=True)
     nx, ny = parse_mesh(a.mesh)
     from cosserat_fenicsx.materials.dem import CellOptions
     settings = FemDemSettings(nx=nx, ny=ny, axial_strain=a.axial_strain, steps=a.steps,
-                              cell=CellOptions(particles=a.particles))
+                              cell=CellOptions(particles=a.particles, extra=dict(a.cell_option)))
     test = FemDemBiaxial(COMM, settings, verbose=False)
     command = (f"mpirun -n {COMM.size} python3 benchmarks/femdem/femdem_residual_noise.py --mesh {a.mesh} "
                f"--axial-strain {a.axial_strain:g} --steps {a.steps} --particles {a.particles} "
-               f"--from-step {a.from_step} --deltas {' '.join(f'{d:g}' for d in a.deltas)} --out DIR")
+               + "".join(f"--cell-option {k}={v} " for k, v in a.cell_option)
+               + f"--from-step {a.from_step} --deltas {' '.join(f'{d:g}' for d in a.deltas)} --out DIR")
     result = {"command": command, "ranks": COMM.size, "rows": [], "load_average_1min": [os.getloadavg()[0]]}
     cpu0, wall0 = time.process_time(), time.perf_counter()
 

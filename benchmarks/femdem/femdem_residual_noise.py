@@ -51,16 +51,15 @@ def norm(values):
 
 
 class NoiseProbe:
-    """The scene's step solver, with the residual probed around every converged step."""
+    """The scene's step solver, with the residual probed at the last iterate of every solve
+    from load step `from_step` on; `on_row(row)` gets each probe's record."""
 
     def __init__(self, solver, test, from_step, deltas, seed, on_row):
         self.solver, self.test, self.from_step = solver, test, from_step
         self.deltas, self.on_row = deltas, on_row
         self.rng = np.random.default_rng([seed, COMM.rank])
-        self.rows = []
 
     def solve(self):
-        newton = self.test.newton
         step = len(self.test.history) + 1
         start = time.perf_counter()
         info = self.solver.solve()
@@ -92,8 +91,8 @@ class NoiseProbe:
                "reevaluated_ratio": ratio, "reevaluated_again_ratio": ratio_again,
                "deterministic": bool(COMM.allreduce(int(np.array_equal(r, r_again)), op=MPI.MIN)),
                "noise": dict(zip((f"{d:g}" for d in self.deltas), noise)),
-               "force_ratios": [float(f) for f in info.force_ratios], "step_wall_s": wall, "probe_wall_s": time.perf_counter() - start}
-        self.rows.append(row)
+               "force_ratios": [float(f) for f in info.force_ratios], "step_wall_s": wall,
+               "probe_wall_s": time.perf_counter() - start}
         self.on_row(row)
 
 

@@ -241,6 +241,7 @@ class NewtonSolver:
         return (float(ratio) if np.isfinite(free) else np.nan), float(np.sqrt(reactions))
 
     def _record_force_ratio(self, b):
+        """FNORM / RNORM of b appended to the solve's history; the best iterate kept."""
         ratio = self._force_ratio(b)[0]
         self._force_ratios.append(ratio)
         if self.accept_rtol is not None and self._residual_calls > 1 and ratio < self._best[0]:

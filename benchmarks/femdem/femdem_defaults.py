@@ -68,6 +68,10 @@ CASES = {
     "fire batched refresh 0.9": ({"extra": FIRE}, "pstlo", True, {"jacobian_refresh": 0.9}),
     "fire fire_dt_max 4 batched": ({"extra": dict(FIRE, fire_dt_max=4.0)}, "pstlo", True),
     "fire fire_dt_max 4 kruyt batched": ({"extra": dict(FIRE, fire_dt_max=4.0)}, "kruyt", True),
+    # cells that do not relax (YADE's way): N DEM steps per solve, the operator rule of the default
+    "fire fixed_steps 300 batched": ({"extra": dict(FIRE, fixed_steps=300)}, "pstlo", True, {"jacobian_refresh": 0.7}),
+    "fire fixed_steps 1000 batched": ({"extra": dict(FIRE, fixed_steps=1000)}, "pstlo", True,
+                                      {"jacobian_refresh": 0.7}),
 }
 REFERENCE = "reference"
 

@@ -7,6 +7,7 @@ steps (at strain_rate 1e-5 an increment of 0.002 is exactly 200 steps): there a 
 of any size changes the ramp by one step, and the residual by about 6e-6 of the reactions
 (the cells' response has such tolerance-sized jumps by construction)."""
 import json
+import pathlib
 import sys
 
 import numpy as np
@@ -17,7 +18,9 @@ from benchmarks.femdem import femdem_residual_noise as noise
 
 @pytest.fixture(scope="module")
 def probed(tmp_path_factory):
-    out = tmp_path_factory.mktemp("noise")
+    from mpi4py import MPI
+    comm = MPI.COMM_WORLD          # one output folder for every rank: rank 0 writes it
+    out = pathlib.Path(comm.bcast(str(tmp_path_factory.mktemp("noise")) if comm.rank == 0 else None))
     argv = sys.argv
     sys.argv = ["femdem_residual_noise.py", "--mesh", "1x1", "--particles", "100", "--axial-strain", "0.00437",
                 "--steps", "2", "--out", str(out)]
@@ -25,6 +28,7 @@ def probed(tmp_path_factory):
         noise.main()
     finally:
         sys.argv = argv
+    comm.Barrier()
     with open(out / "residual_noise.json") as f:
         return json.load(f), out
 

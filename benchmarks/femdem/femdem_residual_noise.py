@@ -14,16 +14,17 @@ steps, the demo's defaults otherwise) and, at every solve from --from-step on, a
 last iterate x (the converged one, before the stepping commits it, or the last of a solve that
 failed, before the step is cut):
 
-1. evaluates the residual again at x (the cells re-solved from the
-   same committed state to the same strains): after a converged solve it must give the step's
-   last FNORM/RNORM bit for bit (a check that the evaluation is deterministic);
+1. evaluates the residual again at x (a point whose strain did not change since its last
+   update keeps its cell as the solve left it): after a converged solve it gives the step's
+   last FNORM/RNORM bit for bit;
 2. evaluates it at x (1 + delta xi) for each --deltas, xi uniform in [-1, 1] per dof (a fixed
    seed), and reports the noise |r(x (1 + delta xi)) - r(x)| / RNORM (the residual at the free
    dofs). For a smooth residual it scales with delta (about 1e-12 x the stiffness ratio at
    delta 1e-12); a residual that is not a function of x at the level of its floor shows the
    same noise at every delta, down to round-off;
-3. evaluates it at x once more (bit for bit the first: column `deterministic`), which leaves
-   the cells in x's state for the commit.
+3. evaluates it at x once more, every perturbed cell now solved again from its committed
+   state: bit for bit the first (column `deterministic`: the residual is a function of x),
+   and the cells are left in x's state for the commit.
 
 The run itself is unchanged by the probes: the same history as without them.
 

@@ -256,8 +256,7 @@ class NewtonSolver:
         if self.force_rtol is None:
             raise ValueError("probe_residual measures FNORM/RNORM: the solver needs force_rtol")
         self._failure = ""
-        x.copy(compat.petsc_vector(self.problem.w))
-        self.problem.w.x.scatter_forward()
+        self._set_fields(x)
         if self._material_step(self.problem.before_residual):
             raise RuntimeError(f"material update failed: {self._failure}")
         b = self.b.duplicate()
@@ -269,6 +268,14 @@ class NewtonSolver:
         free = b.array_r[self._free_rows].copy()
         b.destroy()
         return free, ratio, reactions
+
+    def _set_fields(self, x):
+        """The problem's fields set to the values of x (its ghosts refreshed first)."""
+        x.ghostUpdate(addv=PETSc.InsertMode.INSERT, mode=PETSc.ScatterMode.FORWARD)
+        w = compat.petsc_vector(self.problem.w)
+        if x.handle != w.handle:
+            x.copy(w)
+        self.problem.w.x.scatter_forward()
 
     def residual(self, snes, x, b):
         """The SNES function callback: b = F(x), the material updated first."""
@@ -285,11 +292,7 @@ class NewtonSolver:
                 local.set(np.nan)
             self._force_ratios.append(np.nan)
             return
-        x.ghostUpdate(addv=PETSc.InsertMode.INSERT, mode=PETSc.ScatterMode.FORWARD)
-        w = compat.petsc_vector(self.problem.w)
-        if x.handle != w.handle:
-            x.copy(w)
-        self.problem.w.x.scatter_forward()
+        self._set_fields(x)
         self._x_now = x
         self._residual_calls += 1      # the first one is the committed state: never "best"
         failed = self._material_step(self.problem.before_residual)

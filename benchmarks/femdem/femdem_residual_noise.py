@@ -82,8 +82,8 @@ class NoiseProbe:
             rp = newton.probe_residual(xp)[0]
             noise.append(norm(rp - r) / reactions)
             xp.destroy()
-        r_again, ratio_again, _ = newton.probe_residual(x)    # the cells back in x's state for the commit
-        x.copy(newton.x)
+        # the fields and the cells back in x's state for the commit
+        r_again, ratio_again, _ = newton.probe_residual(x)
         x.destroy()
         row = {"step": step, "time": float(self.test.problem.time), "converged": bool(info.converged),
                "axial_strain": float(self.test.platen_displacement(self.test.problem.time) / self.test.s.height),

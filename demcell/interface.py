@@ -53,13 +53,15 @@ class SolveResult:
     contact left); no_contacts: the cell lost every contact (stress is exactly zero);
     steps: time steps used; substeps: number of sub-steps; message: the cause in words
     (with a warning when overlaps exceed 10 % of a radius); max_overlap_ratio: largest
-    overlap / smaller radius met."""
+    overlap / smaller radius met; capped: sub-steps that RelaxationOptions.relax_cap stopped
+    before they settled (they count as converged)."""
     converged: bool
     no_contacts: bool
     steps: int
     substeps: int
     message: str
     max_overlap_ratio: float = 0.0
+    capped: int = 0
 
 
 class MicroCell(abc.ABC):
@@ -321,15 +323,16 @@ class DemCell(MicroCell):
                 raise InputError(f"stress_target must be a 2x2 array, finite where stress_mask is set, "
                                  f"got {checks.one_line(repr(stress_target))[:80]}")
             stress_target = target
+        capped = 0
         if mask is None:
-            converged, no_contacts, message, substeps, steps, max_ovl = self._solve_to_target(limit, total)
+            converged, no_contacts, message, substeps, steps, max_ovl, capped = self._solve_to_target(limit, total)
             msgs = [] if converged else [message]
         else:
             converged, no_contacts, msgs, substeps, steps, max_ovl = self._servo_solve(mask, stress_target, limit,
                                                                                        total)
         no_contacts, msg = qs.final_words(converged, no_contacts, self.contact_count(), msgs, max_ovl)
         self.last_result = SolveResult(converged=converged, no_contacts=no_contacts, steps=steps,
-                                       substeps=substeps, message=msg, max_overlap_ratio=max_ovl)
+                                       substeps=substeps, message=msg, max_overlap_ratio=max_ovl, capped=capped)
         return self.last_result
 
     def _servo_solve(self, mask, stress_target, limit, total):
@@ -403,7 +406,7 @@ class DemCell(MicroCell):
         if error is not None:
             raise SolveError(error)
         return (converged, no_contacts, message, int(result[slots.R_SUBSTEPS]), int(result[slots.R_STEPS]),
-                float(result[slots.R_MAXOVL]))
+                float(result[slots.R_MAXOVL]), int(result[slots.R_CAPPED]))
 
     def rotation_increment(self, phi, kappa):
         """Size of a change from the current (phi, kappa) to the given ones, measured like a

@@ -38,6 +38,13 @@ class RelaxationOptions:
         convergence test after it; the solve counts as converged. Solves without a servo
         only: a stress-controlled solve (``DemCell.solve(stress_mask=...)``, the isotropic
         stage of the preparation) relaxes to ``tol`` as always
+    relax_cap : None (relax to the criterion; a sub-step that has not settled after max_steps
+        fails), or N <= max_steps: a sub-step that has not settled N DEM steps after its ramp
+        stops there and counts as converged, its grains still moving. A cell that settles within
+        N steps is a relaxed cell, bit for bit; one that does not (past the peak, a cell whose
+        force chains buckle and which falls towards another state) is left where N steps take
+        it, as a fixed-step cell is, and goes on from there at the next solve: a rate limit on
+        the cells' collapse, not on their loading. Solves without a servo only, as fixed_steps
     """
     criterion: str = "energy"
     tol: float = 1e-3
@@ -55,6 +62,7 @@ class RelaxationOptions:
     method: str = "local"
     fire_dt_max: float = 2.0
     fixed_steps: int = None
+    relax_cap: int = None
 
     #: what each numeric option may be (None allowed for dt and max_total_steps: automatic)
     RANGES = {"tol": POSITIVE, "damping": Range(0.0, 1.0, high_open=True),
@@ -62,7 +70,7 @@ class RelaxationOptions:
               "check_every": COUNT, "strain_rate": POSITIVE, "max_increment": POSITIVE, "dt": POSITIVE,
               "dt_safety": Range(0.0, 1.0, low_open=True), "skin_ratio": NON_NEGATIVE, "stress_tol": NON_NEGATIVE,
               "servo_gain": NON_NEGATIVE, "fire_dt_max": Range(1.0),
-              "fixed_steps": Range(1, MAX_BUDGET, integer=True)}
+              "fixed_steps": Range(1, MAX_BUDGET, integer=True), "relax_cap": Range(1, MAX_BUDGET, integer=True)}
 
     def __post_init__(self):
         if self.method not in ("local", "fire"):
@@ -72,10 +80,15 @@ class RelaxationOptions:
                              "(000 eq. 31) or 'force' (unbalanced-force ratio, 001)")
         for name, allowed in self.RANGES.items():
             value = getattr(self, name)
-            if value is None and name in ("dt", "max_total_steps", "fixed_steps"):
+            if value is None and name in ("dt", "max_total_steps", "fixed_steps", "relax_cap"):
                 continue
             # frozen: the checked value (an int for the step counts) replaces the given one
             object.__setattr__(self, name, allowed.check(f"RelaxationOptions.{name}", value))
+        if self.relax_cap is not None and self.fixed_steps is not None:
+            raise InputError("relax_cap and fixed_steps exclude each other: a fixed-step cell does not relax")
+        if self.relax_cap is not None and self.relax_cap > self.max_steps:
+            raise InputError(f"relax_cap = {self.relax_cap} exceeds max_steps = {self.max_steps}: a sub-step "
+                             "would fail on max_steps before it reached the cap")
 
     @property
     def solve_budget(self):
@@ -89,6 +102,11 @@ class RelaxationOptions:
     def fixed(self):
         """True when a solve takes exactly ``fixed_steps`` DEM steps and does not relax."""
         return self.fixed_steps is not None
+
+    @property
+    def capped(self):
+        """True when a sub-step's relaxation stops after ``relax_cap`` DEM steps, settled or not."""
+        return self.relax_cap is not None
 
     @property
     def criterion_code(self):

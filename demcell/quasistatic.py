@@ -13,6 +13,11 @@ does: the ramps of its sub-steps take N DEM steps together (``ramp_steps``) and 
 relaxes after them (no convergence test, no relaxation budget); the solve counts as converged
 once its ramps are done.
 
+With ``RelaxationOptions.relax_cap`` = N a sub-step relaxes as usual but stops N DEM steps
+after its ramp if it has not settled by then, and counts as converged (``R_CAPPED`` counts
+such sub-steps): cells that settle are the relaxed cells, bit for bit; a cell falling
+towards another state past the peak goes on falling at the next solve.
+
 When a cell's pair arrays are full, ``solve_cell`` returns ``NEED_CAPACITY`` with its
 progress in ``work`` / ``iwork``; the caller enlarges the pair arrays and calls it again, and
 it resumes where it stopped (as relaxation.run does for one ramp).
@@ -28,8 +33,8 @@ from .slots import (C_ALPHA, C_DT, C_DTMAX, C_GAIN, C_KAP, C_KAP_END, C_KAP_STAR
                     C_PHI_END, C_PHI_START, C_SKIN, C_STOL, C_TIME, C_TOL, IW_INRUN, IW_IPAR, IW_K, IW_NSUB,
                     IW_REMAIN, IW_STAGE, I_CHECK, I_CRIT, I_FCUR, I_KRAMP, I_MAXSTEPS, I_NPAIRS, I_NRAMP, NO_CHECK,
                     N_CTRL, N_IPAR, N_OPTS, N_OUT, O_BONDLOST, O_EKIN, O_EPOT, O_MAXOVL, O_REBUILDS, O_STEPS,
-                    O_UNBAL, Q_CHECK, Q_CRIT, Q_DAMP, Q_FIREDT, Q_FIXED, Q_GAIN, Q_LIMIT, Q_MAXINC, Q_METHOD, Q_RATE,
-                    Q_SKIN, Q_STOL, Q_TOL, Q_TOTAL, ROTATIONS, R_BUDGET, R_CONVERGED, R_EKIN, R_EPOT,
+                    O_UNBAL, Q_CHECK, Q_CRIT, Q_DAMP, Q_CAP, Q_FIREDT, Q_FIXED, Q_GAIN, Q_LIMIT, Q_MAXINC, Q_METHOD, Q_RATE,
+                    Q_SKIN, Q_STOL, Q_TOL, Q_TOTAL, ROTATIONS, R_BUDGET, R_CAPPED, R_CONVERGED, R_EKIN, R_EPOT,
                     R_FAILED_STATUS, R_FAILED_STEPS, R_FAILED_SUB, R_MAXOVL, R_NOCONTACT, R_REBUILDS, R_STEPS,
                     R_SUBSTEPS, R_UNBAL, T_F, T_KAP, T_PHI, W_CTRL, W_FEND, W_FSTART, W_GEO, W_KAP0, W_OUT, W_PHI0,
                     W_TOTAL)
@@ -77,6 +82,8 @@ def solve_cell(radius, mass, inertia, s, v, theta, omega, dtheta, force, moment,
     ipar = iwork[IW_IPAR:IW_IPAR + N_IPAR]
     max_inc = opts[Q_MAXINC]
     fixed = opts[Q_FIXED] > 0.0
+    # a cap above the sub-step budget would never be reached: the budget fails the sub-step first
+    cap = int(opts[Q_CAP]) if 0 < opts[Q_CAP] <= opts[Q_LIMIT] else 0
     if iwork[IW_STAGE] == 0:
         # the path (DemCell.solve; micropolar: refined until phi and kappa also change by at
         # most max_increment per sub-step, DemCell._micropolar_path)
@@ -170,7 +177,7 @@ def solve_cell(radius, mass, inertia, s, v, theta, omega, dtheta, force, moment,
             out[:] = 0.0
             total[:] = 0.0
             # this sub-step's steps: its ramp and its relaxation budget, no more than the solve has left
-            remain = n_ramp + (0 if fixed else int(opts[Q_LIMIT]))
+            remain = n_ramp + (0 if fixed else (cap if cap > 0 else int(opts[Q_LIMIT])))
             left = opts[Q_TOTAL] - result[R_STEPS]
             if left < remain:
                 remain = max(0, int(left))
@@ -202,6 +209,11 @@ def solve_cell(radius, mass, inertia, s, v, theta, omega, dtheta, force, moment,
             return NEED_CAPACITY
         if fixed and status == MAX_STEPS and ipar[I_KRAMP] >= ipar[I_NRAMP]:
             status = CONVERGED      # the ramp is done: a fixed-step solve does not relax
+        elif (cap > 0 and status == MAX_STEPS and ipar[I_KRAMP] >= ipar[I_NRAMP]
+              and result[R_STEPS] + total[O_STEPS] < opts[Q_TOTAL]):
+            # the cap, not the solve's budget, stopped the relaxation
+            status = CONVERGED
+            result[R_CAPPED] += 1.0
         iwork[IW_INRUN] = 0
         iwork[IW_K] = k + 1
         cellf[0] = ctrl[C_TIME]
@@ -248,6 +260,7 @@ def solve_options(options, skin, max_steps, total_steps=None):
     q[Q_STOL], q[Q_GAIN] = options.stress_tol, options.servo_gain
     q[Q_TOTAL] = options.solve_budget if total_steps is None else total_steps
     q[Q_FIXED] = options.fixed_steps if options.fixed else 0
+    q[Q_CAP] = options.relax_cap if options.capped else 0
     return q
 
 

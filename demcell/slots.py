@@ -75,6 +75,8 @@ opts (float64, N_OPTS): options of quasistatic.solve_cell (``quasistatic.solve_o
     Q_GAIN      servo gain [-]
     Q_TOTAL     steps of the whole solve, ramps included
     Q_FIXED     DEM steps of a solve that does not relax (RelaxationOptions.fixed_steps; 0: relax)
+    Q_CAP       DEM steps after which a sub-step's relaxation stops and counts as converged
+                (RelaxationOptions.relax_cap; 0: none)
 
 target (float64, N_TARGET): where quasistatic.solve_cell takes the cell
     T_F         4 slots: F (11, 12, 21, 22) [-]
@@ -92,6 +94,7 @@ result (float64, N_RESULT): what quasistatic.solve_cell reports
     R_EKIN, R_EPOT, R_UNBAL   of the failed sub-step [J/m, J/m, -]
     R_REBUILDS  neighbour-list rebuilds
     R_BUDGET    the solve's step budget when it ran out, else 0
+    R_CAPPED    sub-steps stopped by relax_cap before they settled
 
 work (float64, N_WORK) and iwork (int64, N_IWORK): progress of quasistatic.solve_cell, so
 that a call stopped for larger pair arrays resumes
@@ -162,13 +165,13 @@ N_OUT = 15
 
 # --- quasistatic.solve_cell: opts, target, result, work, iwork ------------------------------------
 (Q_MAXINC, Q_RATE, Q_TOL, Q_CHECK, Q_DAMP, Q_SKIN, Q_METHOD, Q_FIREDT, Q_CRIT, Q_LIMIT,
- Q_STOL, Q_GAIN, Q_TOTAL, Q_FIXED) = range(14)
-N_OPTS = 14
+ Q_STOL, Q_GAIN, Q_TOTAL, Q_FIXED, Q_CAP) = range(15)
+N_OPTS = 15
 T_F, T_PHI, T_KAP = 0, 4, 5
 N_TARGET = 7
 (R_STEPS, R_SUBSTEPS, R_CONVERGED, R_NOCONTACT, R_MAXOVL, R_FAILED_SUB, R_FAILED_STATUS,
- R_FAILED_STEPS, R_EKIN, R_EPOT, R_UNBAL, R_REBUILDS, R_BUDGET) = range(13)
-N_RESULT = 13
+ R_FAILED_STEPS, R_EKIN, R_EPOT, R_UNBAL, R_REBUILDS, R_BUDGET, R_CAPPED) = range(14)
+N_RESULT = 14
 W_GEO = 0
 W_PHI0, W_KAP0 = 10, 11
 W_FSTART, W_FEND = 13, 17

@@ -1,7 +1,7 @@
 """demcell.gpu.DeviceCellBatch against demcell.batch.CellBatch, in Numba's CUDA simulator
 (NUMBA_ENABLE_CUDASIM=1, set by conftest.py; no GPU needed): the same cells solved on the
 "device" must give every bit of every state array, result row, homogenised output and Kruyt
-operator of the CPU batch, for fixed steps and full solves, through sub-steps, neighbour
+operator of the CPU batch, for fixed steps, full solves and solves stopped by relax_cap, through sub-steps, neighbour
 rebuilds, the growth of full pair slots, lattice reduction, commit and rollback, in the
 three rotation modes of FEM x DEM cells (free, locked, micropolar), with FIRE and with the
 general contact law (rolling resistance, dashpots, bonds), and for DEMQO's frozen copies.
@@ -120,6 +120,18 @@ def test_fixed_steps_in_each_rotation_mode(packing, mode):
     same_cells(cpu, gpu, rows)
     for k in rows:
         assert cpu.outcome(k, res[k]) == gpu.outcome(k, res[k])
+
+
+def test_relax_cap_through_substeps(packing):
+    """Relaxations stopped by relax_cap count as converged and the next sub-step follows, on
+    the device as on the CPU (R_CAPPED included)."""
+    cells = make_cells(packing, "free", method="fire", relax_cap=20)
+    cpu, gpu = both(cells)
+    rows = np.arange(len(cells))
+    res = solve_both(cpu, gpu, rows, targets(len(cells), 1.2e-2))        # two sub-steps (max_increment 0.01)
+    assert (res[:, slots.R_CONVERGED] == 1).all() and (res[:, slots.R_SUBSTEPS] >= 2).all()
+    assert (res[:, slots.R_CAPPED] >= 1).all()
+    same_cells(cpu, gpu, rows)
 
 
 def test_full_solves_substeps_growth_commit_rollback(packing):

@@ -14,10 +14,10 @@ from numba import config, cuda, float64, int64
 
 from ..slots import (C_ALPHA, C_DT, C_DTMAX, C_GAIN, C_KAP, C_KAP_END, C_KAP_START, C_MAXRATE, C_METHOD, C_PHI,
                      C_PHI_END, C_PHI_START, C_SKIN, C_STOL, C_TIME, C_TOL, FCUR, H, HB, HREF, IW_INRUN, IW_IPAR,
-                     IW_K, IW_NSUB, IW_REMAIN, IW_STAGE, I_CHECK, I_CRIT, I_FCUR, I_MAXSTEPS, I_NPAIRS, I_NRAMP, KAP,
+                     IW_K, IW_NSUB, IW_REMAIN, IW_STAGE, I_CHECK, I_CRIT, I_FCUR, I_KRAMP, I_MAXSTEPS, I_NPAIRS, I_NRAMP, KAP,
                      NPAIRS, N_CTRL, N_IPAR, N_OUT, N_SC, N_SI, O_BONDLOST, O_EKIN, O_EPOT, O_MAXOVL, O_REBUILDS,
-                     O_STEPS, O_UNBAL, PHI, Q_CHECK, Q_CRIT, Q_DAMP, Q_FIREDT, Q_GAIN, Q_LIMIT, Q_MAXINC, Q_METHOD,
-                     Q_RATE, Q_SKIN, Q_STOL, Q_TOL, Q_TOTAL, ROTATIONS, R_BUDGET, R_CONVERGED, R_EKIN, R_EPOT,
+                     O_STEPS, O_UNBAL, PHI, Q_CAP, Q_CHECK, Q_CRIT, Q_DAMP, Q_FIREDT, Q_GAIN, Q_LIMIT, Q_MAXINC, Q_METHOD,
+                     Q_RATE, Q_SKIN, Q_STOL, Q_TOL, Q_TOTAL, ROTATIONS, R_BUDGET, R_CAPPED, R_CONVERGED, R_EKIN, R_EPOT,
                      R_FAILED_STATUS, R_FAILED_STEPS, R_FAILED_SUB, R_MAXOVL, R_NOCONTACT, R_REBUILDS, R_STEPS,
                      R_SUBSTEPS, R_UNBAL, TIME, T_F, T_KAP, T_PHI, W_CTRL, W_FEND, W_FSTART, W_GEO, W_KAP0, W_OUT,
                      W_PHI0, W_TOTAL)
@@ -150,7 +150,7 @@ def start_substep(c, micropolar, k, n, pf, p0, n_particles, cf, ci, target, dt, 
         wk[W_OUT + m] = 0.0
         wk[W_TOTAL + m] = 0.0
     # this sub-step's steps: its ramp and its relaxation budget, no more than the solve has left
-    remain = n_ramp + int(opts[c, Q_LIMIT])
+    remain = n_ramp + int(relaxation_budget(opts[c, Q_CAP], opts[c, Q_LIMIT]))
     left = opts[c, Q_TOTAL] - res[R_STEPS]
     if left < remain:
         remain = max(0, int(left))
@@ -163,8 +163,16 @@ def start_substep(c, micropolar, k, n, pf, p0, n_particles, cf, ci, target, dt, 
 
 
 @cuda.jit(device=True)
-def end_substep(c, k, status, budget, cf, ci, wk, iw, res):
-    """solve_cell's bookkeeping after relaxation.advance (one thread)."""
+def relaxation_budget(cap, limit):
+    """DEM steps a sub-step may relax after its ramp: the cap (RelaxationOptions.relax_cap)
+    where one is set and reachable, else the sub-step budget (quasistatic.solve_cell)."""
+    return cap if 0.0 < cap <= limit else limit
+
+
+@cuda.jit(device=True)
+def end_substep(c, k, status, budget, capped, cf, ci, wk, iw, res):
+    """solve_cell's bookkeeping after relaxation.advance (one thread); capped: the sub-step's
+    relaxation was bounded by relax_cap."""
     ctrl = wk[W_CTRL:W_CTRL + N_CTRL]
     out = wk[W_OUT:W_OUT + N_OUT]
     total = wk[W_TOTAL:W_TOTAL + N_OUT]
@@ -179,6 +187,10 @@ def end_substep(c, k, status, budget, cf, ci, wk, iw, res):
     ci[c, FCUR] = ipar[I_FCUR]
     if status == NEED_CAPACITY:
         return
+    if capped and status == MAX_STEPS and ipar[I_KRAMP] >= ipar[I_NRAMP] and res[R_STEPS] + total[O_STEPS] < budget:
+        # the cap, not the solve's budget, stopped the relaxation
+        status = CONVERGED
+        res[R_CAPPED] += 1.0
     iw[IW_INRUN] = 0
     iw[IW_K] = k + 1
     cf[c, TIME] = ctrl[C_TIME]
@@ -255,8 +267,10 @@ def solve_rows(blocks, rows, p_off, q_off, b_off, pf, qf, qi, qb, cf, ci, law, d
                          wk[W_CTRL:W_CTRL + N_CTRL], iw[IW_IPAR:IW_IPAR + N_IPAR], wk[W_OUT:W_OUT + N_OUT],
                          wk[W_FSTART:W_FSTART + 8], part, shr, shi, shf, sc, si)
         if t == 0:
-            end_substep(c, k, status, opts[c, Q_TOTAL], cf, ci, wk, iw, res)
+            end_substep(c, k, status, opts[c, Q_TOTAL], 0.0 < opts[c, Q_CAP] <= opts[c, Q_LIMIT], cf, ci, wk, iw, res)
         cuda.syncthreads()
+        if status == MAX_STEPS and res[R_CONVERGED] > 0.5:
+            status = CONVERGED        # stopped by relax_cap (end_substep): the next sub-step follows
         if status == NEED_CAPACITY:
             break
         if status != CONVERGED and status != NO_CONTACTS:

@@ -183,11 +183,13 @@ def number(allowed=ANY, **range_kwargs):
 
 
 def key_value(text):
-    """argparse `type` of a KEY=VALUE option: (key, value) with the value an int, a float or
-    the string as typed (which option names a key is checked by whoever takes it)."""
+    """argparse `type` of a KEY=VALUE option: (key, value) with the value None (none), an int,
+    a float or the string as typed (which option names a key is checked by whoever takes it)."""
     key, sep, raw = text.partition("=")
     if not sep or not key.isidentifier() or not raw:
         raise argparse.ArgumentTypeError(f"expected KEY=VALUE, got {text!r}")
+    if raw.lower() == "none":
+        return key, None
     for kind in (int, float):
         try:
             return key, kind(raw)

@@ -10,8 +10,10 @@ equilibrium (000 section 3.2.1) and its homogenized Cauchy stress (001 eq. 8) is
 the point. The cell is the one of demos/dem_cell.py (000 Table 3: 228 discs, mu = 0.4,
 kn = 1e4 N/m, ks = 2e3 N/m, tolerance 1e-3; p0 = 10 N/m, see the note on the pressure there),
 prepared by the same isotropic stage; the same --particles N --seed S give the same packing
-(the cells relax by FIRE to the unbalanced-force ratio 1e-3 of 001 by default, see --criterion and
---cell-option; batched, see --no-batched: docs/results/femdem.md, "Default cells").
+(the cells relax by FIRE to the unbalanced-force ratio 1e-3 of 001 by default, or for at most 500
+DEM steps after their loading ramp, see --criterion and --cell-option; batched, see --no-batched:
+docs/results/femdem.md, "Default cells"; docs/reference/femdem.md, "Past the peak: a cap on the
+cells' relaxation").
 
 1. Isotropic compression: the preparation of the cell, so every Gauss point starts at F = I
    with sigma = -p0 I; one macro step applies p0 to the lateral faces and checks equilibrium.
@@ -36,7 +38,8 @@ friction) triggers a band.
 Outputs in --out, written as the run goes: history.csv (axial_strain, stress_ratio = mean
 over the Gauss points of |s11 - s22| / |s11 + s22| (000 eq. 40, Fig. 4), volumetric_strain,
 coordination_number, anisotropy (000 Fig. 5), vertical_reaction [N/m], Newton iterations,
-DEM steps), gauss_points.csv (the stress ratio of every Gauss point per step, 000 Fig. 6),
+DEM steps, capped_solves: the cell solves that relax_cap stopped before they settled),
+gauss_points.csv (the stress ratio of every Gauss point per step, 000 Fig. 6),
 fields.xdmf (displacement, rotation, stress, couple_stress and per cell coordination_number,
 anisotropy, sliding_fraction, stress_ratio, equivalent_strain and
 incremental_equivalent_strain (000 Fig. 7), dem_steps); at the end snapshots/ (particles and
@@ -135,7 +138,8 @@ cli.add_settings(g, CellOptions, CELL)
 g.add_argument("--cell-option", type=cli.key_value, action="append", default=[], metavar="KEY=VALUE",
                help="a further demcell.RelaxationOptions of the cells, e.g. method=local (local damping instead "
                     "of the default FIRE), dt_safety=0.5, fixed_steps=100 (YADE's way: N DEM steps per solve, no "
-                    "relaxation) (repeat for more; docs/reference/femdem.md, 'The cells' relaxation')")
+                    "relaxation), relax_cap=none (FIRE relaxations not stopped after the default 500 steps) "
+                    "(repeat for more; docs/reference/femdem.md, 'The cells' relaxation')")
 g = parser.add_argument_group("coupling")
 cli.add_settings(g, FemDemSettings, COUPLING)
 g.add_argument("--retry-damping", type=RetryDamping(), default=DEFAULT_RETRY_DAMPING,
@@ -279,6 +283,7 @@ summary = {
     "dem_steps_total": float(sum(r["dem_steps"] for r in test.history)),
     "cell_tangents_total": comm.allreduce(test.point_tangents()),
     "cell_solves_redone_with_local_damping": comm.allreduce(test.cell_solves_redone()),
+    "cell_solves_capped": comm.allreduce(test.cell_solves_capped()),
     "operator_rule": list(settings.jacobian_rule()),
     "steps": len(test.history), "cut_backs": test.stepper.cuts,
     "cell_preparation_time": test.preparation_time, "ranks": comm.size,

@@ -1,8 +1,9 @@
 """The FEM x DEM defaults are the documented ones (docs/reference/femdem.md, "The cells'
 relaxation"; chosen by benchmarks/femdem/femdem_defaults.py, docs/results/femdem.md "Default
 cells"): the demo run as a user runs it gets FIRE cells relaxed to an unbalanced-force ratio of
-1e-3, batched, with the pstlo operator kept while each Newton iteration gains at least 30 %, and
-the settings before them stay reachable by options."""
+1e-3 or for at most 500 DEM steps after their ramp, batched, with the pstlo operator kept while
+each Newton iteration gains at least 30 %, and the settings before them stay reachable by
+options."""
 import json
 
 import pytest
@@ -11,7 +12,7 @@ pytestmark = pytest.mark.serial
 
 #: what docs/reference/femdem.md states
 DOCUMENTED = {"method": "fire", "criterion": "force", "tol": 1e-3, "dt_safety": 0.25, "fire_dt_max": 2.0,
-              "strain_rate": 1e-5, "damping": 0.7, "fixed_steps": None}
+              "strain_rate": 1e-5, "damping": 0.7, "fixed_steps": None, "relax_cap": 500}
 SMALL = ("--mesh", "1x1", "--particles", 20, "--axial-strain", 0.001, "--steps", 1)
 
 
@@ -40,8 +41,21 @@ def test_the_demo_runs_the_documented_cells_and_the_old_ones_on_request(demo, tm
          "--out", tmp_path / "old")
     relaxation, tangent, batched, lag = ran_with(tmp_path / "old")
     assert relaxation["method"] == "local" and batched is False and lag == ["lag", 1]
-    assert {k: relaxation[k] for k in DOCUMENTED if k != "method"} == {k: v for k, v in DOCUMENTED.items()
-                                                                       if k != "method"}
+    assert relaxation["relax_cap"] is None           # the cap belongs to the FIRE default
+    assert {k: relaxation[k] for k in DOCUMENTED if k not in ("method", "relax_cap")} == {
+        k: v for k, v in DOCUMENTED.items() if k not in ("method", "relax_cap")}
+
+
+@pytest.mark.parametrize("extra, cap", [({}, 500), ({"method": "fire"}, 500), ({"relax_cap": None}, None),
+                                        ({"relax_cap": 2000}, 2000), ({"method": "local"}, None),
+                                        ({"fixed_steps": 300}, None), ({"method": "local", "relax_cap": 3000}, 3000)])
+def test_the_default_cap_belongs_to_the_fire_relaxation(extra, cap):
+    from cosserat_fenicsx.materials.dem import CellOptions
+    assert CellOptions(extra=extra).relaxation().relax_cap == cap
+    assert CellOptions(extra=extra, micro_bc="frame").relaxation().relax_cap == extra.get("relax_cap")
+    # a step budget below the cap lowers the default cap with it
+    if not extra:
+        assert CellOptions(max_steps=300).relaxation().relax_cap == 300
 
 
 @pytest.mark.parametrize("kept", [(), ("--jacobian-lag", 2), ("--jacobian-refresh", 0.9)])

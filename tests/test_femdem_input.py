@@ -105,6 +105,11 @@ CASES = [   # (id, args, pattern the error line must match)
     ("cell-option-check-every", ["--cell-option", "check_every=0"], r"check_every must be an integer >= 1"),
     ("cell-option-fixed-steps-zero", ["--cell-option", "fixed_steps=0"], r"fixed_steps must be an integer in \[1"),
     ("cell-option-fixed-steps-fraction", ["--cell-option", "fixed_steps=2.5"], r"fixed_steps must be an integer"),
+    ("cell-option-relax-cap-zero", ["--cell-option", "relax_cap=0"], r"relax_cap must be an integer in \[1"),
+    ("cell-option-relax-cap-and-fixed", ["--cell-option", "relax_cap=100", "--cell-option", "fixed_steps=100"],
+     r"relax_cap and fixed_steps exclude each other"),
+    ("cell-option-relax-cap-over-budget", ["--cell-option", "relax_cap=5000", "--max-dem-steps", 1000],
+     r"relax_cap = 5000 exceeds max_steps = 1000"),
 ]
 
 

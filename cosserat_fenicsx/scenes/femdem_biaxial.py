@@ -338,6 +338,7 @@ class FemDemBiaxial(PlatenTest):
         cb = self.problem.gauss_points     # fluxes sigma = -p0 I before any solve (initial_fluxes)
         self.gradients_start = np.zeros_like(cb.gradients)       # phase 2 starts at u = 0
         self.gradients_previous = np.zeros_like(cb.gradients)
+        self.capped_reported = 0         # cell solves stopped by relax_cap, all ranks, up to the last row
 
     # --- loading ---------------------------------------------------------------------
     def platen_displacement(self, t):
@@ -423,6 +424,11 @@ class FemDemBiaxial(PlatenTest):
                "dem_steps": comm.allreduce(float(cb.step_cost.sum())),
                "points_without_contacts": comm.allreduce(int(np.count_nonzero(status == 1))),
                "cuts": record.cuts, "wall_time": record.wall_time}
+        # the step's cell solves that the cells' relax_cap stopped before they settled (failed
+        # attempts of the step included)
+        capped = comm.allreduce(self.cell_solves_capped())
+        row["capped_solves"] = capped - self.capped_reported
+        self.capped_reported = capped
         return row
 
     # --- checkpoint and restart (checkpoint.py) ------------------------------------------
@@ -449,6 +455,10 @@ class FemDemBiaxial(PlatenTest):
     def cell_solves_redone(self):
         """Cell solves on this rank that FIRE did not settle and local damping did again."""
         return self.material.counters.get("cell_solves_redone", 0)
+
+    def cell_solves_capped(self):
+        """Cell solves on this rank that the cells' relax_cap stopped before they settled."""
+        return self.material.counters.get("cell_solves_capped", 0)
 
     def point_tangents(self):
         """Cell operators built on this rank so far (one per Gauss point and Jacobian)."""

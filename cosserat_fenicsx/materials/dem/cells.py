@@ -58,6 +58,14 @@ MICRO_BCS = ("periodic", "frame")
 #: the quasi-static answer as closely as local damping does, at about half the DEM steps
 #: (benchmarks/femdem/femdem_defaults.py, docs/results/femdem.md "Default cells")
 RELAXATION = {"method": "fire", "damping": 0.7}
+#: ... and a FIRE relaxation stops 500 DEM steps after its ramp, settled or not
+#: (demcell.RelaxationOptions.relax_cap): before the peak the cells settle sooner and the run is the
+#: relaxed one bit for bit; past it the cells of a band that fall towards another state are left
+#: where 500 steps take them, which keeps the residual a function of the displacement and lets
+#: the runs go through their softening (docs/reference/femdem.md, "Past the peak: a cap on the
+#: cells' relaxation"). Cells relaxed otherwise (local damping, fixed_steps, frame cells) get no
+#: default cap
+RELAX_CAP = 500
 #: ... and of frame cells (micro_bc 'frame'): local damping, as 000 section 3.2.1 (demcell.frame)
 FRAME_RELAXATION = {"method": "local", "damping": 0.7}
 #: a target initial fabric anisotropy A0 = Phi_1 / Phi_2 - 1 (000 eq. 38)
@@ -159,7 +167,12 @@ class CellOptions:
 
     def relaxation(self):
         import demcell as dc
-        base = FRAME_RELAXATION if self.micro_bc == "frame" else RELAXATION
+        if self.micro_bc == "frame":
+            base = FRAME_RELAXATION
+        elif self.extra.get("method", RELAXATION["method"]) == "fire" and self.extra.get("fixed_steps") is None:
+            base = dict(RELAXATION, relax_cap=min(RELAX_CAP, self.max_steps))
+        else:
+            base = RELAXATION
         return dc.RelaxationOptions.from_kwargs(**dict(dict(base, tol=self.relaxation_tol, criterion=self.criterion,
                                                             max_steps=self.max_steps), **self.extra))
 

@@ -238,8 +238,9 @@ class DemMaterial(Constitutive):
     @property
     def counters(self):
         """cell_solves_redone: FIRE cell solves of this rank that did not settle and were
-        solved again with local damping (stores.PointCells.solves_redone)."""
-        return {"cell_solves_redone": self.store.solves_redone}
+        solved again with local damping (stores.PointCells.solves_redone); cell_solves_capped:
+        cell solves that the cells' relax_cap stopped before they settled."""
+        return {"cell_solves_redone": self.store.solves_redone, "cell_solves_capped": self.store.solves_capped}
 
     def memory_bytes(self):
         """Bytes held by the cells of this rank (current and committed states)."""

@@ -52,6 +52,8 @@ class PointCells(abc.ABC):
         # FIRE cell solves that did not settle and were done again with local damping (see
         # BatchedCells._relax_unjammed)
         self.solves_redone = 0
+        # cell solves that RelaxationOptions.relax_cap stopped before they settled
+        self.solves_capped = 0
 
     @property
     @abc.abstractmethod
@@ -142,6 +144,7 @@ class CellList(PointCells):
             result = cell.solve()
             if not result.converged and cell.options.method == "fire":
                 result = self._relax_unjammed(cell, gradients, result)
+            self.solves_capped += result.capped > 0
         except dc.SolveError as error:
             return STATUS_BROKEN, f"micro solve failed: {error}", 0
         if result.no_contacts:
@@ -257,6 +260,7 @@ class BatchedCells(PointCells):
         batch.set_targets(rows, *targets)
         result = batch.solve(rows)
         self._relax_unjammed(rows, result, *targets)
+        self.solves_capped += int(np.count_nonzero(result[:, slots.R_CAPPED] > 0.5))
         timers["solve"] += time.perf_counter() - start
         start = time.perf_counter()
         steps = result[:, slots.R_STEPS].astype(int)

@@ -215,7 +215,8 @@ run.fields(test.cell_fields())
 history = run.log("history.csv", ["step", "time", "phase", "axial_strain", "stress_ratio", "volumetric_strain",
                                   "coordination_number", "anisotropy", "sliding_fraction", "vertical_reaction",
                                   "vertical_stress", "mean_sigma11", "mean_sigma22", "newton_iterations",
-                                  "force_ratio", "accepted", "fallback", "damped", "dem_steps", "points_without_contacts", "cuts",
+                                  "force_ratio", "accepted", "fallback", "damped", "dem_steps", "capped_solves",
+                                  "points_without_contacts", "cuts",
                                   "wall_time"])
 gauss_log = run.log("gauss_points.csv", ["step", "axial_strain", "point", "x", "y", "stress_ratio"])
 

@@ -36,6 +36,10 @@ def test_the_demo_runs_the_documented_cells_and_the_old_ones_on_request(demo, tm
     relaxation, tangent, batched, lag = ran_with(tmp_path / "default")
     assert {k: relaxation[k] for k in DOCUMENTED} == DOCUMENTED
     assert tangent == "pstlo" and batched is True and lag == ["refresh", 0.7]
+    # the capped solves are counted per step and in all (none in this small pre-peak step)
+    header = (tmp_path / "default" / "history.csv").read_text().splitlines()[0].split(",")
+    summary = json.loads((tmp_path / "default" / "summary.json").read_text())
+    assert "capped_solves" in header and summary["cell_solves_capped"] == 0
     # the defaults before: local damping, one cell at a time, an operator at every iteration
     demo("femdem_biaxial", *SMALL, "--cell-option", "method=local", "--no-batched", "--jacobian-lag", 1,
          "--out", tmp_path / "old")

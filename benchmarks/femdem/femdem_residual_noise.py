@@ -31,6 +31,10 @@ The run itself is unchanged by the probes: the same history as without them.
 Writes OUT/residual_noise.json, OUT/residual_noise.md and OUT/residual_noise.png as it goes.
 
     mpirun -n 2 python3 benchmarks/femdem/femdem_residual_noise.py --out DIR
+    mpirun -n 2 python3 benchmarks/femdem/femdem_residual_noise.py --cell-option relax_cap=none --out DIR
+
+The defaults' cells stop a relaxation 500 DEM steps after its ramp (relax_cap); the second
+command measures cells relaxed to the criterion, whose residual stalls the run at 4.54 %.
 """
 import argparse
 import json

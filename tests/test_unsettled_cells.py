@@ -1,6 +1,7 @@
 """FIRE cells that do not settle are solved again from the committed state with local damping
 (materials/dem/stores.py, PointCells.solves_redone; docs/reference/femdem.md, "Past the
-peak: cells that FIRE does not settle")."""
+peak: cells that FIRE does not settle"). That happens to cells relaxed to the criterion
+(relax_cap=none); with the default cap the same cell stops after 500 steps, counted as capped."""
 import numpy as np
 import pytest
 
@@ -24,8 +25,8 @@ def unsettled():
     """A 60-disc cell (seed 1, friction 0.4) committed after 23 steps of the path: FIRE does
     not settle it at step 24 within its 2e5 steps (it cycles at an unbalanced-force ratio of
     about 1.6); local damping settles it in a few thousand."""
-    cell = reference_cells(CellOptions(particles=60, seed=1), [0.4])[0][0]
-    assert cell.options.method == "fire"
+    cell = reference_cells(CellOptions(particles=60, seed=1, extra={"relax_cap": None}), [0.4])[0][0]
+    assert cell.options.method == "fire" and cell.options.relax_cap is None
     for k in range(1, 24):
         cell.set_deformation(strained(k))
         assert cell.solve().converged
@@ -69,3 +70,24 @@ def test_the_store_solves_an_unsettled_cell_again_with_local_damping(unsettled, 
     sigma = reference.cauchy_stress()
     np.testing.assert_allclose(flux[0, :3], [sigma[0, 0], sigma[1, 1], sigma[0, 1]], rtol=1e-12, atol=1e-12)
     assert np.all(np.isfinite(flux)) and flux[0, 1] < 0
+
+
+@pytest.mark.parametrize("store", [BatchedCells, CellList])
+def test_with_the_default_cap_the_unsettled_cell_is_capped_not_redone(unsettled, store):
+    """The default cells (relax_cap 500): the solve that FIRE cannot settle stops 500 steps
+    after its ramp, counts as converged and is counted as capped; nothing is solved again."""
+    import dataclasses
+    from cosserat_fenicsx.materials.dem.cells import RELAX_CAP
+    cell = unsettled.copy()
+    cell.options = dataclasses.replace(cell.options, relax_cap=RELAX_CAP)
+    cells = store([cell], make_mode("classical"), 0.05)
+    F = strained(24)
+    gradients = np.zeros((1, 6))
+    gradients[0, :2] = F[0, 0] - 1.0, F[1, 1] - 1.0
+    flux, state_new = np.zeros((1, 6)), np.zeros((1, 7))
+    status, cost, texts = np.zeros(1, dtype=np.int64), np.zeros(1), {}
+    timers = {"solve": 0.0, "homogenize": 0.0}
+    cells.solve(np.array([0]), gradients, flux, state_new, status, cost, texts, timers)
+    assert status[0] == 0 and not texts and cells.solves_redone == 0 and cells.solves_capped == 1
+    assert RELAX_CAP < cost[0] < RELAX_CAP + 200      # its ramp (a few steps) and the cap
+    assert np.isfinite(flux[0]).all()

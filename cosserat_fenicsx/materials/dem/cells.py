@@ -64,7 +64,7 @@ RELAXATION = {"method": "fire", "damping": 0.7}
 #: where 500 steps take them, which keeps the residual a function of the displacement and lets
 #: the runs go through their softening (docs/reference/femdem.md, "Past the peak: a cap on the
 #: cells' relaxation"). Cells relaxed otherwise (local damping, fixed_steps, frame cells) get no
-#: default cap
+#: default cap, nor do cells whose step budget (max_steps) is below it: that budget fails a solve
 RELAX_CAP = 500
 #: ... and of frame cells (micro_bc 'frame'): local damping, as 000 section 3.2.1 (demcell.frame)
 FRAME_RELAXATION = {"method": "local", "damping": 0.7}
@@ -169,8 +169,9 @@ class CellOptions:
         import demcell as dc
         if self.micro_bc == "frame":
             base = FRAME_RELAXATION
-        elif self.extra.get("method", RELAXATION["method"]) == "fire" and self.extra.get("fixed_steps") is None:
-            base = dict(RELAXATION, relax_cap=min(RELAX_CAP, self.max_steps))
+        elif (self.extra.get("method", RELAXATION["method"]) == "fire" and self.extra.get("fixed_steps") is None
+              and RELAX_CAP <= self.max_steps):
+            base = dict(RELAXATION, relax_cap=RELAX_CAP)
         else:
             base = RELAXATION
         return dc.RelaxationOptions.from_kwargs(**dict(dict(base, tol=self.relaxation_tol, criterion=self.criterion,

@@ -1,33 +1,24 @@
 """Cells run as YADE's FEMxDEM runs them (RelaxationOptions.fixed_steps = N): every solve takes
 exactly N DEM steps, the increment of F applied over them and no relaxation after, alone and
 batched (the same bits); a bad N is refused in one line before any work."""
-import dataclasses
-
 import numpy as np
 import pytest
 
 import demcell as dc
 from demcell import slots
 from demcell.batch import CellBatch
+from small_cells import biaxial, cell40, with_options
 
 pytestmark = pytest.mark.serial
 
 
 @pytest.fixture(scope="module")
 def reference():
-    state, _ = dc.generate_packing(40, pressure=10.0, law=dc.ContactLaw(kn=1e4, ks=2e3, friction=0.4), seed=2)
-    law = dc.ContactLaw(kn=1e4, ks=2e3, friction=0.4)
-    return dc.reference_cell(state, law, dc.RelaxationOptions(tol=1e-3, criterion="force"), 10.0)
+    return cell40()
 
 
 def fixed(cell, n):
-    out = cell.copy()
-    out.options = dataclasses.replace(cell.options, fixed_steps=n)
-    return out
-
-
-def biaxial(e):
-    return np.array([[1 + 0.5 * e, 0.0], [0.0, 1 - e]])
+    return with_options(cell, fixed_steps=n)
 
 
 @pytest.mark.parametrize("n", [1, 37, 100])

@@ -12,26 +12,18 @@ import demcell as dc
 from demcell import slots
 from demcell.batch import CellBatch
 from demcell.periodic_cell import substep_count
+from small_cells import biaxial, cell40, with_options
 
 pytestmark = pytest.mark.serial
-
-LAW = dc.ContactLaw(kn=1e4, ks=2e3, friction=0.4)
 
 
 @pytest.fixture(scope="module")
 def reference():
-    state, _ = dc.generate_packing(40, pressure=10.0, law=LAW, seed=2)
-    return dc.reference_cell(state, LAW, dc.RelaxationOptions(tol=1e-3, criterion="force"), 10.0)
+    return cell40()
 
 
 def capped(cell, n):
-    out = cell.copy()
-    out.options = dataclasses.replace(cell.options, relax_cap=n)
-    return out
-
-
-def biaxial(e):
-    return np.array([[1 + 0.5 * e, 0.0], [0.0, 1 - e]])
+    return with_options(cell, relax_cap=n)
 
 
 def solve_at(cell, e):

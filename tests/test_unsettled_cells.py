@@ -49,16 +49,22 @@ def test_fire_does_not_settle_the_cell_local_damping_does(unsettled):
         batch.solve([0], method="verlet")
 
 
-@pytest.mark.parametrize("store", [BatchedCells, CellList])
-def test_the_store_solves_an_unsettled_cell_again_with_local_damping(unsettled, store):
-    cells = store([unsettled.copy()], make_mode("classical"), 0.05)
-    F = strained(24)
+def solve_in_store(store, cell, F):
+    """The store's solve of one classical cell to F: (store, status, cost, texts, flux)."""
+    cells = store([cell], make_mode("classical"), 0.05)
     gradients = np.zeros((1, 6))
     gradients[0, :2] = F[0, 0] - 1.0, F[1, 1] - 1.0
     flux, state_new = np.zeros((1, 6)), np.zeros((1, 7))
     status, cost, texts = np.zeros(1, dtype=np.int64), np.zeros(1), {}
     timers = {"solve": 0.0, "homogenize": 0.0}
     cells.solve(np.array([0]), gradients, flux, state_new, status, cost, texts, timers)
+    return cells, status, cost, texts, flux
+
+
+@pytest.mark.parametrize("store", [BatchedCells, CellList])
+def test_the_store_solves_an_unsettled_cell_again_with_local_damping(unsettled, store):
+    F = strained(24)
+    cells, status, cost, texts, flux = solve_in_store(store, unsettled.copy(), F)
     assert status[0] == 0 and not texts and cells.solves_redone == 1
     assert cost[0] > 200_000                 # the failed FIRE solve's steps are counted
     # the stress is the local-damping cell's, solved on its own from the committed state
@@ -80,14 +86,7 @@ def test_with_the_default_cap_the_unsettled_cell_is_capped_not_redone(unsettled,
     from cosserat_fenicsx.materials.dem.cells import RELAX_CAP
     cell = unsettled.copy()
     cell.options = dataclasses.replace(cell.options, relax_cap=RELAX_CAP)
-    cells = store([cell], make_mode("classical"), 0.05)
-    F = strained(24)
-    gradients = np.zeros((1, 6))
-    gradients[0, :2] = F[0, 0] - 1.0, F[1, 1] - 1.0
-    flux, state_new = np.zeros((1, 6)), np.zeros((1, 7))
-    status, cost, texts = np.zeros(1, dtype=np.int64), np.zeros(1), {}
-    timers = {"solve": 0.0, "homogenize": 0.0}
-    cells.solve(np.array([0]), gradients, flux, state_new, status, cost, texts, timers)
+    cells, status, cost, texts, flux = solve_in_store(store, cell, strained(24))
     assert status[0] == 0 and not texts and cells.solves_redone == 0 and cells.solves_capped == 1
     assert RELAX_CAP < cost[0] < RELAX_CAP + 200      # its ramp (a few steps) and the cap
     assert np.isfinite(flux[0]).all()

@@ -33,11 +33,11 @@ from .slots import (C_ALPHA, C_DT, C_DTMAX, C_GAIN, C_KAP, C_KAP_END, C_KAP_STAR
                     C_PHI_END, C_PHI_START, C_SKIN, C_STOL, C_TIME, C_TOL, IW_INRUN, IW_IPAR, IW_K, IW_NSUB,
                     IW_REMAIN, IW_STAGE, I_CHECK, I_CRIT, I_FCUR, I_KRAMP, I_MAXSTEPS, I_NPAIRS, I_NRAMP, NO_CHECK,
                     N_CTRL, N_IPAR, N_OPTS, N_OUT, O_BONDLOST, O_EKIN, O_EPOT, O_MAXOVL, O_REBUILDS, O_STEPS,
-                    O_UNBAL, Q_CHECK, Q_CRIT, Q_DAMP, Q_CAP, Q_FIREDT, Q_FIXED, Q_GAIN, Q_LIMIT, Q_MAXINC, Q_METHOD, Q_RATE,
-                    Q_SKIN, Q_STOL, Q_TOL, Q_TOTAL, ROTATIONS, R_BUDGET, R_CAPPED, R_CONVERGED, R_EKIN, R_EPOT,
-                    R_FAILED_STATUS, R_FAILED_STEPS, R_FAILED_SUB, R_MAXOVL, R_NOCONTACT, R_REBUILDS, R_STEPS,
-                    R_SUBSTEPS, R_UNBAL, T_F, T_KAP, T_PHI, W_CTRL, W_FEND, W_FSTART, W_GEO, W_KAP0, W_OUT, W_PHI0,
-                    W_TOTAL)
+                    O_UNBAL, Q_CAP, Q_CHECK, Q_CRIT, Q_DAMP, Q_FIREDT, Q_FIXED, Q_GAIN, Q_LIMIT, Q_MAXINC, Q_METHOD,
+                    Q_RATE, Q_SKIN, Q_STOL, Q_TOL, Q_TOTAL, ROTATIONS, R_BUDGET, R_CAPPED, R_CONVERGED, R_EKIN,
+                    R_EPOT, R_FAILED_STATUS, R_FAILED_STEPS, R_FAILED_SUB, R_MAXOVL, R_NOCONTACT, R_REBUILDS,
+                    R_STEPS, R_SUBSTEPS, R_UNBAL, T_F, T_KAP, T_PHI, W_CTRL, W_FEND, W_FSTART, W_GEO, W_KAP0, W_OUT,
+                    W_PHI0, W_TOTAL)
 from .periodic_cell import deformation_gradient, path_point, path_setup, reduce_lattice, substep_count
 
 # the solve's own codes next to relaxation's (CONVERGED .. CELL_TOO_SMALL)

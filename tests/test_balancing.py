@@ -399,7 +399,7 @@ def test_failing_guest_cell_cuts_the_step_naming_the_point(monkeypatch):
             mine = (m.slot_global >= m.home_offset[COMM.rank]) & (m.slot_global < m.home_offset[COMM.rank] + m.n_home)
             for slot in np.flatnonzero(~mine):
                 cell = m.inner.cells[slot]
-                cell.options = dataclasses.replace(cell.options, max_steps=5)
+                cell.options = dataclasses.replace(cell.options, max_steps=5, relax_cap=None)
                 guests.append(tuple(m.slot_xy[slot]))
             m.every = 10 ** 6                     # the cells stay where they are now
 

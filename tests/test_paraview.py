@@ -3,6 +3,7 @@ import json
 import os
 import shutil
 import subprocess
+import time
 
 import numpy as np
 import pytest
@@ -14,13 +15,16 @@ pytestmark = [pytest.mark.serial,
                                  reason="ParaView (python3-paraview) or xvfb-run not installed")]
 
 
-def pvbatch_json(script, *args, attempts=4):
-    """Run `xvfb-run -a pvbatch script args` and return the JSON it prints. pvbatch is retried
-    when it aborts because it could not open the X display ("bad X server connection"): on a
-    loaded machine XOpenDisplay against a running Xvfb fails now and then (measured here: 5 of
-    12 runs at load average 4), which says nothing about our files. Any other
-    failure is reported as is."""
+def pvbatch_json(script, *args, attempts=10):
+    """Run `xvfb-run -a pvbatch script args` and return the JSON it prints. pvbatch is retried,
+    after a pause that grows by a second each time, when it aborts because it could not open the
+    X display ("bad X server connection"): on a loaded machine XOpenDisplay against a running
+    Xvfb fails now and then (measured here: 3 to 5 of 12 runs beside a 2-rank run, load
+    average 2-3; four tries in a row failed once in a `make test` beside one), which says
+    nothing about our files. Any other failure is reported as is."""
     for attempt in range(attempts):
+        if attempt:
+            time.sleep(attempt)
         proc = subprocess.run(["xvfb-run", "-a", "pvbatch", str(script), *map(str, args)],
                               capture_output=True, text=True, timeout=300)
         lines = [l for l in proc.stdout.splitlines() if l.startswith("PARAVIEW_JSON ")]

@@ -219,8 +219,12 @@ def band_verdict(fit, element_size, specimen_width, min_contrast=0.5):
     if not fit.converged:
         return False, "the fit did not converge"
     if not fit.amplitude >= min_contrast * max(fit.offset, 0.0):
-        return False, (f"no localisation: strain contrast A/e0 = {fit.amplitude / max(fit.offset, 1e-300):.2g} "
-                       f"below {min_contrast:g}")
+        if fit.offset > 0.0:
+            return False, (f"no localisation: strain contrast A/e0 = {fit.amplitude / fit.offset:.2g} "
+                           f"below {min_contrast:g}")
+        # a bell on a background of zero or below has no contrast to state as a ratio
+        return False, (f"no localisation: the fitted bell does not rise above its background "
+                       f"(A = {fit.amplitude:.2g}, e0 = {fit.offset:.2g})")
     if fit.thickness < 0.5 * element_size:
         return False, (f"H = {fit.thickness:.3g} m is below half an element ({element_size:.3g} m): "
                        "not resolved by the mesh")

@@ -122,3 +122,17 @@ def test_assess_band_claims_a_band_only_where_there_is_one():
     # a mesh coarser than the specimen: no band and a warning, whatever the fit says
     band, entries = assess_band(lambda: fit_band(points, values), 0.2, 0.05, 0.10)
     assert band is None and "cannot resolve" in entries["mesh_warning"] and entries["no_band_reason"]
+
+
+def test_no_band_reason_states_the_contrast_it_measured():
+    """A/e0 is a ratio only on a positive background; a bell fitted with e0 <= 0 (a field
+    that is zero but for round-off, as on a 1x2 mesh) is refused with A and e0 themselves,
+    never with a ratio of 1e23."""
+    from cosserat_fenicsx.shear_band import BandFit, band_verdict
+    weak = BandFit(3e-3, 45.0, 0.01, 0.002, 0.0, 0.0, 5, True)
+    band, why = band_verdict(weak, 1e-3, 0.05)
+    assert not band and "A/e0 = 0.2 below 0.5" in why
+    for offset, amplitude in ((0.0, -4.8e-277), (-1e-3, -1e-4)):
+        band, why = band_verdict(BandFit(3e-3, 45.0, offset, amplitude, 0.0, 0.0, 5, True), 1e-3, 0.05)
+        assert not band and "does not rise above its background" in why and "A/e0" not in why
+        assert f"A = {amplitude:.2g}, e0 = {offset:.2g}" in why

@@ -219,10 +219,11 @@ def band_verdict(fit, element_size, specimen_width, min_contrast=0.5):
     if not fit.converged:
         return False, "the fit did not converge"
     if not fit.amplitude >= min_contrast * max(fit.offset, 0.0):
-        if fit.offset > 0.0:
+        if fit.amplitude > 0.0:
             return False, (f"no localisation: strain contrast A/e0 = {fit.amplitude / fit.offset:.2g} "
                            f"below {min_contrast:g}")
-        # a bell on a background of zero or below has no contrast to state as a ratio
+        # a profile that does not rise (A <= 0: a trough, or a fit run off to A ~ -1e22) has no
+        # contrast to state as a ratio
         return False, (f"no localisation: the fitted bell does not rise above its background "
                        f"(A = {fit.amplitude:.2g}, e0 = {fit.offset:.2g})")
     if fit.thickness < 0.5 * element_size:

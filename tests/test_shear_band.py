@@ -126,13 +126,14 @@ def test_assess_band_claims_a_band_only_where_there_is_one():
 
 def test_no_band_reason_states_the_contrast_it_measured():
     """A/e0 is a ratio only on a positive background; a bell fitted with e0 <= 0 (a field
-    that is zero but for round-off, as on a 1x2 mesh) is refused with A and e0 themselves,
-    never with a ratio of 1e23."""
+    that is zero but for round-off) or one that does not rise (A <= 0: a trough, as the 1x2
+    demo's fit) is refused with A and e0 themselves, never with a ratio of 1e23."""
     from cosserat_fenicsx.shear_band import BandFit, band_verdict
     weak = BandFit(3e-3, 45.0, 0.01, 0.002, 0.0, 0.0, 5, True)
     band, why = band_verdict(weak, 1e-3, 0.05)
     assert not band and "A/e0 = 0.2 below 0.5" in why
-    for offset, amplitude in ((0.0, -4.8e-277), (-1e-3, -1e-4)):
+    # the last: the 1x2 demo's fit (a trough, A = -2.6e22 and H = 4.6e22 m, on e0 = 0.055)
+    for offset, amplitude in ((0.0, -4.8e-277), (-1e-3, -1e-4), (1e-300, -4.8e-277), (0.055, -2.64e22)):
         band, why = band_verdict(BandFit(3e-3, 45.0, offset, amplitude, 0.0, 0.0, 5, True), 1e-3, 0.05)
         assert not band and "does not rise above its background" in why and "A/e0" not in why
         assert f"A = {amplitude:.2g}, e0 = {offset:.2g}" in why

@@ -77,6 +77,9 @@ CASES = {
     "fire relax_cap 300 batched": ({"extra": dict(FIRE, relax_cap=300)}, "pstlo", True, {"jacobian_refresh": 0.7}),
     "fire relax_cap 500 batched": ({"extra": dict(FIRE, relax_cap=500)}, "pstlo", True, {"jacobian_refresh": 0.7}),
     "fire relax_cap 1000 batched": ({"extra": dict(FIRE, relax_cap=1000)}, "pstlo", True, {"jacobian_refresh": 0.7}),
+    # the default cells with the convergence test every 10 DEM steps instead of 50
+    "fire relax_cap 500 check_every 10 batched": ({"extra": dict(FIRE, relax_cap=500, check_every=10)}, "pstlo", True,
+                                                  {"jacobian_refresh": 0.7}),
 }
 REFERENCE = "reference"
 

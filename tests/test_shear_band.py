@@ -125,9 +125,10 @@ def test_assess_band_claims_a_band_only_where_there_is_one():
 
 
 def test_no_band_reason_states_the_contrast_it_measured():
-    """A/e0 is a ratio only on a positive background; a bell fitted with e0 <= 0 (a field
-    that is zero but for round-off) or one that does not rise (A <= 0: a trough, as the 1x2
-    demo's fit) is refused with A and e0 themselves, never with a ratio of 1e23."""
+    """A/e0 is stated only for a bell that rises (A > 0, so e0 > 0 where it is refused); one
+    that does not rise (A <= 0: on a background of zero, below zero or of round-off, or a
+    trough as the 1x2 demo's fit) is refused with A and e0 themselves, never with a ratio
+    of 1e23."""
     from cosserat_fenicsx.shear_band import BandFit, band_verdict
     weak = BandFit(3e-3, 45.0, 0.01, 0.002, 0.0, 0.0, 5, True)
     band, why = band_verdict(weak, 1e-3, 0.05)

@@ -66,8 +66,9 @@ class DemoRun:
     def fields(self, cell_fields=()):
         """fields.xdmf of the scene's problem with the extra cell fields (name, shape,
         values_fn), continued by a restart."""
-        self.writer = FieldWriter(self.scene.problem, self.checkpoint.fields_path("fields.xdmf"), self.args.fields,
-                                  resume_time=self.checkpoint.resume_time)
+        with self.guard.deferred():        # a signal waits until the new file is closed: readable
+            self.writer = FieldWriter(self.scene.problem, self.checkpoint.fields_path("fields.xdmf"),
+                                      self.args.fields, resume_time=self.checkpoint.resume_time)
         for name, shape, values in cell_fields:
             self.writer.add_cell_field(name, shape, values)
         return self.writer

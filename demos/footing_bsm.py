@@ -235,14 +235,16 @@ history = CsvLog(comm, os.path.join(args.out, "history.csv"),
                  ["step", "time", "settlement_mm", "load_kN_per_m", "mismatch_over_rmin", "fe_kinetic_J_per_m"],
                  resume_step=coupler.steps if resumed is not None else None)
 xdmf_path = os.path.join(args.out, outputs["xdmf"])
-# the file is open only while a step is written: an interrupted run leaves it readable
-if not same_partition or not os.path.isfile(xdmf_path):
-    with dolfinx.io.XDMFFile(comm, xdmf_path, "w") as xdmf:
-        xdmf.write_mesh(mesh)
-else:       # the series goes on after the checkpoint's time (later steps of a killed run dropped)
-    if comm.rank == ROOT:
-        truncate_xdmf(xdmf_path, continuum.time)
-    comm.barrier()
+# the file is open only while it is written, and a signal waits until it is closed: an
+# interrupted run leaves it readable
+with guard.deferred():
+    if not same_partition or not os.path.isfile(xdmf_path):
+        with dolfinx.io.XDMFFile(comm, xdmf_path, "w") as xdmf:
+            xdmf.write_mesh(mesh)
+    else:       # the series goes on after the checkpoint's time (later steps of a killed run dropped)
+        if comm.rank == ROOT:
+            truncate_xdmf(xdmf_path, continuum.time)
+        comm.barrier()
 u_space, u_map = continuum.subspace("u")
 phi_space, phi_map = continuum.subspace("phi")
 u_out = dolfinx.fem.Function(u_space, name="u")

@@ -93,7 +93,8 @@ def solve(radius, write_fields):
         problem.add_dirichlet("left", "phi", 0.0)
         problem.add_dirichlet("bottom", "phi", 0.0)
     problem.add_traction("top", (0.0, args.traction))
-    writer = FieldWriter(problem, os.path.join(args.out, "fields.xdmf"), args.fields) if write_fields else None
+    with guard.deferred():             # a signal waits until the new file is closed
+        writer = FieldWriter(problem, os.path.join(args.out, "fields.xdmf"), args.fields) if write_fields else None
 
     def write_step(record):
         with guard.deferred():

@@ -65,7 +65,8 @@ if not args.cauchy:
     if args.top_rotation == "fixed":
         problem.add_dirichlet("top", "phi", 0.0)
 
-writer = FieldWriter(problem, os.path.join(args.out, "fields.xdmf"), args.fields)
+with guard.deferred():                 # a signal waits until the new file is closed
+    writer = FieldWriter(problem, os.path.join(args.out, "fields.xdmf"), args.fields)
 history = CsvLog(comm, os.path.join(args.out, "history.csv"),
                  ["time", "shift", "reaction_x_top", "reaction_y_top", "shear_stress_top"])
 

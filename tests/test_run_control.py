@@ -106,6 +106,41 @@ def test_interrupted_biaxial_keeps_every_completed_step(tmp_path, sig, rows, ran
     assert len(history) >= rows
 
 
+# the signal sent from inside the creation of fields.h5 (the mesh being written), on every rank
+SIGNAL_IN_FILE_CREATION = """
+import os, runpy, signal, sys
+import dolfinx.io
+write_mesh = dolfinx.io.XDMFFile.write_mesh
+def signalled_write_mesh(self, mesh):
+    os.kill(os.getpid(), signal.SIGTERM)
+    write_mesh(self, mesh)
+dolfinx.io.XDMFFile.write_mesh = signalled_write_mesh
+sys.argv = sys.argv[1:]
+runpy.run_path(sys.argv[0], run_name="__main__")
+"""
+
+
+@pytest.mark.parametrize("ranks", [None, 2])
+def test_signal_while_the_field_file_is_created_leaves_it_readable(tmp_path, ranks):
+    """A signal that arrives while fields.h5 is being created (the set-up of a run, the mesh
+    being written) ends the run once the file is closed: readable, with its mesh and no step."""
+    import h5py
+    out = tmp_path / "out"
+    cmd = [sys.executable, "-c", SIGNAL_IN_FILE_CREATION, os.path.join(ROOT, "demos", "biaxial.py"),
+           *BIAXIAL, "--out", str(out)]
+    if ranks:
+        cmd = ["mpirun", "-n", str(ranks)] + cmd
+    env = dict(os.environ, OMPI_ALLOW_RUN_AS_ROOT="1", OMPI_ALLOW_RUN_AS_ROOT_CONFIRM="1",
+               OMPI_MCA_rmaps_base_oversubscribe="1", OMP_NUM_THREADS="1")
+    proc = subprocess.run(cmd, capture_output=True, text=True, cwd=ROOT, env=env, timeout=300)
+    assert "Traceback" not in proc.stderr, proc.stderr[-3000:]
+    assert proc.returncode == 128 + signal.SIGTERM if not ranks else proc.returncode != 0
+    summary, rows = check_interrupted(out, signal.SIGTERM, ranks)
+    assert summary["reason"].startswith("interrupted by SIGTERM after step 0") and rows == []
+    with h5py.File(out / "fields.h5", "r") as f:
+        assert "Mesh" in f and "Function" not in f
+
+
 def test_interrupted_output_opens_in_paraview(tmp_path):
     from test_paraview import paraview_read, shutil as _shutil
     if _shutil.which("pvbatch") is None or _shutil.which("xvfb-run") is None:

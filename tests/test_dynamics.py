@@ -191,6 +191,61 @@ def test_inactive_cells_carry_no_mass_and_no_stiffness(element):
     assert COMM.allreduce(int((model.mass.array == 0.0).sum())) == 0
 
 
+@pytest.mark.parametrize("element", ELEMENTS)
+def test_gravity_column_settles_to_the_closed_form(element):
+    """A column under its own weight (sides u1 = 0, bottom fixed), relaxed with mass damping:
+    u2(y) = -rho g (H y - y^2 / 2) / (lambda + 2 mu), the uniaxial-strain closed form. On Q1
+    the column is the 1D linear element with the lumped (here consistent) load: nodally
+    exact; on P2 the HRZ-lumped load is not the consistent one, so within a few per cent.
+    The weight is the continuum's own mass times g, and added mass does not change it."""
+    width, height, rho, g = 0.5, 2.0, 2.0, 0.01
+    mu, lmbda = 0.3, 0.4
+    mesh, _, _ = meshes.rectangle(COMM, width, height, divisions=(1, 8), cell_type=ver.CELL_TYPES[element])
+    sides = lambda x: np.isclose(x[0], 0.0) | np.isclose(x[0], width)    # noqa: E731
+    bottom = lambda x: np.isclose(x[1], 0.0)                              # noqa: E731
+    c_p = math.sqrt((lmbda + 2 * mu) / rho)
+    model = ExplicitCosserat(mesh, MicropolarElasticity(mu=mu, lmbda=lmbda, mu_c=0.03, l_c=0.05), rho, 1.0,
+                             mass_damping=math.pi * c_p / height, element=element, gravity=(0.0, -g),
+                             dirichlet=[("u1", sides, 0.0), ("u1", bottom, 0.0), ("u2", bottom, 0.0)])
+    space, dofs = model.subspace("u2")
+    owned = dofs < len(model.displacement.array)
+    y = space.tabulate_dof_coordinates()[owned, 1]
+    weight = COMM.allreduce(float(model.weight[dofs[owned]].sum()))
+    assert weight == pytest.approx(-rho * width * height * g, rel=1e-12)
+    model.update_acceleration()
+    dt = 0.8 * model.stable_time_step()["power"]
+    for _ in range(int(40.0 / (0.5 * model.mass_damping) / dt)):       # exp(-c_m t / 2) < 1e-17
+        model.step(dt)
+    u2 = model.displacement.array[dofs[owned]]
+    exact = -rho * g * (height * y - 0.5 * y ** 2) / (lmbda + 2 * mu)
+    error = COMM.allreduce(float(np.abs(u2 - exact).max(initial=0.0)), op=MPI.MAX)
+    top = rho * g * 0.5 * height ** 2 / (lmbda + 2 * mu)
+    if element == "Q1/Q1":
+        assert error < 1e-9 * top
+        phi_dofs = model.subspace("phi")[1]
+        phi = model.displacement.array[phi_dofs[phi_dofs < len(model.displacement.array)]]
+        assert COMM.allreduce(float(np.abs(phi).max(initial=0.0)), op=MPI.MAX) < 1e-9 * top / height
+    else:
+        assert 1e-6 * top < error < 0.05 * top
+    added = model.mass.copy()
+    added.array[:] = 1.0
+    model.add_mass(added)
+    assert COMM.allreduce(float(model.weight[dofs[owned]].sum())) == pytest.approx(weight, rel=1e-14)
+
+
+def test_gravity_refusal_and_no_weight_without_it():
+    mesh, _, _ = meshes.rectangle(COMM, 1.0, 1.0, divisions=(2, 2), cell_type="quadrilateral")
+    elasticity = MicropolarElasticity(mu=1.0, lmbda=1.0, mu_c=0.5, l_c=0.1)
+    for bad in ((0.0,), (0.0, float("inf")), "down", None):
+        with pytest.raises(InputError, match="gravity must be two finite numbers"):
+            ExplicitCosserat(mesh, elasticity, 1.0, 0.01, element="Q1/Q1", gravity=bad)
+    model = ExplicitCosserat(mesh, elasticity, 1.0, 0.01, element="Q1/Q1")
+    model.update_acceleration()
+    assert model.acceleration.norm() == 0.0 and not model.weight.any()
+    with pytest.raises(InputError, match="mass_damping must be >= 0"):
+        model.set_mass_damping(-1.0)
+
+
 def test_hrz_lumping_of_p2():
     """Two triangles of area 1/2: HRZ gives rho A/19 at a vertex of one triangle and
     2 x 16 rho A/57 at the midpoint of the shared diagonal (Hinton, Rock & Zienkiewicz 1976)."""

@@ -3,7 +3,7 @@ proportional damping (003 eqs 31-34, spec section 4), lumped mass (mass.py).
 
 Semi-discrete equations (2D, per unit depth), d = (u1, u2, phi) nodal values:
 
-    M a + c_m M v + K d = f_c                                   (003 eq 33 before discretisation)
+    M a + c_m M v + K d = f_c + f_g                             (003 eq 33 before discretisation)
 
     K d  from  int chi [sigma(eps) : eps(v, w) + m . grad(w)] dA,  sigma = 2 mu sym(eps)
          + lambda tr(eps) I + 2 mu_c skw(eps),  m = 2 mu_c l_c^2 kappa   (elasticity.py,
@@ -12,6 +12,10 @@ Semi-discrete equations (2D, per unit depth), d = (u1, u2, phi) nodal values:
     chi  DG0 indicator: 0 on the inactive cells (the DEM region: no Cosserat stiffness, no
          continuum mass; their coarse mass comes from the particles through add_mass)
     f_c  the coupling force (projected particle forces, 003 eq 33), owned entries complete
+    f_g  the continuum's weight M_0 g (optional gravity g): its own lumped translational mass
+         M_0 (before add_mass) times g, fixed; particles whose mass is added carry their
+         weight themselves (the coupler passes it in f_c). The energies reported here leave
+         out the potential of gravity
 
 One step t_n -> t_n+1 = t_n + dt:
 
@@ -83,10 +87,11 @@ class ExplicitCosserat:
                     boundary-facet locator x -> bool array or an array of local dofs of the
                     mixed space (owned dofs listed by their owning rank)
     refuse_unstable True: predict() refuses dt above the power-iteration stable step
+    gravity         (g_x, g_y) [m/s^2]: the body force f_g = M_0 g (module docstring)
     """
 
     def __init__(self, mesh, elasticity, density, micro_inertia, mass_damping=0.0, element="P2/P1",
-                 inactive_cells=None, dirichlet=(), refuse_unstable=True):
+                 inactive_cells=None, dirichlet=(), refuse_unstable=True, gravity=(0.0, 0.0)):
         if not isinstance(elasticity, MicropolarElasticity):
             raise InputError("elasticity must be a MicropolarElasticity")
         if elasticity.mu_c <= 0.0:
@@ -95,6 +100,7 @@ class ExplicitCosserat:
         self.density = check("density", density, POSITIVE)
         self.micro_inertia = check("micro_inertia", micro_inertia, POSITIVE)
         self.mass_damping = check("mass_damping", mass_damping, NON_NEGATIVE)
+        self.gravity = _gravity(gravity)
         if element not in ELEMENTS:
             raise InputError(f"element must be one of {', '.join(ELEMENTS)}, got {element!r}")
         cell, degree_u, degree_phi = ELEMENTS[element]
@@ -149,6 +155,7 @@ class ExplicitCosserat:
         self.mass, self.mass_info = lumped_mass(self.space, self.indicator, self.density, self.micro_inertia,
                                                 u_dofs, quadrature_degree=2 * degree_u)
         self._force = self.stiffness.createVecLeft()
+        self._weight = self._continuum_weight()
         self._v_tilde = self.velocity.duplicate()
         self._predicted_dt = None
         self._stable = None
@@ -254,6 +261,29 @@ class ExplicitCosserat:
         return (self.comm.allreduce(float(self.mass.array[owned_u1].sum())),
                 self.comm.allreduce(float(self.mass.array[owned_phi].sum())))
 
+    def set_mass_damping(self, mass_damping):
+        """c_m [1/s] (>= 0) from the next step on: a run may settle with one and load with
+        another."""
+        self.mass_damping = check("mass_damping", mass_damping, NON_NEGATIVE)
+
+    @property
+    def weight(self):
+        """f_g = M_0 g over the owned dofs [N/m at u dofs, 0 at phi dofs] (a copy; zeros
+        without gravity)."""
+        return np.zeros_like(self.mass.array) if self._weight is None else self._weight.copy()
+
+    def _continuum_weight(self):
+        """f_g = M_0 g over the owned dofs (None without gravity): the lumped translational
+        mass of the active cells times g at the u1 and u2 dofs [N/m]."""
+        if not any(self.gravity):
+            return None
+        weight = np.zeros_like(self.mass.array)
+        for name, g in zip(("u1", "u2"), self.gravity):
+            dofs = self.subspace(name)[1]
+            dofs = dofs[dofs < self._n_owned]
+            weight[dofs] = self.mass.array[dofs] * g
+        return weight
+
     # --- forces, energies -----------------------------------------------------------
     def internal_force(self, d, out):
         """out = K d (owned entries) [N/m at u dofs, N at phi dofs]."""
@@ -332,6 +362,8 @@ class ExplicitCosserat:
     def _net_force(self, coupling_force):
         self.stiffness.mult(self.displacement, self._force)
         force = -self._force.array
+        if self._weight is not None:
+            force = force + self._weight
         if coupling_force is not None:
             f = coupling_force.array
             if not np.isfinite(f).all():
@@ -451,6 +483,17 @@ class ExplicitCosserat:
         self.time = time
         self.steps = int(state.get("steps", 0))
         self._predicted_dt = None
+
+
+def _gravity(gravity):
+    """(g_x, g_y) as two finite floats [m/s^2], or a one-line refusal."""
+    try:
+        values = tuple(float(g) for g in gravity)
+    except (TypeError, ValueError):
+        values = ()
+    if len(values) != 2 or not all(math.isfinite(g) for g in values):
+        raise InputError(f"gravity must be two finite numbers (g_x, g_y) [m/s^2], got {gravity!r}")
+    return values
 
 
 def _min_op():

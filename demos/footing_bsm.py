@@ -9,7 +9,11 @@ part (the mass-weighted projection, eqs 3-8); the nodes of the region take their
 forces from the grains (eq 16, including the reactions on the virtual interface grains);
 the virtual grains just outside the region follow the continuum (eq 17). The rigid plate acts
 on the grains only (003-bsm.md decision 8), pushed down at --speed to --depth. The DEM
-sub-cycles m times per coarse step (eqs 25-30). No gravity; bottom fixed, sides u1 = 0.
+sub-cycles m times per coarse step (eqs 25-30). Bottom fixed, sides u1 = 0. No gravity by
+default (003 mentions none); with --gravity g the continuum and the grains first settle under
+their weight for --settle-time (the grains with local damping, the continuum with the mass
+damping that damps its lowest mode critically), then the plate is put on the settled surface
+and pushed; the settlement counts from there.
 
 The grains are cut out of the same packing the full-DEM reference would use (the whole
 domain filled with discs, demcell.specimen.footing.footing_packing): compare with
@@ -92,6 +96,10 @@ parser.add_argument("--continuum", choices=("003", "lattice"), default="003",
                          "orientation average of the rotated square lattice's affine moduli (G = (kN + kS)/4, "
                          "lambda = (kN - kS)/4, mu_c = kS/2)")
 parser.add_argument("--rough", action="store_true", help="rough plate (Coulomb friction mu_s; default smooth)")
+parser.add_argument("--gravity", type=number(NON_NEGATIVE), default=0.0,
+                    help="g [m/s^2] downwards on the grains and the continuum (default 0, as 003)")
+parser.add_argument("--settle-time", type=number(POSITIVE), default=0.3,
+                    help="settling under gravity before the plate moves [s] (default %(default)g)")
 parser.add_argument("--record-every", type=number(Range(1, integer=True)), default=5,
                     help="coarse steps between two history rows (default %(default)s)")
 parser.add_argument("--output-every", type=number(Range(1, integer=True)), default=10,
@@ -175,7 +183,7 @@ j = 0.5 * float(np.mean(radius ** 2))
 dirichlet = [("u1", lambda x: np.isclose(x[1], 0.0), 0.0), ("u2", lambda x: np.isclose(x[1], 0.0), 0.0),
              ("u1", lambda x: np.isclose(x[0], 0.0) | np.isclose(x[0], WIDTH), 0.0)]
 continuum = ExplicitCosserat(mesh, elasticity, rho_c, j, mass_damping=args.mass_damping, element=args.element,
-                             inactive_cells=inactive, dirichlet=dirichlet)
+                             inactive_cells=inactive, dirichlet=dirichlet, gravity=(0.0, -args.gravity))
 
 # %% the DEM region on rank 0: Table 1 law, the plate on the grains under it, virtual grains held
 engine, engine_info = None, None
@@ -185,7 +193,7 @@ if comm.rank == ROOT:
     region_discs = discs_from(region.position, region.radius, mass=region.mass)
     engine, engine_info = footing_specimen(args.packing, WIDTH, HEIGHT, PLATE, rough=args.rough,
                                            mass_damping=args.mass_damping, discs=region_discs, lateral="none",
-                                           threads=args.threads)
+                                           threads=args.threads, gravity=args.gravity)
     engine.hold(region.is_virtual)
 dt_fine = comm.bcast(engine.options.dt if engine is not None else None, root=ROOT)
 stable = continuum.stable_time_step()  # without the grains' mass: the coupler checks again with it
@@ -207,6 +215,8 @@ setup_seconds = time.perf_counter() - t_setup
 # a restart: the coupled state (continuum per rank, the region's engine, the coupler's run
 # state) and the demo's own (history rows, output index, plate origin) of the checkpoint
 y0 = comm.bcast(engine.plate_position()[2] if engine is not None else None, root=ROOT)
+settle_steps = 0
+settled = {}
 rows = []
 outputs = {"index": 0, "series": [], "wall_s": 0.0, "cpu_s": 0.0, "xdmf": "continuum.xdmf"}
 same_partition = False
@@ -217,6 +227,7 @@ if resumed is not None:
         if coupler.steps != meta["step"]:
             raise ValueError(f"the coupler state is at step {coupler.steps}, meta.json says {meta['step']}")
         rows, y0 = list(run_state["rows"]), float(run_state["y0"])
+        settle_steps = int(run_state.get("settle_steps", 0))
         outputs.update({k: run_state[k] for k in ("index", "series", "wall_s", "cpu_s", "xdmf")})
         # the XDMF file keeps the nodes in the order of the partition that wrote it: it goes on
         # only where this run's partition is that one (dolfinx's partition of the same mesh on
@@ -344,7 +355,7 @@ def record():
 
 def save_checkpoint(step):
     """The coupled state and this demo's run state after coarse step `step` (collective)."""
-    state = {"rows": rows, "y0": y0, "index": outputs["index"], "series": outputs["series"], "xdmf": outputs["xdmf"],
+    state = {"rows": rows, "y0": y0, "settle_steps": settle_steps, "index": outputs["index"], "series": outputs["series"], "xdmf": outputs["xdmf"],
              "wall_s": outputs["wall_s"] + time.perf_counter() - t0,
              "cpu_s": outputs["cpu_s"] + time.process_time() - c0}
     try:
@@ -355,6 +366,38 @@ def save_checkpoint(step):
 
 
 write_paraview_state()
+
+# %% gravity: the foundation settles under its weight before the plate moves (the grains
+# with local damping, which damps their contacts' vibrations too; the continuum with
+# c_m = 2 omega_1, omega_1 = pi c_p / (2 H) its lowest mode), the plate then on the surface
+if args.gravity > 0.0 and resumed is None:
+    settle_steps = max(1, int(round(args.settle_time / dt)))
+    c_settle = math.pi * math.sqrt((LAMBDA + 2 * G) / rho_c) / HEIGHT
+    print0(comm, f"settling under g = {args.gravity:g} m/s^2: {settle_steps} coarse steps, continuum c_m = "
+                 f"{c_settle:.3g} 1/s")
+    if comm.rank == ROOT:
+        from demcell.specimen.footing import SETTLE_DAMPING, plate_on_surface
+        engine.set_local_damping(SETTLE_DAMPING)
+        engine.set_mass_damping(0.0)
+    continuum.set_mass_damping(c_settle)
+    try:
+        for _ in range(settle_steps):
+            coupler.step(diagnose=False)
+    except (BridgingStopped, DynamicsError) as error:
+        guard.stop(error)
+    continuum.set_mass_damping(args.mass_damping)
+    top = None
+    if comm.rank == ROOT:
+        engine.set_local_damping(0.0)
+        engine.set_mass_damping(args.mass_damping)
+        top = plate_on_surface(engine, 0.5 * (WIDTH - PLATE), 0.5 * (WIDTH + PLATE), args.rough)
+    settled = {"settle_steps": settle_steps, "settle_time": settle_steps * dt, "settle_continuum_c_m": c_settle,
+               "surface_drop_mm": 1e3 * (y0 - comm.bcast(top, root=ROOT)),
+               "settle_fe_kinetic_J_per_m": continuum.kinetic_energy()}
+    y0 = comm.bcast(top, root=ROOT)
+    print0(comm, f"settled: the surface under the plate {settled['surface_drop_mm']:.2f} mm lower, continuum "
+                 f"kinetic energy {settled['settle_fe_kinetic_J_per_m']:.3g} J/m")
+    guard.progress(**settled)
 
 # %% loading: the plate goes down at --speed; each coarse step = predictor, m DEM sub-steps,
 # projected forces, corrector; a checkpoint when due, at --stop-after and on SIGINT/SIGTERM
@@ -369,14 +412,15 @@ try:
     # one deferred block around the loop: a signal waits for the end of the coarse step,
     # where every rank learns of it together and the run ends with a checkpoint
     with guard.deferred():
-        for step in range(coupler.steps + 1, n_steps + 1):
-            recording = step % args.record_every == 0 or step == n_steps
+        last = settle_steps + n_steps
+        for step in range(coupler.steps + 1, last + 1):
+            recording = (step - settle_steps) % args.record_every == 0 or step == last
             coupler.step(diagnose=recording)
             entries = {}
             if recording:
                 row = record()
                 entries = {"settlement_mm": row["settlement_mm"], "load_kN_per_m": row["load_kN_per_m"]}
-                if (len(rows) - 1) % args.output_every == 0 or step == n_steps:
+                if (len(rows) - 1) % args.output_every == 0 or step == last:
                     write_fields()
             guard.progress(write=recording, **entries)
             signalled = guard.signalled(comm)
@@ -386,7 +430,7 @@ try:
                 history.close()
                 guard.interrupt_note = f" (checkpoint written: continue with --restart {args.out})"
                 guard.interrupt_now(comm)
-            if checkpoint.stops(step) and step < n_steps:
+            if checkpoint.stops(step) and step < last:
                 stop_note = checkpoint.stop_note()
                 print0(comm, f"footing_bsm: {stop_note}")
                 break
@@ -404,6 +448,7 @@ settlements = np.array([r["settlement_mm"] for r in rows])
 peak = int(np.argmax(loads))
 summary = {"packing": args.packing, "element": args.element, "speed": args.speed, "depth": args.depth,
            "mass_damping": args.mass_damping, "rough": args.rough, "ranks": comm.size, "continuum": args.continuum,
+           "gravity": args.gravity, "settle_steps": settle_steps, **settled,
            "moduli": {"G": G, "lambda": LAMBDA, "G_c": G_C},
            "grains_real": region.n_real, "grains_virtual": region.n_virtual, "grains_full_domain": n_full,
            "grain_ratio_full_over_bsm": n_full / (region.n_real + region.n_virtual),

@@ -108,6 +108,24 @@ def test_stop_and_restart_is_the_straight_run(demo, tmp_path, straight):
     assert_same_run(straight, part)
 
 
+def test_gravity_settles_then_stops_and_restarts_as_the_straight_run(demo, tmp_path):
+    """--gravity: the settling steps come first (70 coarse steps of 0.01 s), the plate is put
+    on the settled surface and the history starts there; stopped in the loading and continued,
+    every written digit of the straight run."""
+    straight, part = tmp_path / "straight", tmp_path / "part"
+    gravity = ("--gravity", 9.81, "--settle-time", 0.01)
+    demo("footing_bsm", *TINY, *gravity, "--out", straight)
+    summary = read_summary(straight)
+    assert summary["settle_steps"] == 70 and summary["surface_drop_mm"] > 0.0
+    assert summary["steps_completed"] == 70 + summary["coarse_steps"]
+    _, rows = history(straight)
+    assert rows[0, 0] == 70 and rows[0, 2] == 0.0            # step, settlement of the first row
+    demo("footing_bsm", *TINY, *gravity, "--out", part, "--stop-after", 80)
+    assert read_summary(part)["steps_completed"] == 80
+    demo("footing_bsm", "--restart", part)
+    assert_same_run(straight, part)
+
+
 def test_two_ranks_stop_and_continue_on_two_and_on_one(demo, tmp_path, straight):
     """A 2-rank checkpoint continues on 2 ranks and on 1 (the continuum matched by dof
     coordinates): the straight run within round-off (1 and 2 ranks sum in another order, and

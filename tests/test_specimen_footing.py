@@ -188,3 +188,25 @@ def test_footing_impact_load_is_wave_impedance():
     window = (res.settlement > 0.5e-3) & (res.settlement < 2e-3)
     assert 2e-3 < 2 * 1.5 / c_p
     assert np.mean(res.load[window]) == pytest.approx(impedance, rel=0.05)      # measured 1.011
+
+
+def test_footing_settles_under_gravity():
+    """Gravity: after footing.settle the bottom wall carries the discs' weight (static
+    equilibrium, the side walls smooth), the surface has come down, and run_footing puts the
+    plate on it and counts settlement and time from there."""
+    from demcell.specimen.footing import footing_specimen, settle
+    spec, info = footing_specimen("A", width=3.0, height=1.5, plate_width=1.0, gravity=9.81, threads=1)
+    assert spec.options.gravity == (0.0, -9.81)
+    settled = settle(spec, 0.3)
+    weight = 9.81 * float(spec.state.mass.sum())
+    bottom = float(spec.state.wall_force[0, 1])
+    assert bottom == pytest.approx(weight, rel=0.01)
+    assert settled["settle_kinetic_energy"] < 1e-4 * weight * 1.5
+    assert spec.options.local_damping == 0.0 and spec.options.mass_damping == 10.0   # restored
+    res = run_footing("A", width=3.0, height=1.5, plate_width=1.0, speed=0.1, depth=1e-3, record_every=50,
+                      threads=1, gravity=9.81, settle_time=0.3)
+    assert res.info["plate_y0"] < info["plate_y0"] and res.info["settle_steps"] > 0
+    assert res.time[0] == 0.0 and res.time[-1] == pytest.approx(1e-3 / 0.1, rel=1e-3)
+    assert res.load[-1] > 0.0
+    with pytest.raises(InputError, match="gravity"):
+        footing_specimen("A", width=3.0, height=1.5, plate_width=1.0, gravity=-1.0)

@@ -47,9 +47,9 @@ def hexagonal_packing(domain, radius):
 
 
 def build(radius, size=4.0, box=(1.0, 3.0, 1.0, 3.0), cells=4, substeps=2, mass_damping=0.0, dirichlet=(),
-          comm=MPI.COMM_WORLD, **coupler_options):
+          comm=MPI.COMM_WORLD, gravity=(0.0, 0.0), **coupler_options):
     """Continuum, region, engine (rank 0) and coupler of the hexagonal patch (coupler_options:
-    BridgingCoupler's keywords, e.g. region_nodes)."""
+    BridgingCoupler's keywords, e.g. region_nodes; gravity (g_x, g_y) [m/s^2] on both)."""
     from demcell.contact_law import ContactLaw
     from demcell.estimates import hexagonal_moduli
     from demcell.specimen import Specimen, SpecimenOptions, SpecimenState
@@ -61,7 +61,7 @@ def build(radius, size=4.0, box=(1.0, 3.0, 1.0, 3.0), cells=4, substeps=2, mass_
     rho_c = DENSITY * math.pi / (2.0 * math.sqrt(3.0))     # disc mass per lattice cell area
     continuum = ExplicitCosserat(mesh, elasticity, rho_c, 0.5 * radius ** 2, mass_damping=mass_damping,
                                  element="Q1/Q1", inactive_cells=region_cells(mesh, box),
-                                 dirichlet=dirichlet)
+                                 dirichlet=dirichlet, gravity=gravity)
     position = hexagonal_packing(domain, radius)
     r = np.full(len(position), radius)
     m = DENSITY * math.pi * r ** 2
@@ -72,7 +72,8 @@ def build(radius, size=4.0, box=(1.0, 3.0, 1.0, 3.0), cells=4, substeps=2, mass_
     if comm.rank == 0:
         state = SpecimenState.from_discs(region.position, region.radius, region.mass, region.inertia,
                                          (0.0, size, 0.0, size), lateral="none")
-        engine = Specimen(state, law, SpecimenOptions(dt=dt_fine, lateral="none", mass_damping=mass_damping))
+        engine = Specimen(state, law, SpecimenOptions(dt=dt_fine, lateral="none", mass_damping=mass_damping,
+                                                      gravity=gravity))
         engine.hold(region.is_virtual)
     dt = min(dt_fine * substeps, 0.9 * continuum.stable_time_step()["power"])
     substeps = max(1, int(round(dt / dt_fine)))

@@ -18,6 +18,10 @@ missing: Li-Chu's rolling force). Writes, in --out:
 
     /usr/bin/python3 benchmarks/dns/footing_dem.py --packing A --out results/footing_A
     /usr/bin/python3 benchmarks/dns/footing_dem.py --packing A --width 6 --height 3 --out /tmp/f6
+    /usr/bin/python3 benchmarks/dns/footing_dem.py --packing A --gravity 9.81 --speed 0.1 --out /tmp/fg
+
+With --gravity g the specimen first settles under its weight (--settle-time, local damping
+0.7; footing.settle) and the plate is put on the settled surface.
 """
 import argparse
 import csv
@@ -58,6 +62,8 @@ def main():
                     help="Numba threads (1: on a loaded shared machine two threads ran 100x slower)")
     ap.add_argument("--snapshots", type=float, nargs="*", default=[],
                     help="settlements [mm] at which the grains are saved (grains_S.npz)")
+    ap.add_argument("--gravity", type=float, default=0.0, help="g [m/s^2] downwards (default 0, as 003)")
+    ap.add_argument("--settle-time", type=float, default=0.3, help="settling under gravity [s]")
     ap.add_argument("--out", default="footing_dem", help="output folder")
     args = ap.parse_args()
     os.makedirs(args.out, exist_ok=True)
@@ -83,7 +89,8 @@ def main():
 
         res = run_footing(args.packing, args.width, args.height, args.plate_width, args.speed, args.depth,
                           args.rough, args.mass_damping, args.dt_fraction, args.record_every, args.seed,
-                          discs=discs, threads=args.threads, on_record=record)
+                          discs=discs, threads=args.threads, on_record=record, gravity=args.gravity,
+                          settle_time=args.settle_time)
     # the last step can end up to half a step short of --depth: the final state stands for it
     for s in [s for s in pending if s <= 1e3 * args.depth + 1e-9]:
         snapshot(args.out, s, res.specimen, float(res.settlement[-1]), float(res.load[-1]))

@@ -17,6 +17,11 @@ One coarse step t_n -> t_n+1 = t_n + dt with m DEM sub-steps dt_m = dt / m:
        at N d + Q q; the engine evaluates them without committing the contact history);
     5. continuum corrector (eqs 33-34) with f_c.
 
+Gravity (the continuum's `gravity`, which must be the engine's): the engine moves the grains
+under their weight, the continuum carries its own (ExplicitCosserat's f_g), and F_R in the
+coarse forces includes the real grains' weight m_p g (eq 16's external force), so that the
+nodes of the region carry the weight of the grains they represent.
+
 The coarse mass of the DEM-region nodes is the grains' row-sum lumped N_R^T m, N_R^T J (eq 5
 lumped; HRZ for P2, whose row sums can be negative), added once; the elements of the region carry no Cosserat stiffness or mass
 (ExplicitCosserat(inactive_cells=region_cells(...))). Diagnostic each step:
@@ -67,7 +72,8 @@ broadcast, interpolated values reduced to the root (shape_map.py).
 
 The DEM engine is used through the `FineScale` interface (demcell.specimen.Specimen with the
 bridging extensions: follow_held_path, forces_now, disc_forces, set_skip_held_pairs, load_kernels); its state is read through
-`state.position`, `state.rotation` and `order` (original index of each engine disc).
+`state.position`, `state.rotation` and `order` (original index of each engine disc), its
+gravity through `options.gravity`.
 """
 import abc
 import math
@@ -236,6 +242,7 @@ class BridgingCoupler:
         refusal = self.comm.bcast(refusal, root=root)
         if refusal:
             raise InputError(refusal)
+        self._weight = self._grain_weight(continuum.gravity)
         # coarse mass of the DEM-region nodes: N_R^T m (u1, u2), N_R^T J (phi), added once
         weights = np.zeros((region.n_discs, 3))
         weights[:n_real] = np.column_stack([region.mass[:n_real], region.mass[:n_real],
@@ -280,6 +287,23 @@ class BridgingCoupler:
         self._load_kernels()
         # shape maps, projection, mass and stable step: once, apart from the loop's phases
         self.setup_seconds = time.perf_counter() - w0
+
+    def _grain_weight(self, gravity):
+        """(n_real, 2) weights m_p g of the real grains [N/m] added to F_R (None without
+        gravity); the engine's gravity must be the continuum's (refused on every rank)."""
+        refusal = None
+        if self.is_root:
+            engine = tuple(float(g) for g in self.fine.options.gravity)
+            if engine != tuple(gravity):
+                refusal = (f"the DEM region's gravity {engine} m/s^2 is not the continuum's {tuple(gravity)}: "
+                           "the grains and the continuum must fall under the same g")
+        refusal = self.comm.bcast(refusal, root=self.root)
+        if refusal:
+            raise InputError(refusal)
+        if not any(gravity):
+            return None
+        mass = self.region.mass[:self.region.n_real]
+        return np.column_stack([mass * gravity[0], mass * gravity[1]])
 
     def _load_kernels(self):
         """Every compiled function of a coarse step called once on the current state without
@@ -522,6 +546,8 @@ class BridgingCoupler:
                 # the engine's own stop (lost discs, non-finite state) reaches every rank
                 cause = f"the DEM region stopped: {error}"
             grain_forces = self.coupling_forces()
+            if self._weight is not None:
+                grain_forces[:region.n_real, :2] += self._weight
             forces = grain_forces
             if self.coarse_force == "interface":
                 forces = grain_forces.copy()

@@ -870,6 +870,11 @@ class Specimen:
         return (self.pair_updates / self.cpu_seconds if self.cpu_seconds > 0 else 0.0,
                 self.pair_updates / self.wall_seconds if self.wall_seconds > 0 else 0.0)
 
+    def set_mass_damping(self, c_m):
+        """Mass damping c_m [1/s] from the next step on (003 eqs. 9, 29): a run may settle
+        with one and load with another."""
+        self.options = self.options.with_(mass_damping=c_m)
+
     def set_local_damping(self, alpha):
         """Local non-viscous damping alpha in [0, 1) from the next run on (000 section
         3.2.1): a run may settle with it and load without (004) or with it (000's DNS)."""

@@ -203,6 +203,12 @@ def test_footing_settles_under_gravity():
     assert bottom == pytest.approx(weight, rel=0.01)
     assert settled["settle_kinetic_energy"] < 1e-4 * weight * 1.5
     assert spec.options.local_damping == 0.0 and spec.options.mass_damping == 10.0   # restored
+    # the walls against the lattice: the surface comes down level (measured 0.006 mm across
+    # 3 m; with the right wall on the domain's face the lattice slumps into the gap: 1 mm)
+    p, r = spec.state.position, spec.state.radius
+    tops = [np.max((p[:, 1] + r)[(p[:, 0] >= x) & (p[:, 0] < x + 0.5)]) for x in np.arange(0.0, 3.0, 0.5)]
+    assert max(tops) - min(tops) < 1e-4
+    assert info["walls"][1] < 3.0 and info["plate_y0"] - max(tops) > 0.0
     res = run_footing("A", width=3.0, height=1.5, plate_width=1.0, speed=0.1, depth=1e-3, record_every=50,
                       threads=1, gravity=9.81, settle_time=0.3)
     assert res.info["plate_y0"] < info["plate_y0"] and res.info["settle_steps"] > 0

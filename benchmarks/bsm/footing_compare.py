@@ -7,6 +7,8 @@ loop times (setup excluded on both sides) are tabulated (docs/results/bsm.md).
     PYTHONPATH=. python3 benchmarks/bsm/footing_compare.py [--cases A:003:10 B:003:10 C:003:10 A:lattice:100] [--repeat 4]
 
 A case is PACKING:CONTINUUM:C_M[:SPEED[:DOMAIN_WIDTH[:REGION_WIDTHxREGION_DEPTH]]] (region 6x3 by default).
+--gravity G [m/s^2] settles both under their weight first (demos/footing_bsm.py --gravity,
+footing.settle), --depth D [m] the final settlement (default 0.06), --settlements the table's.
 """
 import argparse
 import csv
@@ -22,7 +24,7 @@ ROOT = os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__)
 SETTLEMENTS_MM = (5, 10, 15, 20, 30, 40, 50, 60)
 
 
-def compare(case, out):
+def compare(case, out, gravity=0.0, depth=0.06, settlements=SETTLEMENTS_MM):
     fields = case.split(":")
     packing, continuum, c_m = fields[0], fields[1], float(fields[2])
     speed = float(fields[3]) if len(fields) > 3 else 1.0
@@ -32,7 +34,8 @@ def compare(case, out):
     env = dict(os.environ, OMP_NUM_THREADS="1", PYTHONPATH=ROOT)
     cmd = [sys.executable, os.path.join(ROOT, "demos", "footing_bsm.py"), "--packing", packing,
            "--continuum", continuum, "--mass-damping", str(c_m), "--speed", str(speed),
-           "--domain-width", str(width), "--region-width", region[0], "--region-depth", region[1], "--out", run_dir]
+           "--domain-width", str(width), "--region-width", region[0], "--region-depth", region[1], "--out", run_dir,
+           "--gravity", str(gravity), "--depth", str(depth)]
     subprocess.run(cmd, check=True, env=env, capture_output=True, text=True)
     with open(os.path.join(run_dir, "summary.json")) as f:
         summary = json.load(f)
@@ -42,7 +45,8 @@ def compare(case, out):
     load = np.array([float(r["load_kN_per_m"]) for r in rows])
     from demcell.specimen.footing import run_footing
     w0, c0 = time.perf_counter(), time.process_time()
-    full = run_footing(packing, width=width, depth=0.06, speed=speed, mass_damping=c_m, record_every=10, threads=1)
+    full = run_footing(packing, width=width, depth=depth, speed=speed, mass_damping=c_m, record_every=10, threads=1,
+                       gravity=gravity)
     total_wall, total_cpu = time.perf_counter() - w0, time.process_time() - c0
     # the loading loop, as the BSM's (setup excluded: packing C's random fill takes seconds)
     full_wall, full_cpu = full.wall_seconds, full.cpu_seconds
@@ -56,7 +60,7 @@ def compare(case, out):
               "split_wall_s": summary["time_split"]["wall_s"], "load_average": os.getloadavg()[0],
               "bsm_peak": [summary["peak_load_kN_per_m"], summary["peak_settlement_mm"]],
               "full_peak": [1e-3 * float(full.load.max()), 1e3 * float(full.settlement[np.argmax(full.load)])]}
-    for mm in SETTLEMENTS_MM:
+    for mm in settlements:
         k = int(np.argmin(np.abs(s - mm)))
         result["bsm"][mm], result["full_dem"][mm] = float(load[k]), float(reference[k])
     first = np.argmax(np.abs(load - reference) > 0.01 * np.maximum(np.abs(reference), 100.0))
@@ -88,6 +92,10 @@ def main():
                                                        "A:lattice:100:0.5", "A:003:10:1.0:54"])
     parser.add_argument("--repeat", type=int, default=1,
                         help="runs of each case (times: the median and the range; runs of a second vary by 5-10 %%)")
+    parser.add_argument("--gravity", type=float, default=0.0, help="g [m/s^2] on both models (default 0, as 003)")
+    parser.add_argument("--depth", type=float, default=0.06, help="final settlement [m] (default 0.06)")
+    parser.add_argument("--settlements", type=float, nargs="+", default=list(SETTLEMENTS_MM),
+                        help="settlements of the table [mm]")
     parser.add_argument("--out", default="results/bsm_footing_compare")
     args = parser.parse_args()
     if args.repeat < 1:
@@ -95,9 +103,10 @@ def main():
     os.makedirs(args.out, exist_ok=True)
     results = []
     for case in args.cases:
-        r = summarise([compare(case, args.out) for _ in range(args.repeat)])
+        r = summarise([compare(case, args.out, args.gravity, args.depth, args.settlements)
+                       for _ in range(args.repeat)])
         results.append(r)
-        loads = " | ".join(f"{r['bsm'][mm]:.0f} / {r['full_dem'][mm]:.0f}" for mm in SETTLEMENTS_MM)
+        loads = " | ".join(f"{r['bsm'][mm]:.0f} / {r['full_dem'][mm]:.0f}" for mm in args.settlements)
         limit = r["cpu_speedup_over_limit"]
         spread = f" ({100 * limit['min']:.0f}-{100 * limit['max']:.0f} %)" if args.repeat > 1 else ""
         print(f"| {case} | {loads} | {r['bsm_peak'][0]:.0f} ({r['bsm_peak'][1]:.0f} mm) | "

@@ -135,7 +135,11 @@ def footing_specimen(packing="A", width=18.0, height=9.0, plate_width=2.0, rough
     specimens.Discs `discs`); plate_width [m] centred on the top; rough: plate friction mu_s
     (False: smooth); mass_damping c_m [1/s]; dt = dt_fraction sqrt(m_min / k_N);
     lateral "walls" (fixed walls bottom and sides) or "none" (no wall: the caller holds
-    discs); gravity g [m/s^2] (>= 0) downwards (the scene is not settled here: ``settle``)."""
+    discs); gravity g [m/s^2] (>= 0) downwards (the scene is not settled here: ``settle``).
+    Under gravity the side and bottom walls are put against the packing's outermost discs
+    (the lattices A and B end a fraction of a spacing short of the right face: under their
+    weight they would slump sideways into that gap, tilting the surface; weightless the gap
+    is harmless and the walls stay on the domain's faces)."""
     width = checks.number("width", width, POSITIVE)
     height = checks.number("height", height, POSITIVE)
     plate_width = checks.number("plate_width", plate_width, Range(0.0, width, low_open=True))
@@ -150,6 +154,10 @@ def footing_specimen(packing="A", width=18.0, height=9.0, plate_width=2.0, rough
     dt = dt_fraction * math.sqrt(float(np.min(discs.mass)) / KN)
     check_time_step(dt, discs.mass, KN)
     box = (0.0, width, 0.0, height + TOP_WALL_CLEARANCE)
+    if gravity > 0.0 and lateral == "walls":
+        p, r = discs.position, discs.radius
+        box = (float(np.min(p[:, 0] - r)), float(np.max(p[:, 0] + r)), float(np.min(p[:, 1] - r)),
+               height + TOP_WALL_CLEARANCE)
     state = SpecimenState.from_discs(discs.position, discs.radius, discs.mass, discs.inertia, box, lateral=lateral)
     options = SpecimenOptions(dt=dt, mass_damping=mass_damping, lateral=lateral, threads=threads,
                               normal_dashpot=0.0, tangential_dashpot=0.0, gravity=(0.0, -gravity))
@@ -158,7 +166,7 @@ def footing_specimen(packing="A", width=18.0, height=9.0, plate_width=2.0, rough
     x1 = x0 + plate_width
     top = plate_on_surface(spec, x0, x1, rough)
     r = discs.radius
-    info = {"gravity": gravity, "packing": "given" if given else packing,
+    info = {"gravity": gravity, "walls": list(box[:3]), "packing": "given" if given else packing,
             "n_discs": int(discs.n_discs), "width": width, "height": height, "plate_width": plate_width,
             "plate_x": [x0, x1], "plate_y0": top, "rough": bool(rough), "mass_damping": mass_damping, "dt": dt,
             "dt_fraction": dt_fraction, "solid_fraction": discs.solid_fraction(),

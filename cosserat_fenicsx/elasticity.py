@@ -52,6 +52,11 @@ class MicropolarElasticity:
         return self.lmbda / (2.0 * (self.lmbda + self.mu))
 
     @property
+    def p_wave_modulus(self):
+        """lambda + 2 mu [Pa], the longitudinal modulus."""
+        return self.lmbda + 2.0 * self.mu
+
+    @property
     def bending_modulus(self):
         """2 mu_c l_c^2 [N], the factor of eq 2.74."""
         return 2.0 * self.mu_c * self.l_c * self.l_c   # inf, not OverflowError, when too large

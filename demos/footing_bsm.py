@@ -68,6 +68,7 @@ from cosserat_fenicsx.bridging.coupler import BridgingCoupler, BridgingStopped
 from cosserat_fenicsx.bridging.region import build_region, region_cells
 from cosserat_fenicsx.dynamics.explicit import DynamicsError, ExplicitCosserat
 from cosserat_fenicsx.elasticity import MicropolarElasticity
+from cosserat_fenicsx.lattice_elasticity import SquareLatticeElasticity
 from cosserat_fenicsx.figures import pyplot
 from cosserat_fenicsx.output import CsvLog, print0, truncate_xdmf
 from cosserat_fenicsx.run_guard import RunGuard
@@ -91,10 +92,11 @@ parser.add_argument("--region-width", type=number(Range(2.0, 200.0)), default=6.
                     help="width of the DEM region [m], centred (003: 6; whole elements of 1 m)")
 parser.add_argument("--region-depth", type=number(Range(1.0, 9.0)), default=3.0,
                     help="depth of the DEM region below the surface [m] (003: 3; whole elements of 1 m)")
-parser.add_argument("--continuum", choices=("003", "lattice"), default="003",
+parser.add_argument("--continuum", choices=("003", "lattice", "lattice-cubic"), default="003",
                     help="continuum moduli: 003's (E = 500 MPa, nu = 0.2, G_c = 70 MPa) or, for packings A/B, the "
-                         "orientation average of the rotated square lattice's affine moduli (G = (kN + kS)/4, "
-                         "lambda = (kN - kS)/4, mu_c = kS/2)")
+                         "orientation average of the rotated square lattice's affine moduli (lattice: G = (kN + kS)/4, "
+                         "lambda = (kN - kS)/4, mu_c = kS/2) or the lattice's own cubic law (lattice-cubic: "
+                         "cosserat_fenicsx.lattice_elasticity)")
 parser.add_argument("--rough", action="store_true", help="rough plate (Coulomb friction mu_s; default smooth)")
 parser.add_argument("--gravity", type=number(NON_NEGATIVE), default=0.0,
                     help="g [m/s^2] downwards on the grains and the continuum (default 0, as 003)")
@@ -139,15 +141,20 @@ if args.region_width >= WIDTH:
 E_MOD, NU, G_C, L_C = 500e6, 0.2, 70e6, 0.05
 G = E_MOD / (2 * (1 + NU))
 LAMBDA = 2 * G * NU / (1 - 2 * NU)
-if args.continuum == "lattice":
+if args.continuum in ("lattice", "lattice-cubic"):
     # the +-45 degree square lattice (l = 2 r, area 4 r^2 per disc, two contacts per disc):
     # C1111 = C1212 = (kN + kS)/2, C1122 = C1221 = (kN - kS)/2, C2121 = C1111; cubic, so the
     # isotropic moduli are orientation averages (bulk, mean shear, skew part)
     if args.packing == "C":
-        parser.refuse("--continuum lattice is defined for the lattices A and B only")
+        parser.refuse(f"--continuum {args.continuum} is defined for the lattices A and B only")
     from demcell.specimen.footing import KN, KS
     G, LAMBDA, G_C = (KN + KS) / 4.0, (KN - KS) / 4.0, KS / 2.0
 elasticity = MicropolarElasticity(mu=G, lmbda=LAMBDA, mu_c=G_C, l_c=L_C * math.sqrt(G / (2 * G_C)))
+# the longitudinal modulus of a vertical column (the settling's lowest mode)
+column_modulus = LAMBDA + 2 * G
+if args.continuum == "lattice-cubic":
+    elasticity = SquareLatticeElasticity(k_n=KN, k_s=KS, l_c=elasticity.l_c)
+    column_modulus = elasticity.moduli[0]
 guard = RunGuard(comm, os.path.join(args.out, "summary.json"), label="footing_bsm",
                  entries={"packing": args.packing, "element": args.element, "speed": args.speed,
                           "depth": args.depth, "mass_damping": args.mass_damping, "ranks": comm.size},
@@ -372,7 +379,7 @@ write_paraview_state()
 # c_m = 2 omega_1, omega_1 = pi c_p / (2 H) its lowest mode), the plate then on the surface
 if args.gravity > 0.0 and resumed is None:
     settle_steps = max(1, int(round(args.settle_time / dt)))
-    c_settle = math.pi * math.sqrt((LAMBDA + 2 * G) / rho_c) / HEIGHT
+    c_settle = math.pi * math.sqrt(column_modulus / rho_c) / HEIGHT
     print0(comm, f"settling under g = {args.gravity:g} m/s^2: {settle_steps} coarse steps, continuum c_m = "
                  f"{c_settle:.3g} 1/s")
     if comm.rank == ROOT:
@@ -449,7 +456,9 @@ peak = int(np.argmax(loads))
 summary = {"packing": args.packing, "element": args.element, "speed": args.speed, "depth": args.depth,
            "mass_damping": args.mass_damping, "rough": args.rough, "ranks": comm.size, "continuum": args.continuum,
            "gravity": args.gravity, "settle_steps": settle_steps, **settled,
-           "moduli": {"G": G, "lambda": LAMBDA, "G_c": G_C},
+           "moduli": ({"C11": elasticity.moduli[0], "C12": elasticity.moduli[1], "C66": elasticity.moduli[2],
+                       "mu_c": elasticity.mu_c} if args.continuum == "lattice-cubic"
+                      else {"G": G, "lambda": LAMBDA, "G_c": G_C}),
            "grains_real": region.n_real, "grains_virtual": region.n_virtual, "grains_full_domain": n_full,
            "grain_ratio_full_over_bsm": n_full / (region.n_real + region.n_virtual),
            "dt": dt, "substeps": substeps, "dt_fine": dt_fine, "coarse_steps": n_steps,

@@ -44,6 +44,7 @@ from petsc4py import PETSc
 
 from .. import compat
 from ..elasticity import MicropolarElasticity
+from ..lattice_elasticity import SquareLatticeElasticity
 from ..kinematics import curvature, strain
 from ..validation import NON_NEGATIVE, POSITIVE, InputError, check
 from .mass import lumped_mass, mass_dot
@@ -54,6 +55,8 @@ COMPONENTS = ("u1", "u2", "phi")
 #: a displacement or rotation above this is taken as a blow-up, before it overflows to inf [m, rad]
 BLOW_UP = 1e100
 STATE_KEYS = ("displacement", "velocity", "acceleration", "mass")
+#: the elastic laws of the continuum: stress(eps), couple_stress(kappa), mu_c, p_wave_modulus
+ELASTIC_LAWS = (MicropolarElasticity, SquareLatticeElasticity)
 
 
 class DynamicsError(RuntimeError):
@@ -76,7 +79,7 @@ class ExplicitCosserat:
     """Explicit (velocity Verlet, 003 eqs 31-34) linear elastic Cosserat continuum.
 
     mesh            dolfinx mesh (quadrilaterals for Q1/Q1, triangles for P2/P1) [m]
-    elasticity      MicropolarElasticity (mu_c > 0)
+    elasticity      MicropolarElasticity (mu_c > 0) or SquareLatticeElasticity (003's lattices)
     density         rho [kg/m^3] (> 0)
     micro_inertia   j [m^2] (> 0): rotary inertia rho j per unit area (r^2/2 for discs)
     mass_damping    c_m [1/s] (>= 0): force -c_m M v
@@ -92,8 +95,8 @@ class ExplicitCosserat:
 
     def __init__(self, mesh, elasticity, density, micro_inertia, mass_damping=0.0, element="P2/P1",
                  inactive_cells=None, dirichlet=(), refuse_unstable=True, gravity=(0.0, 0.0)):
-        if not isinstance(elasticity, MicropolarElasticity):
-            raise InputError("elasticity must be a MicropolarElasticity")
+        if not isinstance(elasticity, ELASTIC_LAWS):
+            raise InputError("elasticity must be a MicropolarElasticity or a SquareLatticeElasticity")
         if elasticity.mu_c <= 0.0:
             raise InputError(f"explicit Cosserat dynamics needs mu_c > 0 (the rotation has no "
                              f"stiffness otherwise), got {elasticity.mu_c!r}")

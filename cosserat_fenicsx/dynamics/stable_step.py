@@ -44,8 +44,9 @@ def rotational_step(elasticity, density, micro_inertia):
 
 
 def translational_step(elasticity, density, h_min):
-    """h_min / c_p [s], c_p = sqrt((lambda + 2 mu) / rho)."""
-    return h_min / math.sqrt((elasticity.lmbda + 2.0 * elasticity.mu) / density)
+    """h_min / c_p [s], c_p = sqrt(M / rho), M the law's largest longitudinal modulus
+    (lambda + 2 mu when isotropic)."""
+    return h_min / math.sqrt(elasticity.p_wave_modulus / density)
 
 
 def start_vector(x):

@@ -92,11 +92,13 @@ parser.add_argument("--region-width", type=number(Range(2.0, 200.0)), default=6.
                     help="width of the DEM region [m], centred (003: 6; whole elements of 1 m)")
 parser.add_argument("--region-depth", type=number(Range(1.0, 9.0)), default=3.0,
                     help="depth of the DEM region below the surface [m] (003: 3; whole elements of 1 m)")
-parser.add_argument("--continuum", choices=("003", "lattice", "lattice-cubic"), default="003",
+parser.add_argument("--continuum", choices=("003", "lattice", "lattice-cubic", "lattice-coulomb"), default="003",
                     help="continuum moduli: 003's (E = 500 MPa, nu = 0.2, G_c = 70 MPa) or, for packings A/B, the "
                          "orientation average of the rotated square lattice's affine moduli (lattice: G = (kN + kS)/4, "
                          "lambda = (kN - kS)/4, mu_c = kS/2) or the lattice's own cubic law (lattice-cubic: "
-                         "cosserat_fenicsx.lattice_elasticity)")
+                         "cosserat_fenicsx.lattice_elasticity) or that law with its contacts sliding at the "
+                         "friction limit and opening in tension (lattice-coulomb: "
+                         "cosserat_fenicsx.materials.lattice_coulomb)")
 parser.add_argument("--rough", action="store_true", help="rough plate (Coulomb friction mu_s; default smooth)")
 parser.add_argument("--gravity", type=number(NON_NEGATIVE), default=0.0,
                     help="g [m/s^2] downwards on the grains and the continuum (default 0, as 003)")
@@ -141,7 +143,7 @@ if args.region_width >= WIDTH:
 E_MOD, NU, G_C, L_C = 500e6, 0.2, 70e6, 0.05
 G = E_MOD / (2 * (1 + NU))
 LAMBDA = 2 * G * NU / (1 - 2 * NU)
-if args.continuum in ("lattice", "lattice-cubic"):
+if args.continuum.startswith("lattice"):
     # the +-45 degree square lattice (l = 2 r, area 4 r^2 per disc, two contacts per disc):
     # C1111 = C1212 = (kN + kS)/2, C1122 = C1221 = (kN - kS)/2, C2121 = C1111; cubic, so the
     # isotropic moduli are orientation averages (bulk, mean shear, skew part)
@@ -152,9 +154,14 @@ if args.continuum in ("lattice", "lattice-cubic"):
 elasticity = MicropolarElasticity(mu=G, lmbda=LAMBDA, mu_c=G_C, l_c=L_C * math.sqrt(G / (2 * G_C)))
 # the longitudinal modulus of a vertical column (the settling's lowest mode)
 column_modulus = LAMBDA + 2 * G
-if args.continuum == "lattice-cubic":
+material = None
+if args.continuum in ("lattice-cubic", "lattice-coulomb"):
     elasticity = SquareLatticeElasticity(k_n=KN, k_s=KS, l_c=elasticity.l_c)
     column_modulus = elasticity.moduli[0]
+if args.continuum == "lattice-coulomb":
+    from cosserat_fenicsx.materials.lattice_coulomb import LatticeCoulombMaterial
+    from demcell.specimen.footing import MU
+    material = LatticeCoulombMaterial(KN, KS, MU, elasticity.bending_modulus)
 guard = RunGuard(comm, os.path.join(args.out, "summary.json"), label="footing_bsm",
                  entries={"packing": args.packing, "element": args.element, "speed": args.speed,
                           "depth": args.depth, "mass_damping": args.mass_damping, "ranks": comm.size},
@@ -190,7 +197,8 @@ j = 0.5 * float(np.mean(radius ** 2))
 dirichlet = [("u1", lambda x: np.isclose(x[1], 0.0), 0.0), ("u2", lambda x: np.isclose(x[1], 0.0), 0.0),
              ("u1", lambda x: np.isclose(x[0], 0.0) | np.isclose(x[0], WIDTH), 0.0)]
 continuum = ExplicitCosserat(mesh, elasticity, rho_c, j, mass_damping=args.mass_damping, element=args.element,
-                             inactive_cells=inactive, dirichlet=dirichlet, gravity=(0.0, -args.gravity))
+                             inactive_cells=inactive, dirichlet=dirichlet, gravity=(0.0, -args.gravity),
+                             material=material)
 
 # %% the DEM region on rank 0: Table 1 law, the plate on the grains under it, virtual grains held
 engine, engine_info = None, None
@@ -457,7 +465,7 @@ summary = {"packing": args.packing, "element": args.element, "speed": args.speed
            "mass_damping": args.mass_damping, "rough": args.rough, "ranks": comm.size, "continuum": args.continuum,
            "gravity": args.gravity, "settle_steps": settle_steps, **settled,
            "moduli": ({"C11": elasticity.moduli[0], "C12": elasticity.moduli[1], "C66": elasticity.moduli[2],
-                       "mu_c": elasticity.mu_c} if args.continuum == "lattice-cubic"
+                       "mu_c": elasticity.mu_c} if args.continuum in ("lattice-cubic", "lattice-coulomb")
                       else {"G": G, "lambda": LAMBDA, "G_c": G_C}),
            "grains_real": region.n_real, "grains_virtual": region.n_virtual, "grains_full_domain": n_full,
            "grain_ratio_full_over_bsm": n_full / (region.n_real + region.n_virtual),

@@ -246,6 +246,42 @@ def test_gravity_refusal_and_no_weight_without_it():
         model.set_mass_damping(-1.0)
 
 
+def test_gauss_point_material_in_its_elastic_range_is_the_linear_path():
+    """ExplicitCosserat(material=...): the lattice's Coulomb material, which sticks under a
+    column's weight (k_S < mu k_N), gives the cubic law's K d path to round-off; its state()
+    carries the Gauss-point history and set_state() continues the run bit for bit."""
+    from cosserat_fenicsx.lattice_elasticity import SquareLatticeElasticity
+    from cosserat_fenicsx.materials.lattice_coulomb import LatticeCoulombMaterial
+    mesh, _, _ = meshes.rectangle(COMM, 2.0, 4.0, divisions=(2, 4), cell_type="quadrilateral")
+    law = SquareLatticeElasticity(2.5e8, 5e7, l_c=0.05)
+    sides = lambda x: np.isclose(x[0], 0.0) | np.isclose(x[0], 2.0)      # noqa: E731
+    bottom = lambda x: np.isclose(x[1], 0.0)                              # noqa: E731
+    bcs = [("u1", sides, 0.0), ("u1", bottom, 0.0), ("u2", bottom, 0.0)]
+    options = dict(mass_damping=50.0, element="Q1/Q1", dirichlet=bcs, gravity=(0.0, -9.81))
+    linear = ExplicitCosserat(mesh, law, 2042.0, 1e-3, **options)
+    plastic = ExplicitCosserat(mesh, law, 2042.0, 1e-3, **options,
+                               material=LatticeCoulombMaterial(2.5e8, 5e7, 0.5, law.bending_modulus))
+    dt = 0.5 * linear.stable_time_step()["power"]
+    for model in (linear, plastic):
+        model.update_acceleration()
+        for _ in range(200):
+            model.step(dt)
+    size = COMM.allreduce(float(np.abs(linear.displacement.array).max(initial=0.0)), op=MPI.MAX)
+    gap = COMM.allreduce(float(np.abs(linear.displacement.array - plastic.displacement.array).max(initial=0.0)),
+                         op=MPI.MAX)
+    assert size > 0.0 and gap < 1e-12 * size
+    state = plastic.state()
+    assert "gauss_history" in state and state["gauss_history"].shape[1] == 4
+    plastic.step(dt)
+    after = plastic.displacement.array.copy()
+    plastic.set_state(state)
+    plastic.step(dt)
+    assert np.array_equal(plastic.displacement.array, after)
+    state.pop("gauss_history")
+    with pytest.raises(InputError, match="Gauss-point arrays"):
+        plastic.set_state(state)
+
+
 def test_hrz_lumping_of_p2():
     """Two triangles of area 1/2: HRZ gives rho A/19 at a vertex of one triangle and
     2 x 16 rho A/57 at the midpoint of the shared diagonal (Hinton, Rock & Zienkiewicz 1976)."""

@@ -108,22 +108,38 @@ def test_stop_and_restart_is_the_straight_run(demo, tmp_path, straight):
     assert_same_run(straight, part)
 
 
-def test_gravity_settles_then_stops_and_restarts_as_the_straight_run(demo, tmp_path):
-    """--gravity: the settling steps come first (70 coarse steps of 0.01 s), the plate is put
+@pytest.mark.parametrize("continuum", ["003", "lattice-coulomb"])
+def test_gravity_settles_then_stops_and_restarts_as_the_straight_run(demo, tmp_path, continuum):
+    """--gravity: the settling steps come first (0.01 s of coarse steps), the plate is put
     on the settled surface and the history starts there; stopped in the loading and continued,
-    every written digit of the straight run."""
+    every written digit of the straight run (with the Coulomb lattice outside the region, its
+    Gauss-point history in the checkpoint)."""
     straight, part = tmp_path / "straight", tmp_path / "part"
-    gravity = ("--gravity", 9.81, "--settle-time", 0.01)
+    gravity = ("--gravity", 9.81, "--settle-time", 0.01, "--continuum", continuum)
     demo("footing_bsm", *TINY, *gravity, "--out", straight)
     summary = read_summary(straight)
-    assert summary["settle_steps"] == 70 and summary["surface_drop_mm"] > 0.0
-    assert summary["steps_completed"] == 70 + summary["coarse_steps"]
+    settle = summary["settle_steps"]
+    assert settle == round(0.01 / summary["dt"]) and summary["surface_drop_mm"] > 0.0
+    assert summary["steps_completed"] == settle + summary["coarse_steps"]
     _, rows = history(straight)
-    assert rows[0, 0] == 70 and rows[0, 2] == 0.0            # step, settlement of the first row
-    demo("footing_bsm", *TINY, *gravity, "--out", part, "--stop-after", 80)
-    assert read_summary(part)["steps_completed"] == 80
+    assert rows[0, 0] == settle and rows[0, 2] == 0.0            # step, settlement of the first row
+    demo("footing_bsm", *TINY, *gravity, "--out", part, "--stop-after", settle + 10)
+    assert read_summary(part)["steps_completed"] == settle + 10
     demo("footing_bsm", "--restart", part)
     assert_same_run(straight, part)
+
+
+def test_coulomb_lattice_checkpoint_of_two_ranks_continues_on_one(demo, tmp_path):
+    """The Gauss-point history of the Coulomb lattice is matched by the points' coordinates:
+    a 2-rank checkpoint continues on 1 rank, within round-off of the 1-rank straight run."""
+    options = (*TINY, "--gravity", 9.81, "--settle-time", 0.01, "--continuum", "lattice-coulomb")
+    straight, two = tmp_path / "straight", tmp_path / "two"
+    demo("footing_bsm", *options, "--out", straight)
+    demo("footing_bsm", *options, "--out", two, "--stop-after", read_summary(straight)["settle_steps"] + 10,
+         ranks=2)
+    demo("footing_bsm", "--restart", two)
+    assert read_summary(two)["completed"] and read_summary(two)["restarted_from_ranks"] == 2
+    assert_close_run(straight, two, rtol=1e-6)
 
 
 def test_two_ranks_stop_and_continue_on_two_and_on_one(demo, tmp_path, straight):

@@ -471,6 +471,19 @@ class BridgingCoupler:
         out = {k: saved[k][rows] for k in STATE_KEYS}
         out["time"] = states[0]["continuum_time"]
         out["steps"] = states[0].get("continuum_steps", 0)
+        store = self.continuum.gauss_points
+        if store is not None:
+            # the Gauss-point material's committed arrays, point by point at their coordinates
+            names = [k for k in states[0] if k.startswith("continuum_gauss_") and k != "continuum_gauss_coordinates"]
+            if not names or "continuum_gauss_coordinates" not in states[0]:
+                raise InputError("the saved continuum has no Gauss-point state (continuum_gauss_*) for its material")
+            points = np.concatenate([np.asarray(st["continuum_gauss_coordinates"]) for st in states])
+            dist, found = cKDTree(points).query(store.coordinates) if len(store.coordinates) else (np.zeros(0), [])
+            if np.any(~(np.asarray(dist) <= 1e-8 * scale)):
+                raise InputError("a Gauss point of this mesh has no saved state: not the same mesh")
+            for name in names:
+                saved_values = np.concatenate([np.asarray(st[name]) for st in states])
+                out[name[len("continuum_"):]] = saved_values[np.asarray(found, dtype=np.int64)]
         return out
 
     def set_state(self, states):

@@ -1,5 +1,6 @@
-"""Explicit dynamics of the linear elastic Cosserat continuum: velocity Verlet with mass-
-proportional damping (003 eqs 31-34, spec section 4), lumped mass (mass.py).
+"""Explicit dynamics of the Cosserat continuum, linear elastic or of a Gauss-point material:
+velocity Verlet with mass-proportional damping (003 eqs 31-34, spec section 4), lumped mass
+(mass.py).
 
 Semi-discrete equations (2D, per unit depth), d = (u1, u2, phi) nodal values:
 
@@ -30,7 +31,11 @@ dt <= 2 / omega_max (stable_step.py). Damped, a free mode decays as exp(-c_m t /
 
 Dirichlet dofs hold their prescribed value (set in (31)), with zero velocity and acceleration.
 Massless dofs (inside the inactive region, before add_mass) are held as well. The stiffness K
-is assembled once, as a PETSc Mat over the mixed space (u, phi), and never reassembled.
+is assembled once, as a PETSc Mat over the mixed space (u, phi), and never reassembled. With a
+Gauss-point material (`material=`) the internal force is instead assembled at every force
+evaluation from the material's stress at the 2 x 2 Gauss points (quadrature.QuadratureMap),
+the store committed after every step; K (the material's elastic law) then serves the stable
+step only.
 """
 import math
 import numbers
@@ -76,7 +81,8 @@ def stiffness_form(space, elasticity, indicator, quadrature_degree=2):
 
 
 class ExplicitCosserat:
-    """Explicit (velocity Verlet, 003 eqs 31-34) linear elastic Cosserat continuum.
+    """Explicit (velocity Verlet, 003 eqs 31-34) Cosserat continuum, linear elastic or of a
+    Gauss-point material.
 
     mesh            dolfinx mesh (quadrilaterals for Q1/Q1, triangles for P2/P1) [m]
     elasticity      MicropolarElasticity (mu_c > 0) or SquareLatticeElasticity (003's lattices)
@@ -91,10 +97,14 @@ class ExplicitCosserat:
                     mixed space (owned dofs listed by their owning rank)
     refuse_unstable True: predict() refuses dt above the power-iteration stable step
     gravity         (g_x, g_y) [m/s^2]: the body force f_g = M_0 g (module docstring)
+    material        a Gauss-point material (constitutive.Constitutive, e.g.
+                    materials.lattice_coulomb.LatticeCoulombMaterial) whose stress replaces K d
+                    in the internal force (updated and committed every step, 2 x 2 Gauss on
+                    Q1); `elasticity` is then its elastic law, for the stable step only
     """
 
     def __init__(self, mesh, elasticity, density, micro_inertia, mass_damping=0.0, element="P2/P1",
-                 inactive_cells=None, dirichlet=(), refuse_unstable=True, gravity=(0.0, 0.0)):
+                 inactive_cells=None, dirichlet=(), refuse_unstable=True, gravity=(0.0, 0.0), material=None):
         if not isinstance(elasticity, ELASTIC_LAWS):
             raise InputError("elasticity must be a MicropolarElasticity or a SquareLatticeElasticity")
         if elasticity.mu_c <= 0.0:
@@ -159,6 +169,7 @@ class ExplicitCosserat:
                                                 u_dofs, quadrature_degree=2 * degree_u)
         self._force = self.stiffness.createVecLeft()
         self._weight = self._continuum_weight()
+        self.gauss_points = None if material is None else self._gauss_point_force(material)
         self._v_tilde = self.velocity.duplicate()
         self._predicted_dt = None
         self._stable = None
@@ -269,6 +280,34 @@ class ExplicitCosserat:
         another."""
         self.mass_damping = check("mass_damping", mass_damping, NON_NEGATIVE)
 
+    def _gauss_point_force(self, material):
+        """The store of `material` at the 2 x 2 Gauss points (quadrature.QuadratureMap) and
+        the form of its internal force int chi [sigma : eps(v, w) + m . grad w] dA."""
+        from ..constitutive import Constitutive
+        from ..kinematics import gradient_vector
+        from ..quadrature import QuadratureMap
+        if not isinstance(material, Constitutive):
+            raise InputError("material must be a constitutive.Constitutive (a Gauss-point material)")
+        u, phi = ufl.split(self.fields["displacement"])
+        store = QuadratureMap(self.mesh, material, gradient_vector(u, phi), 2)
+        v, w = ufl.split(ufl.TestFunction(self.space))
+        dx = ufl.dx(domain=self.mesh, metadata={"quadrature_degree": 2})
+        work = self.indicator * (ufl.inner(store.stress(), strain(v, w))
+                                 + ufl.dot(store.couple_stress(), curvature(w))) * dx
+        self._internal_form = dolfinx.fem.form(work)
+        self._internal_vec = dolfinx.fem.petsc.create_vector(self._internal_form)
+        return store
+
+    def _material_force(self):
+        """f_int of the Gauss-point material at the current d (trial update, owned entries)."""
+        self.gauss_points.update()
+        vec = self._internal_vec
+        with vec.localForm() as local:
+            local.set(0.0)
+        dolfinx.fem.petsc.assemble_vector(vec, self._internal_form)
+        vec.ghostUpdate(addv=PETSc.InsertMode.ADD, mode=PETSc.ScatterMode.REVERSE)
+        return vec.array
+
     @property
     def weight(self):
         """f_g = M_0 g over the owned dofs [N/m at u dofs, 0 at phi dofs] (a copy; zeros
@@ -363,8 +402,11 @@ class ExplicitCosserat:
         self._forward(self.acceleration)
 
     def _net_force(self, coupling_force):
-        self.stiffness.mult(self.displacement, self._force)
-        force = -self._force.array
+        if self.gauss_points is None:
+            self.stiffness.mult(self.displacement, self._force)
+            force = -self._force.array
+        else:
+            force = -self._material_force()
         if self._weight is not None:
             force = force + self._weight
         if coupling_force is not None:
@@ -409,6 +451,8 @@ class ExplicitCosserat:
         a[:] = a_new
         self._forward(self.velocity)
         self._forward(self.acceleration)
+        if self.gauss_points is not None:
+            self.gauss_points.commit()
         self._predicted_dt = None
         self.time += dt
         self.steps += 1
@@ -445,6 +489,10 @@ class ExplicitCosserat:
                "acceleration": self.acceleration.array.copy(), "mass": self.mass.array.copy()}
         out["time"] = np.array(self.time)
         out["steps"] = np.array(self.steps)
+        if self.gauss_points is not None:
+            out.update({f"gauss_{k}": np.array(v, copy=True)
+                        for k, v in self.gauss_points.committed_arrays().items()})
+            out["gauss_coordinates"] = self.gauss_points.coordinates.copy()
         return out
 
     def dof_keys(self):
@@ -483,6 +531,15 @@ class ExplicitCosserat:
             vec.array[:] = np.asarray(state[key], dtype=float)
             self._forward(vec)
         self._update_inverse_mass()
+        if self.gauss_points is not None:
+            store = self.gauss_points
+            arrays = {k[len("gauss_"):]: np.asarray(v) for k, v in state.items()
+                      if k.startswith("gauss_") and k != "gauss_coordinates"}
+            current = store.committed_arrays()
+            if set(arrays) != set(current) or any(np.shape(arrays[k]) != np.shape(v) for k, v in current.items()):
+                raise InputError(f"set_state: the Gauss-point arrays do not fit this rank's {store.n_points} points "
+                                 f"(a material's state is needed: {', '.join(sorted(current))})")
+            store.restore_committed(arrays)
         self.time = time
         self.steps = int(state.get("steps", 0))
         self._predicted_dt = None

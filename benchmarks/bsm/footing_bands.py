@@ -195,8 +195,12 @@ def read_window(run, s1_mm, s2_mm):
         from demcell.specimen.files import read_particles_vtk
         with open(os.path.join(run, "grains.vtk.series")) as f:
             files = json.load(f)["files"]
-        speed = float(summary["speed"])
-        s = np.array([1e3 * speed * fr["time"] for fr in files])
+        # a frame's settlement from history.csv at its time (under gravity the loading starts
+        # after the settling, at the first row's time)
+        with open(os.path.join(run, "history.csv")) as f:
+            rows = list(csv.DictReader(f))
+        s = np.interp([fr["time"] for fr in files], [float(r["time"]) for r in rows],
+                      [float(r["settlement_mm"]) for r in rows])
         k1, k2 = int(np.argmin(abs(s - s1_mm))), int(np.argmin(abs(s - s2_mm)))
         p0, d0 = read_particles_vtk(os.path.join(run, files[0]["name"]))
         p1, d1 = read_particles_vtk(os.path.join(run, files[k1]["name"]))
@@ -207,7 +211,8 @@ def read_window(run, s1_mm, s2_mm):
         centre = 0.5 * (np.min(ref[:, 0] - r) + np.max(ref[:, 0] + r))    # the region is centred on the plate
         plate_x = (centre - 0.5 * PLATE_WIDTH, centre + 0.5 * PLATE_WIDTH)
         under = (ref[:, 0] + r > plate_x[0]) & (ref[:, 0] - r < plate_x[1])
-        surface = float(np.max(ref[under, 1] + r[under]))
+        # the plate starts on the surface as it was after the settling (surface_drop_mm)
+        surface = float(np.max(ref[under, 1] + r[under])) - 1e-3 * float(summary.get("surface_drop_mm", 0.0))
         return p1[real], p2[real] - p1[real], plate_x, surface - s[k1] * 1e-3, (s[k1], s[k2]), "BSM"
     g2 = np.load(os.path.join(run, f"grains_{s2_mm:g}.npz"))
     if s1_mm == 0.0:              # the whole history: from the reference positions

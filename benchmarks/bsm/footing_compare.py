@@ -8,7 +8,9 @@ loop times (setup excluded on both sides) are tabulated (docs/results/bsm.md).
 
 A case is PACKING:CONTINUUM:C_M[:SPEED[:DOMAIN_WIDTH[:REGION_WIDTHxREGION_DEPTH]]] (region 6x3 by default).
 --gravity G [m/s^2] settles both under their weight first (demos/footing_bsm.py --gravity,
-footing.settle), --depth D [m] the final settlement (default 0.06), --settlements the table's.
+footing.settle), --depth D [m] the final settlement (default 0.06), --settlements the table's;
+--error-range S1 S2 [mm]: the largest |BSM - DEM| over it against the full DEM's peak, and the
+change of the mean load (docs/results/bsm.md, error against cost).
 """
 import argparse
 import csv
@@ -24,7 +26,7 @@ ROOT = os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__)
 SETTLEMENTS_MM = (5, 10, 15, 20, 30, 40, 50, 60)
 
 
-def compare(case, out, gravity=0.0, depth=0.06, settlements=SETTLEMENTS_MM):
+def compare(case, out, gravity=0.0, depth=0.06, settlements=SETTLEMENTS_MM, error_range=(2.0, 20.0)):
     fields = case.split(":")
     packing, continuum, c_m = fields[0], fields[1], float(fields[2])
     speed = float(fields[3]) if len(fields) > 3 else 1.0
@@ -63,6 +65,12 @@ def compare(case, out, gravity=0.0, depth=0.06, settlements=SETTLEMENTS_MM):
     for mm in settlements:
         k = int(np.argmin(np.abs(s - mm)))
         result["bsm"][mm], result["full_dem"][mm] = float(load[k]), float(reference[k])
+    grid = np.arange(error_range[0], error_range[1] + 1e-9, 0.1)
+    bsm_grid, dem_grid = np.interp(grid, s, load), np.interp(grid, 1e3 * full.settlement, 1e-3 * full.load)
+    k = int(np.argmax(np.abs(bsm_grid - dem_grid)))
+    result["error"] = {"range_mm": list(error_range), "max_over_dem_peak": float(abs(bsm_grid[k] - dem_grid[k]))
+                       / result["full_peak"][0], "at_mm": float(grid[k]),
+                       "mean_load_change": float(np.mean(bsm_grid) / np.mean(dem_grid) - 1.0)}
     first = np.argmax(np.abs(load - reference) > 0.01 * np.maximum(np.abs(reference), 100.0))
     result["agree_within_1pc_until_mm"] = float(s[first]) if first > 0 else float(s[-1])
     return result
@@ -96,6 +104,8 @@ def main():
     parser.add_argument("--depth", type=float, default=0.06, help="final settlement [m] (default 0.06)")
     parser.add_argument("--settlements", type=float, nargs="+", default=list(SETTLEMENTS_MM),
                         help="settlements of the table [mm]")
+    parser.add_argument("--error-range", type=float, nargs=2, default=[2.0, 20.0], metavar=("S1", "S2"),
+                        help="settlements [mm] of the error summary (default 2 20)")
     parser.add_argument("--out", default="results/bsm_footing_compare")
     args = parser.parse_args()
     if args.repeat < 1:
@@ -103,7 +113,7 @@ def main():
     os.makedirs(args.out, exist_ok=True)
     results = []
     for case in args.cases:
-        r = summarise([compare(case, args.out, args.gravity, args.depth, args.settlements)
+        r = summarise([compare(case, args.out, args.gravity, args.depth, args.settlements, tuple(args.error_range))
                        for _ in range(args.repeat)])
         results.append(r)
         loads = " | ".join(f"{r['bsm'][mm]:.0f} / {r['full_dem'][mm]:.0f}" for mm in args.settlements)
@@ -113,7 +123,10 @@ def main():
               f"{r['full_peak'][0]:.0f} ({r['full_peak'][1]:.0f} mm) | agree to 1 % until {r['agree_within_1pc_until_mm']:.1f} mm | "
               f"wall {r['full_wall_s']:.1f} / {r['bsm_wall_s']:.2f} s = {r['speedup']:.1f}x, CPU {r['full_cpu_s']:.1f} / "
               f"{r['bsm_cpu_s']:.2f} s = {r['full_cpu_s'] / r['bsm_cpu_s']:.1f}x (grain ratio "
-              f"{r['grain_ratio']:.1f}: {100 * limit['median']:.0f} %{spread}), load {r['load_average']:.1f}"
+              f"{r['grain_ratio']:.1f}: {100 * limit['median']:.0f} %{spread}), error over "
+              f"{r['error']['range_mm'][0]:g}-{r['error']['range_mm'][1]:g} mm "
+              f"{100 * r['error']['max_over_dem_peak']:.1f} % of the DEM peak (at {r['error']['at_mm']:.1f} mm), "
+              f"mean load {100 * r['error']['mean_load_change']:+.1f} %, load {r['load_average']:.1f}"
               + (f", median of {args.repeat} runs" if args.repeat > 1 else ""), flush=True)
         with open(os.path.join(args.out, "footing_compare.json"), "w") as f:
             json.dump(results, f, indent=1)

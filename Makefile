@@ -139,6 +139,9 @@ benchmark-bsm: benchmark-deps
 	$(PYTHON) benchmarks/bsm/footing_fe.py --out $(BENCH)/bsm_footing_fe
 	$(PYTHON) benchmarks/bsm/footing_compare.py --out $(BENCH)/bsm_footing_compare
 	OMP_NUM_THREADS=1 NUMBA_NUM_THREADS=1 $(PYTHON) benchmarks/bsm/footing_compare.py --cases A:003:10 B:003:10 C:003:10 A:003:10:1.0:54 --repeat 4 --out $(BENCH)/bsm_cost
+	OMP_NUM_THREADS=1 NUMBA_NUM_THREADS=1 $(PYTHON) benchmarks/bsm/footing_compare.py --gravity 9.81 --depth 0.03 --settlements 5 10 15 20 25 --error-range 2 20 --cases A:lattice-cubic:10:0.1 A:lattice-cubic:10:0.1:18:8x4 A:lattice-cubic:10:0.1:18:10x5 A:lattice-cubic:10:0.1:18:12x6 A:lattice-cubic:10:0.1:18:14x7 A:lattice-coulomb:10:0.1 --out $(BENCH)/bsm_gravity
+	for v in 0.2 0.1 0.05 0.025; do OMP_NUM_THREADS=1 NUMBA_NUM_THREADS=1 $(PYTHON) benchmarks/dns/footing_dem.py --packing A --gravity 9.81 --depth 0.03 --speed $$v --out $(BENCH)/bsm_gravity_rate/dem_$$v || exit 1; done
+	$(PYTHON) benchmarks/bsm/footing_rate.py $(BENCH)/bsm_gravity_rate/dem_0.2 $(BENCH)/bsm_gravity_rate/dem_0.1 $(BENCH)/bsm_gravity_rate/dem_0.05 $(BENCH)/bsm_gravity_rate/dem_0.025 --from 2 --to 25
 
 benchmark-identification: benchmark-deps
 	$(PYTHON) benchmarks/identification/identification_sensitivity.py --out $(BENCH)/identification_sensitivity

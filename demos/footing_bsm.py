@@ -370,7 +370,8 @@ def record():
 
 def save_checkpoint(step):
     """The coupled state and this demo's run state after coarse step `step` (collective)."""
-    state = {"rows": rows, "y0": y0, "settle_steps": settle_steps, "index": outputs["index"], "series": outputs["series"], "xdmf": outputs["xdmf"],
+    state = {"rows": rows, "y0": y0, "settle_steps": settle_steps, "index": outputs["index"],
+             "series": outputs["series"], "xdmf": outputs["xdmf"],
              "wall_s": outputs["wall_s"] + time.perf_counter() - t0,
              "cpu_s": outputs["cpu_s"] + time.process_time() - c0}
     try:
@@ -390,26 +391,23 @@ if args.gravity > 0.0 and resumed is None:
     c_settle = math.pi * math.sqrt(column_modulus / rho_c) / HEIGHT
     print0(comm, f"settling under g = {args.gravity:g} m/s^2: {settle_steps} coarse steps, continuum c_m = "
                  f"{c_settle:.3g} 1/s")
-    if comm.rank == ROOT:
-        from demcell.specimen.footing import SETTLE_DAMPING, plate_on_surface
-        engine.set_local_damping(SETTLE_DAMPING)
-        engine.set_mass_damping(0.0)
+    from contextlib import nullcontext
+    from demcell.specimen.footing import plate_on_surface, settling
     continuum.set_mass_damping(c_settle)
     try:
-        for _ in range(settle_steps):
-            coupler.step(diagnose=False)
+        with settling(engine) if comm.rank == ROOT else nullcontext():
+            for _ in range(settle_steps):
+                coupler.step(diagnose=False)
     except (BridgingStopped, DynamicsError) as error:
         guard.stop(error)
     continuum.set_mass_damping(args.mass_damping)
     top = None
     if comm.rank == ROOT:
-        engine.set_local_damping(0.0)
-        engine.set_mass_damping(args.mass_damping)
         top = plate_on_surface(engine, 0.5 * (WIDTH - PLATE), 0.5 * (WIDTH + PLATE), args.rough)
+    top = comm.bcast(top, root=ROOT)
     settled = {"settle_steps": settle_steps, "settle_time": settle_steps * dt, "settle_continuum_c_m": c_settle,
-               "surface_drop_mm": 1e3 * (y0 - comm.bcast(top, root=ROOT)),
-               "settle_fe_kinetic_J_per_m": continuum.kinetic_energy()}
-    y0 = comm.bcast(top, root=ROOT)
+               "surface_drop_mm": 1e3 * (y0 - top), "settle_fe_kinetic_J_per_m": continuum.kinetic_energy()}
+    y0 = top
     print0(comm, f"settled: the surface under the plate {settled['surface_drop_mm']:.2f} mm lower, continuum "
                  f"kinetic energy {settled['settle_fe_kinetic_J_per_m']:.3g} J/m")
     guard.progress(**settled)

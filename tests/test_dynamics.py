@@ -280,6 +280,7 @@ def test_gauss_point_material_in_its_elastic_range_is_the_linear_path():
     state.pop("gauss_history")
     with pytest.raises(InputError, match="Gauss-point arrays"):
         plastic.set_state(state)
+    assert np.array_equal(plastic.displacement.array, after)          # refused before any change
 
 
 def test_hrz_lumping_of_p2():

@@ -8,7 +8,7 @@ import math
 import numpy as np
 import pytest
 
-from cosserat_fenicsx.materials.lattice_coulomb import LatticeCoulombMaterial, _frame_maps
+from cosserat_fenicsx.materials.lattice_coulomb import LatticeCoulombMaterial, lattice_frame_maps
 
 KN, KS, MU, BEND = 2.5e8, 5.0e7, 0.5, 12.0
 
@@ -22,7 +22,7 @@ def update(material, gradients, old=None):
 
 def from_lattice(strain_lattice):
     """x-y gradient vector (eps11, eps22, eps12, eps21, 0, 0) of a lattice-frame strain (11, 22, 12, 21)."""
-    into, _ = _frame_maps(math.pi / 4)
+    into, _ = lattice_frame_maps(math.pi / 4)
     g = np.zeros(6)
     g[:4] = np.linalg.solve(into, strain_lattice)
     return g
@@ -43,7 +43,7 @@ def test_shear_saturates_at_the_friction_limit_and_unloads_elastically():
     """Family 1 compressed by eps'_11 = -1e-3, sheared by eps'_21 in steps: t_1 = k_S eps'_21
     until mu k_N 1e-3, then held there; back by one step: k_S less."""
     m = LatticeCoulombMaterial(KN, KS, MU)
-    _, back = _frame_maps(math.pi / 4)
+    _, back = lattice_frame_maps(math.pi / 4)
     state = np.zeros((1, 4))
     limit = MU * KN * 1e-3
     shear = np.linspace(0.0, 6e-3, 61)
@@ -59,7 +59,7 @@ def test_shear_saturates_at_the_friction_limit_and_unloads_elastically():
 
 def test_tension_opens_a_family():
     m = LatticeCoulombMaterial(KN, KS, MU)
-    _, back = _frame_maps(math.pi / 4)
+    _, back = lattice_frame_maps(math.pi / 4)
     flux, tangent, state = update(m, [from_lattice([2e-4, -1e-3, 3e-4, 1e-4])])
     lattice = np.linalg.solve(back, flux[0, :4])
     assert abs(lattice[0]) < 1e-6 and abs(lattice[3]) < 1e-6 and state[0, 0] == 0.0      # family 1 open

@@ -525,21 +525,23 @@ class ExplicitCosserat:
         time = float(state["time"])
         if not math.isfinite(time):
             raise InputError(f"set_state: time must be finite, got {time!r}")
+        gauss = None
+        if self.gauss_points is not None:
+            store = self.gauss_points
+            gauss = {k[len("gauss_"):]: np.asarray(v) for k, v in state.items()
+                     if k.startswith("gauss_") and k != "gauss_coordinates"}
+            current = store.committed_arrays()
+            if set(gauss) != set(current) or any(np.shape(gauss[k]) != np.shape(v) for k, v in current.items()):
+                raise InputError(f"set_state: the Gauss-point arrays do not fit this rank's {store.n_points} points "
+                                 f"(a material's state is needed: {', '.join(sorted(current))})")
         vectors = {"displacement": self.displacement, "velocity": self.velocity,
                    "acceleration": self.acceleration, "mass": self.mass}
         for key, vec in vectors.items():
             vec.array[:] = np.asarray(state[key], dtype=float)
             self._forward(vec)
         self._update_inverse_mass()
-        if self.gauss_points is not None:
-            store = self.gauss_points
-            arrays = {k[len("gauss_"):]: np.asarray(v) for k, v in state.items()
-                      if k.startswith("gauss_") and k != "gauss_coordinates"}
-            current = store.committed_arrays()
-            if set(arrays) != set(current) or any(np.shape(arrays[k]) != np.shape(v) for k, v in current.items()):
-                raise InputError(f"set_state: the Gauss-point arrays do not fit this rank's {store.n_points} points "
-                                 f"(a material's state is needed: {', '.join(sorted(current))})")
-            store.restore_committed(arrays)
+        if gauss is not None:
+            self.gauss_points.restore_committed(gauss)
         self.time = time
         self.steps = int(state.get("steps", 0))
         self._predicted_dt = None

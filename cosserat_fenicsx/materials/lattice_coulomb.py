@@ -31,7 +31,7 @@ import numpy as np
 from ..constitutive import Constitutive
 
 
-def _frame_maps(angle):
+def lattice_frame_maps(angle):
     """(P, Q) 4x4: eps'_vec = P eps_vec and sigma_vec = Q sigma'_vec, vec order (11, 22, 12, 21)."""
     c, s = math.cos(angle), math.sin(angle)
     rotation = np.array([[c, -s], [s, c]])          # columns e1', e2'
@@ -67,7 +67,7 @@ class LatticeCoulombMaterial(Constitutive):
         self.k_n, self.k_s, self.friction = float(k_n), float(k_s), float(friction)
         self.bending_modulus = float(bending_modulus)
         self.angle = float(angle)
-        self._into, self._back = _frame_maps(self.angle)
+        self._into, self._back = lattice_frame_maps(self.angle)
 
     def update(self, gradients, dt, state_old, flux_out, tangent_out, state_new, points=None):
         rows = slice(None) if points is None else points

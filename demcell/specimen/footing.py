@@ -24,6 +24,7 @@ limit (engine.check_time_step). Mass damping c_m (003 eqs. 9, 29) on every disc;
 no value. It also resists the motion of the discs carried down with the plate: about c_m
 rho v times the area moving with it, a bias of the quasi-static load to keep in mind.
 """
+import contextlib
 import math
 import os
 import time
@@ -102,29 +103,35 @@ def plate_on_surface(spec, x0, x1, rough=False):
     return top
 
 
-def settle(spec, duration=SETTLE_TIME, local_damping=SETTLE_DAMPING):
-    """Let the specimen settle under its gravity for `duration` [s] with local damping alpha
-    and no mass damping (mass damping leaves the contacts' own vibrations of a lattice
-    ringing), then restore its damping. Returns {"settle_time", "settle_steps",
-    "settle_kinetic_energy" [J/m], "settle_max_speed" [m/s]} at the end."""
-    duration = checks.number("settle duration", duration, POSITIVE)
+@contextlib.contextmanager
+def settling(spec, local_damping=SETTLE_DAMPING):
+    """Within the block the specimen's discs are damped for settling: local damping alpha and
+    no mass damping (mass damping leaves the contacts' own vibrations of a lattice ringing);
+    its damping is restored on leaving. For a caller that steps the specimen itself (the
+    bridging coupler); ``settle`` steps it here."""
     local_damping = checks.number("settle local damping", local_damping, Range(0.0, 1.0, low_open=True,
                                                                                high_open=True))
     alpha, c_m = spec.options.local_damping, spec.options.mass_damping
-    steps = max(1, int(round(duration / spec.options.dt)))
     spec.set_local_damping(local_damping)
     spec.set_mass_damping(0.0)
     try:
-        spec.advance(steps)
+        yield spec
     finally:
         spec.set_local_damping(alpha)
         spec.set_mass_damping(c_m)
-    st = spec.state
-    free = ~spec.held
-    speed = np.hypot(st.velocity[:, 0], st.velocity[:, 1])[free]
-    kinetic = 0.5 * float(np.sum(st.mass[free] * speed ** 2))
-    return {"settle_time": steps * spec.options.dt, "settle_steps": steps, "settle_kinetic_energy": kinetic,
-            "settle_max_speed": float(speed.max(initial=0.0))}
+
+
+def settle(spec, duration=SETTLE_TIME, local_damping=SETTLE_DAMPING):
+    """Let the specimen settle under its gravity for `duration` [s] (``settling``'s damping).
+    Returns {"settle_time", "settle_steps", "settle_kinetic_energy" [J/m] (Specimen.measure's,
+    rotations included), "settle_max_speed" [m/s] of a free disc} at the end."""
+    duration = checks.number("settle duration", duration, POSITIVE)
+    steps = max(1, int(round(duration / spec.options.dt)))
+    with settling(spec, local_damping):
+        spec.advance(steps)
+    speed = np.hypot(spec.state.velocity[:, 0], spec.state.velocity[:, 1])[~spec.held]
+    return {"settle_time": steps * spec.options.dt, "settle_steps": steps,
+            "settle_kinetic_energy": spec.measure().kinetic_energy, "settle_max_speed": float(speed.max(initial=0.0))}
 
 
 def footing_specimen(packing="A", width=18.0, height=9.0, plate_width=2.0, rough=False, mass_damping=10.0,
@@ -223,6 +230,6 @@ def run_footing(packing="A", width=18.0, height=9.0, plate_width=2.0, speed=1.0,
     return FootingResult(np.array(settlement), np.array(load), np.array(times), wall, cpu, spec, info)
 
 
-__all__ = ["table1_law", "footing_packing", "footing_specimen", "run_footing", "settle", "plate_on_surface",
+__all__ = ["table1_law", "footing_packing", "footing_specimen", "run_footing", "settle", "settling", "plate_on_surface",
            "FootingResult", "PACKINGS", "SETTLE_TIME", "SETTLE_DAMPING",
            "KN", "KS", "MU", "K_OMEGA", "MU_OMEGA", "DENSITY"]

@@ -9,7 +9,8 @@ part (the mass-weighted projection, eqs 3-8); the nodes of the region take their
 forces from the grains (eq 16, including the reactions on the virtual interface grains);
 the virtual grains just outside the region follow the continuum (eq 17). The rigid plate acts
 on the grains only (003-bsm.md decision 8), pushed down at --speed to --depth. The DEM
-sub-cycles m times per coarse step (eqs 25-30). Bottom fixed, sides u1 = 0. No gravity by
+sub-cycles m times per coarse step (eqs 25-30). Bottom fixed (003; --bottom smooth: u2 = 0 only,
+as the full DEM's smooth wall), sides u1 = 0. No gravity by
 default (003 mentions none); with --gravity g the continuum and the grains first settle under
 their weight for --settle-time (the grains with local damping, the continuum with the mass
 damping that damps its lowest mode critically), then the plate is put on the settled surface
@@ -100,6 +101,8 @@ parser.add_argument("--continuum", choices=("003", "lattice", "lattice-cubic", "
                          "friction limit and opening in tension (lattice-coulomb: "
                          "cosserat_fenicsx.materials.lattice_coulomb)")
 parser.add_argument("--rough", action="store_true", help="rough plate (Coulomb friction mu_s; default smooth)")
+parser.add_argument("--bottom", choices=("fixed", "smooth"), default="fixed",
+                    help="the continuum's base: fixed (003) or smooth, u2 = 0 only (the full DEM's smooth wall)")
 parser.add_argument("--gravity", type=number(NON_NEGATIVE), default=0.0,
                     help="g [m/s^2] downwards on the grains and the continuum (default 0, as 003)")
 parser.add_argument("--settle-time", type=number(POSITIVE), default=0.3,
@@ -194,8 +197,10 @@ print0(comm, f"packing {args.packing}: {region.n_real} grains in the DEM region 
 # %% the continuum: mass rho_s * solid fraction, micro-inertia <r^2>/2 (003-bsm.md section 5 [R])
 rho_c = density * solid_fraction
 j = 0.5 * float(np.mean(radius ** 2))
-dirichlet = [("u1", lambda x: np.isclose(x[1], 0.0), 0.0), ("u2", lambda x: np.isclose(x[1], 0.0), 0.0),
+dirichlet = [("u2", lambda x: np.isclose(x[1], 0.0), 0.0),
              ("u1", lambda x: np.isclose(x[0], 0.0) | np.isclose(x[0], WIDTH), 0.0)]
+if args.bottom == "fixed":
+    dirichlet.append(("u1", lambda x: np.isclose(x[1], 0.0), 0.0))
 continuum = ExplicitCosserat(mesh, elasticity, rho_c, j, mass_damping=args.mass_damping, element=args.element,
                              inactive_cells=inactive, dirichlet=dirichlet, gravity=(0.0, -args.gravity),
                              material=material)
@@ -461,7 +466,7 @@ settlements = np.array([r["settlement_mm"] for r in rows])
 peak = int(np.argmax(loads))
 summary = {"packing": args.packing, "element": args.element, "speed": args.speed, "depth": args.depth,
            "mass_damping": args.mass_damping, "rough": args.rough, "ranks": comm.size, "continuum": args.continuum,
-           "gravity": args.gravity, "settle_steps": settle_steps, **settled,
+           "bottom": args.bottom, "gravity": args.gravity, "settle_steps": settle_steps, **settled,
            "moduli": ({"C11": elasticity.moduli[0], "C12": elasticity.moduli[1], "C66": elasticity.moduli[2],
                        "mu_c": elasticity.mu_c} if args.continuum in ("lattice-cubic", "lattice-coulomb")
                       else {"G": G, "lambda": LAMBDA, "G_c": G_C}),

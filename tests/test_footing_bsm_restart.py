@@ -114,9 +114,10 @@ def test_gravity_settles_then_stops_and_restarts_as_the_straight_run(demo, tmp_p
     every written digit of the straight run (the Coulomb lattice outside the region: its
     Gauss-point history is in the checkpoint)."""
     straight, part = tmp_path / "straight", tmp_path / "part"
-    gravity = ("--gravity", 9.81, "--settle-time", 0.01, "--continuum", "lattice-coulomb")
+    gravity = ("--gravity", 9.81, "--settle-time", 0.01, "--continuum", "lattice-coulomb", "--bottom", "smooth")
     demo("footing_bsm", *TINY, *gravity, "--out", straight)
     summary = read_summary(straight)
+    assert summary["bottom"] == "smooth"
     settle = summary["settle_steps"]
     assert settle == round(0.01 / summary["dt"]) and summary["surface_drop_mm"] > 0.0
     assert summary["steps_completed"] == settle + summary["coarse_steps"]
@@ -126,6 +127,15 @@ def test_gravity_settles_then_stops_and_restarts_as_the_straight_run(demo, tmp_p
     assert read_summary(part)["steps_completed"] == settle + 10
     demo("footing_bsm", "--restart", part)
     assert_same_run(straight, part)
+    # the smooth base (the full DEM's wall): the base slides under the weight (fixed: u1 = 0
+    # exactly), u2 stays 0
+    state = np.load(part / "checkpoint" / "state_0.npz")
+    base = np.isclose(state["continuum_dof_coordinates"][:, 1], 0.0)
+    component = state["continuum_dof_component"]
+    d = state["continuum_displacement"]
+    assert np.count_nonzero(d[base & (component == 0)]) > 0
+    assert np.all(d[base & (component == 1)] == 0.0)
+    assert read_summary(part)["bottom"] == "smooth"             # carried by the restart
 
 
 def test_coulomb_lattice_checkpoint_of_two_ranks_continues_on_one(demo, tmp_path):

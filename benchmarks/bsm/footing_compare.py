@@ -6,7 +6,8 @@ loop times (setup excluded on both sides) are tabulated (docs/results/bsm.md).
 
     PYTHONPATH=. python3 benchmarks/bsm/footing_compare.py [--cases A:003:10 B:003:10 C:003:10 A:lattice:100] [--repeat 4]
 
-A case is PACKING:CONTINUUM:C_M[:SPEED[:DOMAIN_WIDTH[:REGION_WIDTHxREGION_DEPTH]]] (region 6x3 by default).
+A case is PACKING:CONTINUUM:C_M[:SPEED[:DOMAIN_WIDTH[:REGION_WIDTHxREGION_DEPTH[:BOTTOM]]]] (region 6x3 by
+default; BOTTOM fixed, as 003, or smooth, the full DEM's wall: demos/footing_bsm.py --bottom).
 --gravity G [m/s^2] settles both under their weight first (demos/footing_bsm.py --gravity,
 footing.settle), --depth D [m] the final settlement (default 0.06), --settlements the table's;
 --error-range S1 S2 [mm]: the largest |BSM - DEM| over it against the full DEM's peak, and the
@@ -32,12 +33,13 @@ def compare(case, out, gravity=0.0, depth=0.06, settlements=SETTLEMENTS_MM, erro
     speed = float(fields[3]) if len(fields) > 3 else 1.0
     width = float(fields[4]) if len(fields) > 4 else 18.0
     region = fields[5].split("x") if len(fields) > 5 else ("6", "3")
+    bottom = fields[6] if len(fields) > 6 else "fixed"
     run_dir = os.path.join(out, case.replace(":", "_"))
     env = dict(os.environ, OMP_NUM_THREADS="1", PYTHONPATH=ROOT)
     cmd = [sys.executable, os.path.join(ROOT, "demos", "footing_bsm.py"), "--packing", packing,
            "--continuum", continuum, "--mass-damping", str(c_m), "--speed", str(speed),
            "--domain-width", str(width), "--region-width", region[0], "--region-depth", region[1], "--out", run_dir,
-           "--gravity", str(gravity), "--depth", str(depth)]
+           "--gravity", str(gravity), "--depth", str(depth), "--bottom", bottom]
     subprocess.run(cmd, check=True, env=env, capture_output=True, text=True)
     with open(os.path.join(run_dir, "summary.json")) as f:
         summary = json.load(f)

@@ -161,6 +161,24 @@ def _declare_specimen():
     FineScale.register(Specimen)
 
 
+def _rows_at(saved, points, scale, what):
+    """(n,) index into `saved` (k, 2) of each of `points` (n, 2) [m]: the saved point at the
+    same coordinates within 1e-8 scale; InputError naming the first point without one."""
+    from scipy.spatial import cKDTree
+    points = np.asarray(points, dtype=float).reshape(-1, 2)
+    if len(points) == 0:
+        return np.zeros(0, dtype=np.int64)
+    if len(saved) == 0:
+        dist, found = np.full(len(points), np.inf), np.zeros(len(points), dtype=np.int64)
+    else:
+        dist, found = cKDTree(saved).query(points)
+    bad = np.flatnonzero(~(dist <= 1e-8 * scale))
+    if bad.size:
+        x, y = points[bad[0]]
+        raise InputError(f"no saved {what} at ({x:.6g}, {y:.6g}) (and {bad.size - 1} more): not the same mesh")
+    return np.asarray(found, dtype=np.int64)
+
+
 class BridgingCoupler:
     """Bridging-scale coupling of an ExplicitCosserat continuum with a DEM region.
 
@@ -447,7 +465,6 @@ class BridgingCoupler:
         """This rank's continuum state from the state() dicts of every rank of a saved run:
         each owned dof takes the saved value of its component at its coordinates (within
         1e-8 of the mesh's extent). InputError when a dof has no saved match."""
-        from scipy.spatial import cKDTree
         keys = ("dof_coordinates", "dof_component") + STATE_KEYS
         for rank, st in enumerate(states):
             missing = [f"continuum_{k}" for k in keys if f"continuum_{k}" not in st]
@@ -462,12 +479,7 @@ class BridgingCoupler:
             mine = np.flatnonzero(component == k)
             if where.size == 0:
                 raise InputError(f"the saved state has no dof of component {int(k)}")
-            dist, found = cKDTree(saved["dof_coordinates"][where]).query(coordinates[mine])
-            bad = np.flatnonzero(~(dist <= 1e-8 * scale))
-            if bad.size:
-                x, y = coordinates[mine[bad[0]]]
-                raise InputError(f"no saved dof at ({x:.6g}, {y:.6g}) (and {bad.size - 1} more): not the same mesh")
-            rows[mine] = where[found]
+            rows[mine] = where[_rows_at(saved["dof_coordinates"][where], coordinates[mine], scale, "dof")]
         out = {k: saved[k][rows] for k in STATE_KEYS}
         out["time"] = states[0]["continuum_time"]
         out["steps"] = states[0].get("continuum_steps", 0)
@@ -478,12 +490,10 @@ class BridgingCoupler:
             if not names or "continuum_gauss_coordinates" not in states[0]:
                 raise InputError("the saved continuum has no Gauss-point state (continuum_gauss_*) for its material")
             points = np.concatenate([np.asarray(st["continuum_gauss_coordinates"]) for st in states])
-            dist, found = cKDTree(points).query(store.coordinates) if len(store.coordinates) else (np.zeros(0), [])
-            if np.any(~(np.asarray(dist) <= 1e-8 * scale)):
-                raise InputError("a Gauss point of this mesh has no saved state: not the same mesh")
+            found = _rows_at(points, store.coordinates, scale, "Gauss point")
             for name in names:
                 saved_values = np.concatenate([np.asarray(st[name]) for st in states])
-                out[name[len("continuum_"):]] = saved_values[np.asarray(found, dtype=np.int64)]
+                out[name[len("continuum_"):]] = saved_values[found]
         return out
 
     def set_state(self, states):

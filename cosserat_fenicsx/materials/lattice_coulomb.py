@@ -29,6 +29,7 @@ import math
 import numpy as np
 
 from ..constitutive import Constitutive
+from ..validation import NON_NEGATIVE, POSITIVE, check
 
 
 def lattice_frame_maps(angle):
@@ -56,17 +57,11 @@ class LatticeCoulombMaterial(Constitutive):
     rate_independent = True
 
     def __init__(self, k_n, k_s, friction, bending_modulus=0.0, angle=math.pi / 4):
-        for name, value in (("k_n", k_n), ("k_s", k_s)):
-            if not (isinstance(value, (int, float)) and math.isfinite(value) and value > 0.0):
-                raise ValueError(f"{name} must be a finite number > 0 [N/m], got {value!r}")
-        if not (isinstance(friction, (int, float)) and math.isfinite(friction) and friction >= 0.0):
-            raise ValueError(f"friction must be a finite number >= 0, got {friction!r}")
-        if not (isinstance(bending_modulus, (int, float)) and math.isfinite(bending_modulus)
-                and bending_modulus >= 0.0):
-            raise ValueError(f"bending_modulus must be a finite number >= 0 [N], got {bending_modulus!r}")
-        self.k_n, self.k_s, self.friction = float(k_n), float(k_s), float(friction)
-        self.bending_modulus = float(bending_modulus)
-        self.angle = float(angle)
+        self.k_n = check("k_n", k_n, POSITIVE)
+        self.k_s = check("k_s", k_s, POSITIVE)
+        self.friction = check("friction", friction, NON_NEGATIVE)
+        self.bending_modulus = check("bending_modulus", bending_modulus, NON_NEGATIVE)
+        self.angle = check("angle", angle)
         self._into, self._back = lattice_frame_maps(self.angle)
 
     def update(self, gradients, dt, state_old, flux_out, tangent_out, state_new, points=None):

@@ -64,11 +64,17 @@ def equivalent_strain(position, displacement, neighbours=NEIGHBOURS):
     offsets = np.arange(0, neighbours * len(position) + 1, neighbours, dtype=np.int64)
     grad, _ = patch_gradient(position, np.asarray(displacement, float), np.ones(len(position), bool),
                              (offsets, members.reshape(-1).astype(np.int64)))
+    return equivalent_of_gradient(grad), grad
+
+
+def equivalent_of_gradient(grad):
+    """eps_eq (n,) [-] of displacement gradients (n, 2, 2): sqrt(2/3 e:e) of the plane-strain
+    deviator of their symmetric part (module docstring)."""
     exx, eyy = grad[:, 0, 0], grad[:, 1, 1]
     exy = 0.5 * (grad[:, 0, 1] + grad[:, 1, 0])
     mean = (exx + eyy) / 3.0
     ee = (exx - mean) ** 2 + (eyy - mean) ** 2 + mean ** 2 + 2.0 * exy ** 2
-    return np.sqrt(2.0 / 3.0 * ee), grad
+    return np.sqrt(2.0 / 3.0 * ee)
 
 
 def ray_scan(position, strain, edge, inward, half_width, t_min, t_max, angles_deg):
@@ -186,6 +192,14 @@ def load_history(run):
             np.array([1e-3 * float(r["load_N_per_m"]) for r in rows]))
 
 
+def bsm_settlements_at(run, times):
+    """Settlement [mm] of a footing_bsm run at its output times [s], from history.csv (under
+    gravity the loading starts after the settling, at the first row's time)."""
+    with open(os.path.join(run, "history.csv")) as f:
+        rows = list(csv.DictReader(f))
+    return np.interp(times, [float(r["time"]) for r in rows], [float(r["settlement_mm"]) for r in rows])
+
+
 def read_window(run, s1_mm, s2_mm):
     """(position at s1, displacement s1 -> s2, plate_x, surface_y, (s1, s2) actual [mm], kind)
     of a footing_dem run (grains_S.npz) or a footing_bsm run (grains.vtk.series)."""
@@ -195,12 +209,7 @@ def read_window(run, s1_mm, s2_mm):
         from demcell.specimen.files import read_particles_vtk
         with open(os.path.join(run, "grains.vtk.series")) as f:
             files = json.load(f)["files"]
-        # a frame's settlement from history.csv at its time (under gravity the loading starts
-        # after the settling, at the first row's time)
-        with open(os.path.join(run, "history.csv")) as f:
-            rows = list(csv.DictReader(f))
-        s = np.interp([fr["time"] for fr in files], [float(r["time"]) for r in rows],
-                      [float(r["settlement_mm"]) for r in rows])
+        s = bsm_settlements_at(run, [fr["time"] for fr in files])
         k1, k2 = int(np.argmin(abs(s - s1_mm))), int(np.argmin(abs(s - s2_mm)))
         p0, d0 = read_particles_vtk(os.path.join(run, files[0]["name"]))
         p1, d1 = read_particles_vtk(os.path.join(run, files[k1]["name"]))

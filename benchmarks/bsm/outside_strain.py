@@ -11,21 +11,13 @@ on the default Q1 mesh of 1 m elements (a frame's settlement from history.csv). 
 read from the BSM run's summary.json.
 """
 import argparse
-import csv
 import json
 import os
 
 import h5py
 import numpy as np
 
-from benchmarks.bsm.footing_bands import equivalent_strain, read_window
-
-
-def equivalent(gradient):
-    """sqrt(2/3 e:e) of the plane-strain deviator of the symmetric part of a 2x2 gradient."""
-    exx, eyy, exy = gradient[0, 0], gradient[1, 1], 0.5 * (gradient[0, 1] + gradient[1, 0])
-    mean = (exx + eyy) / 3.0
-    return float(np.sqrt(2.0 / 3.0 * ((exx - mean) ** 2 + (eyy - mean) ** 2 + mean ** 2 + 2.0 * exy ** 2)))
+from benchmarks.bsm.footing_bands import bsm_settlements_at, equivalent_of_gradient, equivalent_strain, read_window
 
 
 def continuum_increment(run, s1, s2):
@@ -34,9 +26,7 @@ def continuum_increment(run, s1, s2):
         x = f["Mesh/mesh/geometry"][:, :2]
         keys = list(f["Function/u"].keys())
         times = np.array([float(k.replace("_", ".")) for k in keys])
-        with open(os.path.join(run, "history.csv")) as h:
-            rows = list(csv.DictReader(h))
-        s = np.interp(times, [float(r["time"]) for r in rows], [float(r["settlement_mm"]) for r in rows])
+        s = bsm_settlements_at(run, times)
         k1, k2 = int(np.argmin(abs(s - s1))), int(np.argmin(abs(s - s2)))
         du = f["Function/u"][keys[k2]][:, :2] - f["Function/u"][keys[k1]][:, :2]
     return x, du, (float(s[k1]), float(s[k2]))
@@ -68,7 +58,8 @@ def main():
                                       0.5 * ((du[e] - du[a]) + (du[c] - du[b]))])
             grains = (p[:, 0] >= i) & (p[:, 0] < i + 1) & (p[:, 1] >= j) & (p[:, 1] < j + 1)
             if grains.any():
-                rows.append((i, j, equivalent(gradient[grains].mean(axis=0)), equivalent(centre)))
+                rows.append((i, j, equivalent_of_gradient(gradient[grains].mean(axis=0)[None])[0],
+                             equivalent_of_gradient(centre[None])[0]))
     rows = np.array(rows)
     ring = ((rows[:, 0] >= box[0] - 2) & (rows[:, 0] < box[1] + 2) & (rows[:, 1] >= box[2] - 2))
     print(f"window: full DEM {dem_window[0]:.1f}-{dem_window[1]:.1f} mm, BSM frames {frames[0]:.1f}-{frames[1]:.1f} mm")

@@ -408,7 +408,7 @@ class ExplicitCosserat:
         else:
             force = -self._material_force()
         if self._weight is not None:
-            force = force + self._weight
+            force += self._weight          # force is a fresh array (the negation)
         if coupling_force is not None:
             f = coupling_force.array
             if not np.isfinite(f).all():
